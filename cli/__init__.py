@@ -1,0 +1,27 @@
+"""Command-line interface. Each group of commands registers itself from its own module."""
+from __future__ import annotations
+
+import importlib
+
+import typer
+
+# module name -> function register(app) it exports. A module that does not exist yet is skipped,
+# so command groups can land one at a time.
+_COMMAND_MODULES = [
+    "cli.store_cmds",     # init, log, show, lineage, verify, gc, add
+    "cli.stage_cmds",     # stage run/status, run, report
+    "cli.sim_cmds",       # sim tasks/demos/watch
+    "cli.policy_cmds",    # policy finetune/chunk
+    "cli.metrics_cmds",   # metrics FILE.json
+]
+
+
+def register_commands(app: typer.Typer) -> None:
+    for name in _COMMAND_MODULES:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name == name:
+                continue
+            raise
+        module.register(app)

@@ -1,0 +1,65 @@
+"""The `accrue` command: parse, call, print. Sub-command groups live in their own modules.
+
+Only typer/rich are imported at module level; every command imports its heavy libraries
+(torch, mujoco, lerobot) inside its body so that `accrue --help` starts fast.
+"""
+from __future__ import annotations
+
+import sys
+
+import typer
+
+from cli import register_commands
+
+app = typer.Typer(
+    name="accrue",
+    help="Continual off-policy RL for robot foundation models, run as resumable stages over a content-addressed store.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+register_commands(app)
+
+
+@app.command()
+def version() -> None:
+    """Print accrue's version."""
+    from importlib.metadata import version as _v
+
+    print(_v("accrue"))
+
+
+def _user_error_types() -> tuple[type[BaseException], ...]:
+    from accrue.errors import AccrueError
+    from artifacts.errors import StoreError
+    from stages.errors import StageError
+
+    return (AccrueError, StoreError, StageError)
+
+
+def main() -> None:
+    """Console-script entry: user mistakes become one line on stderr and exit code 2."""
+    try:
+        app(standalone_mode=False)
+    except typer.Abort:
+        print("aborted", file=sys.stderr)
+        sys.exit(130)
+    except KeyboardInterrupt:
+        print("interrupted: committed work is kept; resume with --continue", file=sys.stderr)
+        sys.exit(130)
+    except Exception as exc:  # noqa: BLE001 - classify, then re-raise real bugs
+        import click
+
+        if isinstance(exc, click.exceptions.Exit):
+            sys.exit(exc.exit_code)
+        if isinstance(exc, click.ClickException):
+            print(f"error: {exc.format_message()}", file=sys.stderr)
+            sys.exit(exc.exit_code)
+        if isinstance(exc, _user_error_types()):
+            print(f"error: {exc}", file=sys.stderr)
+            sys.exit(2)
+        raise
+
+
+if __name__ == "__main__":
+    main()
