@@ -18,6 +18,13 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
+
+
+@app.callback()
+def _root() -> None:
+    """Continual off-policy RL for robot foundation models."""
+
+
 register_commands(app)
 
 
@@ -48,11 +55,9 @@ def main() -> None:
         print("interrupted: committed work is kept; resume with --continue", file=sys.stderr)
         sys.exit(130)
     except Exception as exc:  # noqa: BLE001 - classify, then re-raise real bugs
-        import click
-
-        if isinstance(exc, click.exceptions.Exit):
+        if isinstance(exc, typer.Exit):
             sys.exit(exc.exit_code)
-        if isinstance(exc, click.ClickException):
+        if hasattr(exc, "format_message") and hasattr(exc, "exit_code"):  # click usage errors
             print(f"error: {exc.format_message()}", file=sys.stderr)
             sys.exit(exc.exit_code)
         if isinstance(exc, _user_error_types()):
