@@ -1,0 +1,56 @@
+"""Durable publish primitives: temp file in the same tree, fsync, link/rename, fsync the directory."""
+from __future__ import annotations
+
+import os
+import secrets
+from pathlib import Path
+
+
+def fsync_dir(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def temp_name(directory: Path, prefix: str = "") -> Path:
+    return directory / f".{prefix}tmp-{os.getpid()}-{secrets.token_hex(6)}"
+
+
+def write_replace(path: Path, data: bytes, tmp_dir: Path | None = None) -> None:
+    """Replace path with data atomically: readers see the old or the new bytes, never a mix.
+
+    The temp file lives in the target's own directory (or tmp_dir on the same filesystem), so the
+    rename never crosses filesystems.
+    """
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = temp_name(tmp_dir or path.parent)
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+    try:
+        os.write(fd, data)
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    try:
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    fsync_dir(path.parent)
+
+
+def link_into_place(tmp: Path, final: Path) -> bool:
+    """Publish an already-fsynced file at final without ever overwriting: True if it is new.
+
+    os.link fails with EEXIST when the object is already there; content addressing means the
+    existing copy holds the same bytes, so the temp file is simply dropped.
+    """
+    final.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        os.link(tmp, final)
+        created = True
+    except FileExistsError:
+        created = False
+    fsync_dir(final.parent)
+    return created

@@ -1,0 +1,54 @@
+"""Attempt records: one small JSON file per attempt of a step, records/<cache key>/NNNN.json.
+
+state: running -> committed | failed | abandoned. The file is replaced atomically at each change;
+a committed attempt names its immutable step-record object (record_id), which is what refs and
+caches point at. Checkpoints saved during the attempt are listed in order (oldest first).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from artifacts.atomic import write_replace
+from artifacts.errors import StoreError
+from artifacts.hashing import canonical_json, is_full_id
+from artifacts.store import Store
+
+STATES = ("running", "committed", "failed", "abandoned")
+
+
+def attempt_path(store: Store, key: str, number: int) -> Path:
+    return store.records_dir / key / f"{number:04d}.json"
+
+
+def write_attempt(store: Store, attempt: dict) -> None:
+    if attempt["state"] not in STATES:
+        raise ValueError(f"bad attempt state {attempt['state']}")
+    path = attempt_path(store, attempt["cache_key"], attempt["attempt"])
+    write_replace(path, canonical_json(attempt) + b"\n")
+
+
+def read_attempt(path: Path) -> dict:
+    try:
+        return json.loads(path.read_bytes())
+    except (OSError, ValueError) as exc:
+        raise StoreError(f"{path}: damaged attempt record ({exc.__class__.__name__})") from None
+
+
+def list_attempts(store: Store, key: str | None = None) -> list[dict]:
+    """Attempts of one cache key (or of all keys), oldest first within a key."""
+    keys = [key] if key else sorted(p.name for p in store.records_dir.iterdir()
+                                     if p.is_dir() and is_full_id(p.name)) if store.records_dir.is_dir() else []
+    out = []
+    for k in keys:
+        d = store.records_dir / k
+        if d.is_dir():
+            out.extend(read_attempt(p) for p in sorted(d.glob("[0-9][0-9][0-9][0-9].json")))
+    return out
+
+
+def next_attempt_number(store: Store, key: str) -> int:
+    """Call only while holding the step's lock, so two attempts never get the same number."""
+    d = store.records_dir / key
+    numbers = [int(p.stem) for p in d.glob("[0-9][0-9][0-9][0-9].json")] if d.is_dir() else []
+    return max(numbers, default=0) + 1

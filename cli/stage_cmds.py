@@ -1,0 +1,93 @@
+"""Stage commands: `accrue stage run` and `accrue stage status`.
+
+`stage run` asks stages.plan.plan_stage(workflow, k, store) for the stage's step invocations and
+hands them to the runner; until the step bodies are installed it says so and stops.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from cli.store_cmds import JsonOpt, StoreOpt, console, open_store, print_json
+
+stage_app = typer.Typer(help="Run and inspect the steps of one stage of a workflow.", no_args_is_help=True)
+
+WorkflowArg = Annotated[Path, typer.Argument(metavar="WORKFLOW", help="Workflow YAML file.", show_default=False)]
+
+
+def load_plan_function():
+    """stages.plan.plan_stage, or a one-line StageError if the step bodies are not installed."""
+    import importlib
+
+    from stages.errors import StageError
+
+    try:
+        module = importlib.import_module("stages.plan")
+    except ModuleNotFoundError as exc:
+        if exc.name == "stages.plan":
+            raise StageError("the step bodies are not installed (stages/plan.py is missing): this build "
+                             "can validate workflows and manage the store, but cannot run stages") from None
+        raise
+    if not hasattr(module, "plan_stage"):
+        raise StageError("stages/plan.py does not define plan_stage(workflow, stage, store)")
+    return module.plan_stage
+
+
+@stage_app.command("run")
+def run(workflow: WorkflowArg,
+        stage: Annotated[int, typer.Option("--stage", help="Stage number k (1-based).", show_default=False)],
+        step: Annotated[Optional[str], typer.Option("--step", help="Run up to and including this step only.")] = None,
+        cont: Annotated[bool, typer.Option("--continue", help="Resume an interrupted step from its last checkpoint.")] = False,
+        rerun: Annotated[bool, typer.Option("--rerun", help="Run the step(s) again from scratch, ignoring caches.")] = False,
+        wait: Annotated[bool, typer.Option("--wait", help="If another process runs the same step, wait for it.")] = False,
+        store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+    """Run stage K of WORKFLOW: finished steps are no-ops, interrupted ones need --continue or --rerun."""
+    from stages.errors import StageError
+    from stages.runner import Runner
+    from stages.runner_types import STEP_NAMES
+    from stages.workflow import load_workflow
+
+    if cont and rerun:
+        raise StageError("--continue and --rerun exclude each other: continue resumes, rerun starts over")
+    if step is not None and step not in STEP_NAMES:
+        raise StageError(f"--step: unknown step {step!r} (steps: {', '.join(STEP_NAMES)})")
+    wf = load_workflow(workflow)
+    wf.check_stage(stage)
+    st = open_store(store)
+    plan_stage = load_plan_function()
+    plan = plan_stage(wf, stage, st)
+    runner = Runner(st, console=console() if not as_json else None, wait=wait)
+    results = runner.run_plan(plan, only_step=step, mode="continue" if cont else "rerun" if rerun else "normal")
+    if as_json:
+        print_json([{"step": r.step, "cached": r.cached, "record": r.record_id, "attempt": r.attempt,
+                     "outputs": r.outputs} for r in results])
+
+
+@stage_app.command("status")
+def status(workflow: WorkflowArg, store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+    """The state of every step of every stage of WORKFLOW."""
+    from rich.table import Table
+
+    from stages.runner_status import workflow_status
+    from stages.workflow import load_workflow
+
+    wf = load_workflow(workflow)
+    rows = workflow_status(open_store(store), wf)
+    if as_json:
+        print_json(rows)
+        return
+    table = Table(title=f"workflow {wf.name} ({wf.method}, {wf.num_stages} stages)", title_justify="left")
+    for col in ("stage", "task", "step", "state", "record / detail"):
+        table.add_column(col, overflow="fold")
+    colours = {"committed": "green", "running": "cyan", "failed": "red", "abandoned": "yellow",
+               "not run": "dim"}
+    for r in rows:
+        table.add_row(str(r["stage"]), r["task"], r["step"],
+                      f"[{colours.get(r['state'], 'white')}]{r['state']}[/]", r["detail"])
+    console().print(table)
+
+
+def register(app: typer.Typer) -> None:
+    app.add_typer(stage_app, name="stage")

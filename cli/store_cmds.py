@@ -1,0 +1,279 @@
+"""Store commands: init, add, show, lineage, log, refs, verify, gc.
+
+Only typer/rich at module level; the store code is imported inside each command.
+"""
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Annotated, Any, Optional
+
+import typer
+
+StoreOpt = Annotated[Optional[Path], typer.Option(
+    "--store", envvar="ACCRUE_STORE", help="Store directory (default: ./.accrue, or $ACCRUE_STORE).",
+    show_default=False)]
+JsonOpt = Annotated[bool, typer.Option("--json", help="Machine-readable output.")]
+
+
+def open_store(path: Path | None):
+    from artifacts.store import Store
+
+    return Store.open(path)
+
+
+def console():
+    from rich.console import Console
+
+    return Console(highlight=False)
+
+
+def print_json(value: Any) -> None:
+    typer.echo(json.dumps(value, indent=2, sort_keys=True, default=str))
+
+
+def human_size(n: int | None) -> str:
+    if n is None:
+        return "-"
+    size = float(n)
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
+        if size < 1024 or unit == "TiB":
+            return f"{size:.0f} {unit}" if unit == "B" else f"{size:.1f} {unit}"
+        size /= 1024
+    return f"{n} B"
+
+
+def parse_duration(text: str) -> float:
+    m = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*([smhd]?)\s*", text)
+    if not m:
+        from artifacts.errors import StoreError
+
+        raise StoreError(f"--grace: not a duration {text!r} (use e.g. 0, 90s, 30m, 24h, 14d)")
+    return float(m.group(1)) * {"": 1, "s": 1, "m": 60, "h": 3600, "d": 86400}[m.group(2)]
+
+
+# ---------------------------------------------------------------------------- commands
+def init(store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+    """Create an empty store (default ./.accrue, or $ACCRUE_STORE)."""
+    from artifacts.store import Store
+
+    st, created = Store.init(store)
+    if as_json:
+        print_json({"store": str(st.root), "created": created})
+    else:
+        typer.echo(f"{'initialised empty' if created else 'already an'} accrue store at {st.root}")
+
+
+def add(path: Annotated[Path, typer.Argument(help="File or directory to ingest.", show_default=False)],
+        kind: Annotated[str, typer.Option("--kind", help="Artifact kind, e.g. demos, episodes, base-policy.")],
+        ref: Annotated[Optional[str], typer.Option("--ref", help="Also point this ref at it.")] = None,
+        store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+    """Ingest a file or directory (e.g. a LeRobotDataset) and print its id."""
+    from artifacts.errors import StoreError
+    from artifacts.ingest import add_path
+
+    if not path.exists():
+        raise StoreError(f"{path}: no such file or directory")
+    st = open_store(store)
+    artifact_id, created = add_path(st, path, kind, ref=ref)
+    if as_json:
+        print_json({"id": artifact_id, "created": created, "kind": kind})
+    else:
+        typer.echo(artifact_id)
+
+
+def show(target: Annotated[str, typer.Argument(metavar="ID_OR_REF", help="Id, id prefix, ref, or REF:role.")],
+         store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+    """Show an artifact, step record or tree."""
+    from rich.table import Table
+
+    from artifacts.resolve import resolve
+
+    st = open_store(store)
+    oid = resolve(st, target)
+    raw = st.read_bytes(oid)
+    try:
+        obj = json.loads(raw)
+    except ValueError:
+        obj = None
+    if not isinstance(obj, dict) or "type" not in obj:
+        if as_json:
+            print_json({"id": oid, "type": "data", "size": len(raw)})
+        else:
+            typer.echo(f"{oid}  data object, {human_size(len(raw))}")
+        return
+    if as_json:
+        print_json({"id": oid, **obj})
+        return
+    out = console()
+    table = Table(title=f"{obj['type']} {oid}", show_header=False, title_justify="left")
+    table.add_column(style="bold")
+    table.add_column(overflow="fold")
+    if obj["type"] == "tree":
+        for e in obj["entries"]:
+            table.add_row(e["path"], f"{e['id'][:16]}  {human_size(e['size'])}")
+    else:
+        for field, value in obj.items():
+            if field in ("type", "format"):
+                continue
+            if field == "size":
+                value = human_size(value)
+            elif isinstance(value, (dict, list)):
+                value = json.dumps(value, sort_keys=True) if value else "-"
+            table.add_row(field, str(value))
+    out.print(table)
+
+
+def lineage(target: Annotated[str, typer.Argument(metavar="ID_OR_REF")],
+            store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+    """The tree of inputs that produced an artifact or step record, down to demos and seeds."""
+    from rich.tree import Tree
+
+    from artifacts.lineage import lineage as build
+    from artifacts.resolve import resolve
+
+    st = open_store(store)
+    node = build(st, resolve(st, target))
+    if as_json:
+        print_json(node)
+        return
+
+    def label(n: dict, role: str | None) -> str:
+        head = f"[cyan]{role}[/] " if role else ""
+        if n.get("repeat"):
+            return f"{head}{n['id'][:12]} (shown above)"
+        if n.get("error"):
+            return f"{head}[red]{n['id'][:12]} {n['error']}[/]"
+        what = n.get("kind") or n.get("type")
+        step = n.get("step")
+        seeds = " ".join(f"{k}={v}" for k, v in (n.get("seeds") or {}).items())
+        parts = [f"{head}[bold]{what}[/] {n['id'][:12]}"]
+        if step:
+            parts.append(f"from {step}")
+        if n.get("source"):
+            parts.append(f"({n['source']})")
+        if seeds:
+            parts.append(f"[magenta]{seeds}[/]")
+        if n.get("size") is not None:
+            parts.append(human_size(n["size"]))
+        return "  ".join(parts)
+
+    def grow(tree, n: dict) -> None:
+        for role, child in n.get("inputs", {}).items():
+            grow(tree.add(label(child, role)), child)
+
+    root = Tree(label(node, None))
+    grow(root, node)
+    console().print(root)
+
+
+def log(n: Annotated[int, typer.Option("-n", "--lines", help="Show the last N events.", min=1)] = 20,
+        show_all: Annotated[bool, typer.Option("--all", help="Show every event.")] = False,
+        event: Annotated[Optional[str], typer.Option("--event", help="Only events of this type.")] = None,
+        store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+    """The audit log: step started/committed/failed, artifacts written, refs moved."""
+    from collections import deque
+
+    from rich.table import Table
+
+    from artifacts.auditlog import iter_events
+
+    st = open_store(store)
+    events = (e for e in iter_events(st) if event is None or e.get("event") == event)
+    rows = list(events) if show_all else list(deque(events, maxlen=n))
+    if as_json:
+        for e in rows:
+            typer.echo(json.dumps(e, sort_keys=True))
+        return
+    table = Table(title=f"audit log ({len(rows)} event{'s' if len(rows) != 1 else ''} shown)", title_justify="left")
+    for col in ("seq", "time", "event", "step", "detail"):
+        table.add_column(col, overflow="fold")
+    skip = {"seq", "ts", "event", "step", "prev", "pid", "host", "cache_key", "inputs", "outputs"}
+    for e in rows:
+        detail = " ".join(f"{k}={_short(v)}" for k, v in e.items() if k not in skip and v is not None)
+        table.add_row(str(e.get("seq")), str(e.get("ts", ""))[:19].replace("T", " "), e.get("event", ""),
+                      e.get("step") or "", detail)
+    console().print(table)
+
+
+def _short(value: Any) -> str:
+    if isinstance(value, str) and len(value) == 64:
+        return value[:12]
+    if isinstance(value, dict):
+        return "{" + ",".join(f"{k}:{_short(v)}" for k, v in value.items()) + "}"
+    return str(value)
+
+
+def refs(prefix: Annotated[str, typer.Argument(help="Only refs starting with this.")] = "",
+         store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+    """List refs (mutable names pointing at artifacts and step records)."""
+    from rich.table import Table
+
+    from artifacts.refs import list_refs
+
+    found = list_refs(open_store(store), prefix)
+    if as_json:
+        print_json(found)
+        return
+    table = Table(title="refs", title_justify="left")
+    table.add_column("ref")
+    table.add_column("id")
+    for name, oid in found.items():
+        table.add_row(name, oid[:16])
+    console().print(table)
+
+
+def verify(full: Annotated[bool, typer.Option("--full", help="Re-hash every object (slow), quarantine corrupt ones.")] = False,
+           store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+    """Check the store; exit 1 if anything is wrong."""
+    from rich.progress import BarColumn, DownloadColumn, Progress, TransferSpeedColumn
+
+    from artifacts.verify import verify_store
+
+    st = open_store(store)
+    if full and not as_json:
+        total = sum(st.object_size(o) or 0 for o in st.iter_object_ids())
+        with Progress("re-hashing", BarColumn(), DownloadColumn(), TransferSpeedColumn(),
+                      console=console(), transient=True) as bar:
+            task = bar.add_task("", total=total)
+            report = verify_store(st, full=True, progress=lambda n: bar.advance(task, n))
+    else:
+        report = verify_store(st, full=full)
+    if as_json:
+        print_json(report.as_dict())
+    else:
+        out = console()
+        for note in report.notes:
+            out.print(f"[dim]note: {note}[/]")
+        for problem in report.problems:
+            out.print(f"[red]problem:[/] {problem}")
+        what = f"{report.objects_checked} objects re-hashed ({human_size(report.bytes_hashed)})" if full \
+            else f"{report.objects_checked} reachable objects present with their sizes"
+        status = "[green]ok[/]" if report.ok else f"[red]{len(report.problems)} problem(s)[/]"
+        out.print(f"verify {'--full' if full else '(quick)'}: {status} — {what}, "
+                  f"{report.log_events} log events chained")
+    if not report.ok:
+        raise typer.Exit(1)
+
+
+def gc(yes: Annotated[bool, typer.Option("--yes", help="Really delete (default is a dry run).")] = False,
+       grace: Annotated[str, typer.Option("--grace", help="Keep unreferenced objects younger than this.")] = "24h",
+       store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+    """Remove objects no ref or record reaches (dry run unless --yes)."""
+    from artifacts.gc import collect_garbage
+
+    report = collect_garbage(open_store(store), dry_run=not yes, grace_s=parse_duration(grace))
+    if as_json:
+        print_json(report.as_dict())
+        return
+    verb = "would remove" if report.dry_run else "removed"
+    typer.echo(f"gc: {verb} {len(report.removed)} objects ({human_size(report.bytes)}) and "
+               f"{len(report.tmp_removed)} stale temp entries; kept {report.kept} reachable and "
+               f"{report.young} younger than {grace}" + ("; pass --yes to delete" if report.dry_run and
+                                                         (report.removed or report.tmp_removed) else ""))
+
+
+def register(app: typer.Typer) -> None:
+    for fn in (init, add, show, lineage, log, refs, verify, gc):
+        app.command(name=fn.__name__)(fn)

@@ -1,0 +1,175 @@
+"""Workflow files: a YAML task sequence with its method, base policy, learner settings and budgets.
+
+    wf = load_workflow(Path("workflows/quickstart.yaml"))   # raises StageError, one line
+
+Every mistake becomes one line naming the file, the field and the problem, e.g.
+`workflows/x.yaml: learner.batch_size: must be a positive integer (got -3)`.
+"""
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+from stages.errors import StageError
+
+METHODS = ("accrue", "sequential", "er", "ewc", "retain", "single-task", "isolated")
+_NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class BasePolicySpec(_Strict):
+    """Where π_base starts and how it is fine-tuned on the cumulative demos D^1..D^k each stage."""
+    init: str = "embedded-act"              # "embedded-act", a lerobot checkpoint dir, or an artifact id/ref
+    finetune: bool = True
+    finetune_steps: int = Field(200, gt=0)
+    batch_size: int = Field(16, gt=0)
+    lr: float = Field(1e-4, gt=0)
+    demos_per_task: int = Field(10, gt=0)
+    demos: dict[str, str] = {}              # task id -> artifact id/ref of recorded demos (else the expert's)
+
+
+class Budgets(_Strict):
+    """Per-stage interaction budget and evaluation grid (paper Sec. V-A: shared budget, uniform grid)."""
+    env_steps: int = Field(gt=0)
+    eval_every: int = Field(gt=0)
+    eval_episodes: int = Field(10, gt=0)
+    warmup_episodes: int = Field(2, ge=0)
+    num_envs: int = Field(8, gt=0)
+    retained_episodes: int = Field(20, ge=0)    # N: episodes per task kept in B^{<k+1} at handoff
+    checkpoint_every: int = Field(0, ge=0)      # env steps between intra-step checkpoints (0 = at eval points)
+
+    @model_validator(mode="after")
+    def _grid(self) -> "Budgets":
+        if self.eval_every > self.env_steps:
+            raise ValueError(f"eval_every must be <= env_steps ({self.env_steps}) (got {self.eval_every})")
+        return self
+
+
+class Workflow(_Strict):
+    name: str
+    description: str = ""
+    tasks: list[str] = Field(min_length=1)
+    method: Literal[METHODS]  # type: ignore[valid-type]
+    seed: int = Field(0, ge=0)
+    horizon: int = Field(8, gt=0)               # action chunk length H
+    obs_mode: Literal["state", "state+image"] = "state"
+    encoder: str = "none"                       # "none" or "dinov2-small:/path/weights.safetensors"
+    base_policy: BasePolicySpec = BasePolicySpec()
+    learner: dict[str, Any] = {}                # LearnerConfig fields (accrue.learner.config)
+    budgets: Budgets
+
+    @field_validator("name")
+    @classmethod
+    def _name(cls, v: str) -> str:
+        if not _NAME_RE.match(v):
+            raise ValueError("must be letters, digits, '.', '_' or '-' (it names refs)")
+        return v
+
+    @field_validator("tasks")
+    @classmethod
+    def _tasks(cls, v: list[str]) -> list[str]:
+        dup = sorted({t for t in v if v.count(t) > 1})
+        if dup:
+            raise ValueError(f"task {dup[0]} appears twice")
+        return v
+
+    @property
+    def num_stages(self) -> int:
+        return len(self.tasks)
+
+    def task(self, stage: int) -> str:
+        """Task of stage k (1-based, as in the paper)."""
+        self.check_stage(stage)
+        return self.tasks[stage - 1]
+
+    def check_stage(self, stage: int) -> int:
+        if not 1 <= stage <= len(self.tasks):
+            raise StageError(f"workflow {self.name} has stages 1..{len(self.tasks)} (got --stage {stage})")
+        return stage
+
+    def learner_settings(self) -> dict[str, Any]:
+        """The learner section with the workflow's method and seed filled in."""
+        return {"method": self.method, "seed": self.seed, **self.learner}
+
+
+# ------------------------------------------------------------------------- loading
+_PHRASES = {
+    "greater_than": "must be > {gt}", "greater_than_equal": "must be >= {ge}",
+    "less_than": "must be < {lt}", "less_than_equal": "must be <= {le}",
+    "missing": "required field is missing", "extra_forbidden": "unknown field",
+    "too_short": "must not be empty", "literal_error": "must be one of {expected}",
+}
+
+
+def _format_error(err: dict) -> str:
+    loc = ".".join(str(p) for p in err["loc"]) or "(top level)"
+    phrase = _PHRASES.get(err["type"])
+    msg = phrase.format(**(err.get("ctx") or {})) if phrase else err["msg"]
+    if msg.startswith("Value error, "):
+        msg = msg[len("Value error, "):]
+    elif not phrase:
+        msg = msg[:1].lower() + msg[1:]
+    if err["type"] not in ("missing", "extra_forbidden") and "(got" not in msg:
+        msg += f" (got {err.get('input')!r})"
+    return f"{loc}: {msg}"
+
+
+def parse_workflow(data: Any, source: str, default_name: str = "workflow") -> Workflow:
+    if not isinstance(data, dict):
+        raise StageError(f"{source}: expected a mapping of workflow fields, got {type(data).__name__}")
+    data = {"name": default_name, **data}
+    try:
+        wf = Workflow.model_validate(data)
+    except ValidationError as exc:
+        errors = exc.errors()
+        more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
+        raise StageError(f"{source}: {_format_error(errors[0])}{more}") from None
+    _check_learner(wf, source)
+    return wf
+
+
+def _check_learner(wf: Workflow, source: str) -> None:
+    """The learner section is checked by the learner's own config class, so the two never drift."""
+    try:
+        from accrue.learner.config import LearnerConfig
+    except ImportError:
+        return
+    from accrue.errors import AccrueError
+
+    if "method" in wf.learner and wf.learner["method"] != wf.method:
+        raise StageError(f"{source}: learner.method: differs from the workflow's method "
+                         f"{wf.method!r} (got {wf.learner['method']!r}); set it once, at the top")
+    try:
+        LearnerConfig.from_dict(wf.learner_settings())
+    except AccrueError as exc:
+        raise StageError(f"{source}: {exc}") from None
+    except TypeError as exc:
+        raise StageError(f"{source}: learner: {exc}") from None
+
+
+def load_workflow(path: Path | str) -> Workflow:
+    import yaml
+
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise StageError(f"{path}: no such workflow file") from None
+    except IsADirectoryError:
+        raise StageError(f"{path}: is a directory, not a workflow file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise StageError(f"{path}: cannot read ({exc.__class__.__name__})") from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise StageError(f"{path}: YAML syntax error at {where}{problem}") from None
+    return parse_workflow(data, str(path), default_name=path.stem)
