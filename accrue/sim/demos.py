@@ -1,0 +1,317 @@
+"""Scripted-expert demonstrations written as LeRobotDataset v3 with lerobot's own writer.
+
+Features follow lerobot's names: `observation.state` float32 (STATE_DIM,) named by STATE_NAMES,
+`action` float32 (6,) (the normalised end-effector delta), `next.reward` float32 (1,),
+`next.done` bool (1,), `next.success` bool (1,), and with obs_mode "state+image" the wrist
+camera `observation.images.wrist` (mp4 video, or PNG images with `use_video=False`). Every frame's
+`task` is the task's instruction. Frame t holds the observation *before* action t and the
+reward/done/success that action t produced.
+
+Beside lerobot's metadata, `meta/accrue.json` records which accrue task the demos belong to,
+how they were made (seed, expert quality, obs mode) and the expert's success rate.
+
+Failed expert episodes: by default only successful episodes are kept. The vectorised env keeps
+drawing fresh randomised episodes (its seeded generator) until `episodes` successes are written
+or `max_attempts` expert episodes have been run; the summary says how many were run, how many
+succeeded, and whether the requested count was reached.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from types import ModuleType
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from accrue.errors import AccrueError
+
+ACTION_DIM = 6
+ACTION_NAMES = ["dx", "dy", "dz", "droll", "dpitch", "dyaw"]
+STATE_KEY = "observation.state"
+ACTION_KEY = "action"
+IMAGE_KEY = "observation.images.wrist"
+REWARD_KEY, DONE_KEY, SUCCESS_KEY = "next.reward", "next.done", "next.success"
+SCALAR_KEYS = (REWARD_KEY, DONE_KEY, SUCCESS_KEY)
+ACCRUE_META = Path("meta") / "accrue.json"
+OBS_MODES = ("state", "state+image")
+ACCRUE_META_FORMAT = 1
+
+
+def _sim_api() -> ModuleType:
+    """The simulator package (a seam so tests can substitute a small fake)."""
+    import accrue.sim as sim
+
+    return sim
+
+
+def get_task_spec(task_id: str) -> Any:
+    """The simulator's TaskSpec; an unknown id is a one-line AccrueError listing the known ones."""
+    sim = _sim_api()
+    try:
+        return sim.get_task(task_id)
+    except AccrueError:
+        raise
+    except (KeyError, ValueError):
+        known = ", ".join(sim.list_tasks())
+        raise AccrueError(f"unknown task {task_id!r}; known tasks: {known}") from None
+
+
+@dataclass(frozen=True)
+class DemoSummary:
+    root: Path
+    task_id: str
+    instruction: str
+    requested: int
+    episodes: int          # episodes written
+    frames: int
+    attempts: int          # expert episodes run (written or not)
+    successes: int
+    seed: int
+    quality: float
+    obs_mode: str
+
+    @property
+    def expert_success_rate(self) -> float:
+        return self.successes / self.attempts if self.attempts else 0.0
+
+    @property
+    def complete(self) -> bool:
+        return self.episodes == self.requested
+
+
+class DemoInfo(NamedTuple):
+    task_id: str
+    instruction: str
+    num_episodes: int
+    features: dict
+
+
+def repo_id_for(task_id: str) -> str:
+    """A local lerobot repo id for a task ("plugs/cross" -> "accrue/plugs_cross")."""
+    return "accrue/" + task_id.replace("/", "_")
+
+
+def demo_features(state_names: list[str], image_shape: tuple[int, int, int] | None = None,
+                  use_video: bool = True) -> dict:
+    """lerobot feature spec for accrue demos. Shapes are tuples: lerobot compares them to ndarray shapes."""
+    features: dict[str, dict[str, Any]] = {
+        STATE_KEY: {"dtype": "float32", "shape": (len(state_names),), "names": list(state_names)},
+        ACTION_KEY: {"dtype": "float32", "shape": (ACTION_DIM,), "names": list(ACTION_NAMES)},
+        REWARD_KEY: {"dtype": "float32", "shape": (1,), "names": None},
+        DONE_KEY: {"dtype": "bool", "shape": (1,), "names": None},
+        SUCCESS_KEY: {"dtype": "bool", "shape": (1,), "names": None},
+    }
+    if image_shape is not None:
+        features[IMAGE_KEY] = {
+            "dtype": "video" if use_video else "image",
+            "shape": tuple(int(s) for s in image_shape),
+            "names": ["height", "width", "channels"],
+        }
+    return features
+
+
+def _prepare_out_dir(out_dir: Path) -> None:
+    if out_dir.exists():
+        if not out_dir.is_dir() or any(out_dir.iterdir()):
+            raise AccrueError(f"output directory {out_dir} exists and is not empty; pick a new one")
+        out_dir.rmdir()  # lerobot creates the root itself and refuses an existing one
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+
+
+def _add_frame(ds: Any, frame: dict) -> None:
+    ds.add_frame(frame)
+    # lerobot validates (1,)-shaped features as shape-(1,) arrays but stores them as scalar
+    # columns, and `float(array of shape (1,))` is an error in numpy >= 2.4: keep 0-d values in
+    # the episode buffer, as lerobot does for its own (1,)-shaped columns (timestamp, ...).
+    for key in SCALAR_KEYS:
+        ds.episode_buffer[key][-1] = np.asarray(ds.episode_buffer[key][-1]).reshape(())
+
+
+def _write_json_atomic(path: Path, data: dict) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2) + "\n")
+    os.replace(tmp, path)
+
+
+class _Progress:
+    """Rich progress on stderr, or nothing."""
+
+    def __init__(self, enabled: bool, total: int, label: str) -> None:
+        self._bar = None
+        if enabled:
+            from rich.console import Console
+            from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+            self._bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                                 TextColumn("{task.fields[note]}"), TimeElapsedColumn(),
+                                 console=Console(stderr=True), transient=False)
+            self._task = self._bar.add_task(label, total=total, note="")
+            self._bar.start()
+
+    def update(self, written: int, attempts: int, successes: int) -> None:
+        if self._bar is not None:
+            note = f"expert {successes}/{attempts} succeeded" if attempts else ""
+            self._bar.update(self._task, completed=written, note=note)
+
+    def stop(self) -> None:
+        if self._bar is not None:
+            self._bar.stop()
+
+
+def write_demos(
+    task_id: str,
+    episodes: int,
+    out_dir: Path,
+    seed: int = 0,
+    quality: float = 1.0,
+    obs_mode: str = "state",
+    only_successful: bool = True,
+    progress: bool = True,
+    *,
+    num_envs: int | None = None,
+    max_attempts: int | None = None,
+    use_video: bool = True,
+) -> DemoSummary:
+    """Run the scripted expert of `task_id` in the vectorised env; write `episodes` episodes to `out_dir`.
+
+    `max_attempts` bounds the expert episodes run (default `max(3 * episodes, episodes + 8)`);
+    if it is reached first, the episodes written so far still form a valid dataset and the
+    summary's `complete` is False. `out_dir` must not exist or be empty.
+    """
+    if episodes < 1:
+        raise AccrueError(f"episodes must be at least 1, got {episodes}")
+    if obs_mode not in OBS_MODES:
+        raise AccrueError(f"obs_mode must be one of {', '.join(OBS_MODES)}, got {obs_mode!r}")
+    out_dir = Path(out_dir)
+    sim = _sim_api()
+    spec = get_task_spec(task_id)
+    _prepare_out_dir(out_dir)
+    max_attempts = max(3 * episodes, episodes + 8) if max_attempts is None else max(int(max_attempts), 1)
+    n = max(1, min(num_envs or 8, episodes, max_attempts))
+
+    env = sim.make_vec_env(task_id, num_envs=n, seed=seed, obs_mode=obs_mode)
+    expert = sim.make_expert(task_id, quality=quality, seed=seed)
+    obs = env.reset()
+    with_image = obs_mode == "state+image"
+    image_shape = tuple(np.asarray(obs["image"]).shape[1:]) if with_image else None
+    features = demo_features(list(sim.STATE_NAMES), image_shape, use_video)
+
+    os.environ.setdefault("SVT_LOG", "1")  # the AV1 encoder prints its whole config per video otherwise
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    ds = LeRobotDataset.create(repo_id=repo_id_for(task_id), root=out_dir, fps=int(round(spec.control_hz)),
+                               features=features, use_videos=use_video, video_backend="pyav")
+    frames: list[list[dict]] = [[] for _ in range(n)]
+    active = np.ones(n, dtype=bool)    # env i is running an episode we will count
+    started, attempts, successes, written, total_frames = n, 0, 0, 0, 0
+    bar = _Progress(progress, episodes, f"demos {task_id}")
+    try:
+        while written < episodes and active.any():
+            states = np.asarray(obs["state"], dtype=np.float32)
+            images = np.asarray(obs["image"]) if with_image else None
+            actions = np.clip(np.asarray(expert.act(obs), dtype=np.float32), -1.0, 1.0)
+            res = env.step(actions)
+            rewards = np.asarray(res.reward, dtype=np.float32).reshape(n)
+            success = np.asarray(res.success, dtype=bool).reshape(n)
+            done = np.asarray(res.terminated, dtype=bool).reshape(n) | np.asarray(res.truncated, dtype=bool).reshape(n)
+            for i in np.flatnonzero(active):
+                frame = {
+                    STATE_KEY: states[i].copy(),
+                    ACTION_KEY: actions[i].copy(),
+                    REWARD_KEY: np.array([rewards[i]], dtype=np.float32),
+                    DONE_KEY: np.array([done[i]]),
+                    SUCCESS_KEY: np.array([success[i]]),
+                    "task": spec.instruction,
+                }
+                if images is not None:
+                    frame[IMAGE_KEY] = images[i].copy()
+                frames[i].append(frame)
+            for i in np.flatnonzero(done & active):
+                attempts += 1
+                successes += int(success[i])
+                if (success[i] or not only_successful) and written < episodes:
+                    for frame in frames[i]:
+                        _add_frame(ds, frame)
+                    ds.save_episode()
+                    written += 1
+                    total_frames += len(frames[i])
+                frames[i] = []
+                # start another episode here only if more may still be needed and allowed
+                if started < max_attempts and written + int(active.sum()) - 1 < episodes:
+                    started += 1
+                else:
+                    active[i] = False
+            bar.update(written, attempts, successes)
+            obs = env.reset(done) if done.any() else res.obs
+    finally:
+        bar.stop()
+        ds.finalize()
+
+    if written == 0:
+        shutil.rmtree(out_dir, ignore_errors=True)
+        raise AccrueError(f"the {task_id} expert (quality {quality}) succeeded in none of {attempts} episodes; nothing written")
+    summary = DemoSummary(root=out_dir, task_id=task_id, instruction=spec.instruction, requested=episodes,
+                          episodes=written, frames=total_frames, attempts=attempts, successes=successes,
+                          seed=seed, quality=float(quality), obs_mode=obs_mode)
+    _write_json_atomic(out_dir / ACCRUE_META, _accrue_meta(summary, only_successful, list(sim.STATE_NAMES)))
+    return summary
+
+
+def _accrue_meta(summary: DemoSummary, only_successful: bool, state_names: list[str]) -> dict:
+    meta = {k: v for k, v in asdict(summary).items() if k != "root"}
+    meta.update(format=ACCRUE_META_FORMAT, only_successful=only_successful,
+                expert_success_rate=summary.expert_success_rate, state_names=state_names)
+    return meta
+
+
+def _expect(features: dict, root: Path, key: str, dtype: str, shape: list[int], why: str = "") -> None:
+    feat = features.get(key)
+    if feat is None:
+        raise AccrueError(f"dataset {root} lacks feature '{key}'")
+    if feat.get("dtype") != dtype:
+        raise AccrueError(f"dataset {root}: feature '{key}' has dtype {feat.get('dtype')}, expected {dtype}")
+    if list(feat.get("shape", [])) != shape:
+        raise AccrueError(f"dataset {root}: feature '{key}' has shape {list(feat.get('shape', []))}, expected {shape}{why}")
+
+
+def read_demo_info(root: Path | str, *, state_dim: int | None = None) -> DemoInfo:
+    """Task id, instruction, episode count and features of an accrue demo dataset, after checking its features.
+
+    `state_dim` defaults to the simulator's STATE_DIM. Any mismatch is an AccrueError naming the feature.
+    """
+    root = Path(root)
+    info_path = root / "meta" / "info.json"
+    if not info_path.is_file():
+        raise AccrueError(f"{root} is not a LeRobot dataset (no meta/info.json)")
+    try:
+        info = json.loads(info_path.read_text())
+        features = dict(info["features"])
+        num_episodes = int(info["total_episodes"])
+    except (ValueError, KeyError, TypeError) as exc:
+        raise AccrueError(f"{info_path} is unreadable ({type(exc).__name__}: {exc})") from None
+    if state_dim is None:
+        state_dim = int(_sim_api().STATE_DIM)
+    _expect(features, root, STATE_KEY, "float32", [state_dim], " (accrue's STATE_DIM)")
+    _expect(features, root, ACTION_KEY, "float32", [ACTION_DIM], " (6-D end-effector delta)")
+    _expect(features, root, REWARD_KEY, "float32", [1])
+    _expect(features, root, DONE_KEY, "bool", [1])
+    _expect(features, root, SUCCESS_KEY, "bool", [1])
+    if IMAGE_KEY in features:
+        image = features[IMAGE_KEY]
+        if image.get("dtype") not in ("video", "image") or len(image.get("shape", [])) != 3 or list(image["shape"])[2] != 3:
+            raise AccrueError(f"dataset {root}: feature '{IMAGE_KEY}' must be an RGB video or image (h, w, 3)")
+    meta_path = root / ACCRUE_META
+    if not meta_path.is_file():
+        raise AccrueError(f"dataset {root} has no {ACCRUE_META.as_posix()}, so its accrue task is unknown")
+    try:
+        meta = json.loads(meta_path.read_text())
+        task_id, instruction = str(meta["task_id"]), str(meta["instruction"])
+    except (ValueError, KeyError, TypeError) as exc:
+        raise AccrueError(f"{meta_path} is unreadable ({type(exc).__name__}: {exc})") from None
+    if num_episodes < 1:
+        raise AccrueError(f"dataset {root} has no episodes")
+    return DemoInfo(task_id=task_id, instruction=instruction, num_episodes=num_episodes, features=features)
