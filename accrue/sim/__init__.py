@@ -1,0 +1,37 @@
+"""MuJoCo contact-rich assembly tasks (NIST-board-like and AutoMate-like plug/socket families).
+
+Light imports only here; mujoco and pxr load when an env, expert or USD part is first used.
+"""
+
+from accrue.sim.observation import ACTION_DIM, ACTION_NAMES, STATE_DIM, STATE_NAMES
+from accrue.sim.tasks import TaskSpec, get_task, list_tasks
+
+
+def make_vec_env(task_id, num_envs=1, seed=0, obs_mode="state", image_size=64, nthread=None):
+    from accrue.sim.vec_env import make_vec_env as _make
+
+    return _make(task_id, num_envs, seed=seed, obs_mode=obs_mode, image_size=image_size, nthread=nthread)
+
+
+def make_expert(task_id, quality=1.0, seed=0, **kw):
+    from accrue.sim.expert import make_expert as _make
+
+    return _make(task_id, quality=quality, seed=seed, **kw)
+
+
+def register_usd_task(*args, **kw):
+    from accrue.sim.usd_tasks import register_usd_task as _register
+
+    return _register(*args, **kw)
+
+
+def load_task_yaml(path):
+    from accrue.sim.usd_tasks import load_task_yaml as _load
+
+    return _load(path)
+
+
+__all__ = [
+    "ACTION_DIM", "ACTION_NAMES", "STATE_DIM", "STATE_NAMES", "TaskSpec", "get_task", "list_tasks",
+    "make_vec_env", "make_expert", "register_usd_task", "load_task_yaml",
+]

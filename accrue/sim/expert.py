@@ -1,0 +1,94 @@
+"""Scripted search-and-insert experts that act from the observation only.
+
+Align over the (bias-corrected) socket estimate, descend, and when the plug sits on the socket
+without sinking, follow the wrist force laterally and spiral outward with a small yaw wiggle
+until it drops in. `quality` < 1 adds a per-episode aim error and per-step action noise, so
+demonstration sets of mixed quality can be drawn.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from accrue.sim.observation import decode_state, rotate_xy
+from accrue.sim.tasks import DEG, MM, TaskSpec, get_task
+
+CONTACT_FORCE = 1.5  # N of |Fz| above which the plug is taken to rest on something
+SURFACE = 1.0 * MM  # below this tip height the plug is at or inside the socket opening
+
+
+def _wrap(a, period):
+    return (a + period / 2) % period - period / 2
+
+
+class ScriptedExpert:
+    def __init__(self, task: TaskSpec, quality: float = 1.0, seed: int = 0, correction=None):
+        self.task, self.quality = task, float(np.clip(quality, 0.0, 1.0))
+        bx, by, byaw = task.estimate_bias
+        # what a demonstrator who knows this fixture adds to the estimate
+        self.correction = np.array([-bx, -by, -byaw] if correction is None else correction, dtype=float)
+        self.rng = np.random.default_rng(seed)
+        self._n = 0
+
+    def _ensure(self, n: int) -> None:
+        if self._n != n:
+            self._n = n
+            self.aim = np.zeros((n, 3))
+            self.stuck = np.zeros(n, dtype=np.int64)
+            self.last_z = np.full(n, np.inf)
+            self.shift = np.zeros((n, 2))
+
+    def _new_episode(self, i: int) -> None:
+        spread = 1.0 - self.quality
+        ang = self.rng.uniform(0, 2 * np.pi)
+        self.aim[i] = [spread * 0.9 * MM * np.cos(ang), spread * 0.9 * MM * np.sin(ang),
+                       spread * self.rng.choice([-1, 1]) * 2.5 * DEG]
+        self.stuck[i], self.last_z[i], self.shift[i] = 0, np.inf, 0.0
+
+    def act(self, state: np.ndarray) -> np.ndarray:
+        state = np.atleast_2d(np.asarray(state))
+        n = len(state)
+        self._ensure(n)
+        d = decode_state(state)
+        for i in np.flatnonzero(d["time_frac"] <= 1e-9):
+            self._new_episode(int(i))
+        task = self.task
+        goal_xy = d["est_pos"][:, :2] + self.correction[:2] + self.aim[:, :2]
+        goal_yaw = d["est_yaw"] + self.correction[2] + self.aim[:, 2]
+        pos, yaw = d["pos"], d["yaw"]
+        z = pos[:, 2] - d["est_pos"][:, 2]
+        force_r = np.column_stack([rotate_xy(d["force"][:, :2], yaw), d["force"][:, 2]])
+        touching = np.abs(force_r[:, 2]) > CONTACT_FORCE
+        sinking = z < self.last_z - 0.15 * MM
+        self.last_z = z
+        blocked = touching & (z > -0.5 * task.depth) & ~sinking
+        self.stuck = np.where(blocked, self.stuck + 1, np.where(sinking, 0, self.stuck))
+        # admittance: yield to the lateral contact force (the sensor reads the plug's reaction)
+        self.shift += np.where(blocked[:, None], -force_r[:, :2] * 0.05 * MM, 0.0)
+        self.shift = np.clip(self.shift, -1.0 * MM, 1.0 * MM)
+        k = self.stuck
+        radius = np.minimum(0.12 * MM * k, 1.2 * MM)
+        theta = 0.9 * k
+        spiral = np.column_stack([radius * np.cos(theta), radius * np.sin(theta)])
+        period = task.yaw_period
+        wiggle = np.where(k > 0, 1.5 * DEG * np.sin(1.3 * k), 0.0) if period > 0 else 0.0
+        yaw_err = _wrap(goal_yaw + wiggle - yaw, period) if period > 0 else np.zeros(n)
+
+        inside = z < -0.3 * MM
+        xy_err = np.where(inside[:, None], 0.0, goal_xy + spiral + self.shift - pos[:, :2])
+        aligned = (np.hypot(*xy_err.T) < 0.4 * MM) & (np.abs(yaw_err) < 1.5 * DEG)
+        high = z > 3 * MM
+        dz = np.where(high, np.where(aligned, -1.0, -0.4), np.where(aligned | inside | (k > 0), -0.6, 0.0))
+        act = np.zeros((n, 6))
+        act[:, :2] = xy_err / task.max_delta_pos
+        act[:, 2] = dz
+        act[:, 3:5] = -d["tilt"] / task.max_delta_rot
+        act[:, 5] = yaw_err / task.max_delta_rot
+        if self.quality < 1.0:
+            act += self.rng.normal(0.0, 0.35 * (1.0 - self.quality), act.shape)
+        return np.clip(act, -1.0, 1.0).astype(np.float32)
+
+
+def make_expert(task_id: str | TaskSpec, quality: float = 1.0, seed: int = 0, correction=None) -> ScriptedExpert:
+    task = get_task(task_id) if isinstance(task_id, str) else task_id
+    return ScriptedExpert(task, quality=quality, seed=seed, correction=correction)

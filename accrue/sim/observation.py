@@ -1,0 +1,67 @@
+"""The state vector every task shares (one learner serves all tasks), and its scaling.
+
+Everything is expressed in the robot frame, in which the socket sits at an unknown pose that
+the state only carries as a noisy estimate. Units are scaled so typical magnitudes are ~1.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+STATE_NAMES = (
+    "ee_x_cm", "ee_y_cm", "ee_z_cm",  # plug tip (bottom centre) position, robot frame, cm
+    "ee_roll_x10", "ee_pitch_x10",  # tilt, rad x 10
+    "ee_yaw_sin", "ee_yaw_cos",  # yaw, robot frame
+    "ee_vx", "ee_vy", "ee_vz",  # linear velocity, m/s x 10
+    "ee_wx", "ee_wy", "ee_wz",  # angular velocity, rad/s
+    "wrist_fx", "wrist_fy", "wrist_fz",  # wrist force in the wrist frame, N / 10
+    "wrist_tx", "wrist_ty", "wrist_tz",  # wrist torque in the wrist frame, N m
+    "socket_est_x_cm", "socket_est_y_cm", "socket_est_z_cm",  # noisy socket-top estimate, robot frame, cm
+    "socket_est_yaw_sin", "socket_est_yaw_cos",  # noisy socket yaw estimate
+    "time_frac",  # step / max_steps
+)
+STATE_DIM = len(STATE_NAMES)
+ACTION_DIM = 6
+ACTION_NAMES = ("dx", "dy", "dz", "droll", "dpitch", "dyaw")
+
+POS_SCALE = 100.0  # m -> cm
+TILT_SCALE = 10.0
+VEL_SCALE = 10.0
+FORCE_SCALE = 0.1
+TORQUE_SCALE = 1.0
+
+IDX = {name: i for i, name in enumerate(STATE_NAMES)}
+
+
+def rotate_xy(xy: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """Rotate (N, 2) vectors by per-row yaw (N,)."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.stack([c * xy[:, 0] - s * xy[:, 1], s * xy[:, 0] + c * xy[:, 1]], axis=1)
+
+
+def assemble_state(pos, tilt, yaw, lin_vel, ang_vel, force, torque, est_pos, est_yaw, time_frac) -> np.ndarray:
+    """Stack robot-frame quantities (SI units) into the scaled (N, STATE_DIM) float32 state."""
+    cols = [
+        pos * POS_SCALE, tilt * TILT_SCALE, np.sin(yaw)[:, None], np.cos(yaw)[:, None],
+        lin_vel * VEL_SCALE, ang_vel, force * FORCE_SCALE, torque * TORQUE_SCALE,
+        est_pos * POS_SCALE, np.sin(est_yaw)[:, None], np.cos(est_yaw)[:, None], time_frac[:, None],
+    ]
+    return np.concatenate(cols, axis=1).astype(np.float32)
+
+
+def decode_state(state: np.ndarray) -> dict[str, np.ndarray]:
+    """Inverse of assemble_state (SI units), for experts and diagnostics."""
+    s = np.asarray(state, dtype=np.float64)
+    sl = lambda a, b: s[:, IDX[a]:IDX[b] + 1]  # noqa: E731
+    return {
+        "pos": sl("ee_x_cm", "ee_z_cm") / POS_SCALE,
+        "tilt": sl("ee_roll_x10", "ee_pitch_x10") / TILT_SCALE,
+        "yaw": np.arctan2(s[:, IDX["ee_yaw_sin"]], s[:, IDX["ee_yaw_cos"]]),
+        "lin_vel": sl("ee_vx", "ee_vz") / VEL_SCALE,
+        "ang_vel": sl("ee_wx", "ee_wz"),
+        "force": sl("wrist_fx", "wrist_fz") / FORCE_SCALE,
+        "torque": sl("wrist_tx", "wrist_tz") / TORQUE_SCALE,
+        "est_pos": sl("socket_est_x_cm", "socket_est_z_cm") / POS_SCALE,
+        "est_yaw": np.arctan2(s[:, IDX["socket_est_yaw_sin"]], s[:, IDX["socket_est_yaw_cos"]]),
+        "time_frac": s[:, IDX["time_frac"]],
+    }

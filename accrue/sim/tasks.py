@@ -1,0 +1,151 @@
+"""Task definitions and the task registry (stable ids such as "nist/round_peg", "plugs/cross").
+
+A task is geometry (plug/socket/gripper USD files) plus everything that makes episodes differ:
+clearance-dependent success tolerances, time limit, action scale, and FORGE's randomisation
+ranges, all sampled from the episode seed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from accrue.errors import AccrueError
+
+ASSET_DIR = Path(__file__).parent / "assets"
+MM = 1e-3
+DEG = np.pi / 180
+
+
+@dataclass(frozen=True)
+class Randomisation:
+    """FORGE-style knobs; every range is sampled per episode from the episode's generator."""
+
+    socket_xy: float = 8 * MM  # half-width of the socket's placement in the robot frame
+    socket_yaw: float = 20 * DEG  # half-width of the socket's yaw in the robot frame
+    init_xy: float = 2.5 * MM  # half-width of the uniform lateral start offset
+    init_z: tuple = (6 * MM, 14 * MM)  # start height of the plug bottom above the socket top
+    init_yaw: float = 8 * DEG  # half-width of the start yaw offset
+    init_tilt: float = 1.0 * DEG  # half-width of start roll/pitch
+    friction: tuple = (0.25, 1.0)  # sliding friction of the socket
+    mass_delta: float = 0.005  # +/- kg on the held part
+    gain_scale: tuple = (0.7, 1.3)  # controller stiffness multiplier
+    estimate_xy: float = 0.35 * MM  # std of the per-episode socket position estimate error
+    estimate_yaw: float = 1.0 * DEG  # std of the per-episode socket yaw estimate error
+    obs_pos: float = 0.1 * MM  # std of per-step noise on the end-effector position
+    obs_rot: float = 0.1 * DEG  # per-step noise on orientation
+    obs_force: float = 0.5  # N, per-step noise on wrist force
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    task_id: str
+    family: str
+    instruction: str
+    plug_usd: Path
+    socket_usd: Path
+    gripper_usd: Path | None
+    depth: float  # insertion depth to reach (m)
+    clearance: float  # radial clearance baked into the socket geometry (m), informative
+    yaw_symmetry: int = 1  # n-fold symmetry of the fit; 0 = round (yaw free)
+    max_steps: int = 80
+    control_hz: float = 20.0
+    physics_dt: float = 0.002
+    max_delta_pos: float = 2.0 * MM  # per control step at |action| = 1
+    max_delta_rot: float = 3.0 * DEG
+    depth_tol: float = 1.0 * MM  # success: plug bottom within this of the full depth
+    xy_tol: float = 0.8 * MM  # success: lateral error below this
+    yaw_tol: float = 3.0 * DEG  # success: yaw error (modulo symmetry) below this
+    # systematic error of this fixture's socket estimate (calibration of its board position):
+    # what a demonstrator learns to correct for, and what differs between tasks
+    estimate_bias: tuple = (0.0, 0.0, 0.0)  # (x m, y m, yaw rad)
+    plug_mass: float = 0.03
+    randomisation: Randomisation = field(default_factory=Randomisation)
+
+    @property
+    def substeps(self) -> int:
+        return int(round(1.0 / (self.control_hz * self.physics_dt)))
+
+    @property
+    def yaw_period(self) -> float:
+        return 2 * np.pi / self.yaw_symmetry if self.yaw_symmetry > 0 else 0.0
+
+
+_REGISTRY: dict[str, TaskSpec] = {}
+
+
+def _builtin(name: str, family: str, instruction: str, **kw) -> TaskSpec:
+    folder = ASSET_DIR / family / name
+    return TaskSpec(task_id=f"{family}/{name}", family=family, instruction=instruction,
+                    plug_usd=folder / "plug.usda", socket_usd=folder / "socket.usda",
+                    gripper_usd=folder / "gripper.usda", **kw)
+
+
+# Geometry parameters the USD generator bakes in (scripts/make_parts.py reads this table).
+# name -> (family, shape, clearance, depth, chamfer, plug length)
+PART_TABLE = {
+    "rect_peg": ("nist", "rect_peg", 0.30 * MM, 15 * MM, 0.8 * MM, 30 * MM),
+    "round_peg": ("nist", "round_peg", 0.25 * MM, 18 * MM, 0.7 * MM, 32 * MM),
+    "gear": ("nist", "gear", 0.25 * MM, 10 * MM, 0.6 * MM, 8 * MM),
+    "cross": ("plugs", "cross", 0.30 * MM, 12 * MM, 0.6 * MM, 26 * MM),
+    "star": ("plugs", "star", 0.30 * MM, 12 * MM, 0.6 * MM, 26 * MM),
+    "hexagon": ("plugs", "hexagon", 0.20 * MM, 14 * MM, 0.6 * MM, 28 * MM),
+    "triangle": ("plugs", "triangle", 0.30 * MM, 10 * MM, 0.7 * MM, 24 * MM),
+    "d_shape": ("plugs", "d_shape", 0.25 * MM, 14 * MM, 0.6 * MM, 28 * MM),
+    "l_shape": ("plugs", "l_shape", 0.30 * MM, 12 * MM, 0.6 * MM, 26 * MM),
+    "keyed_round": ("plugs", "keyed_round", 0.25 * MM, 16 * MM, 0.6 * MM, 30 * MM),
+    "twin_pins": ("plugs", "twin_pins", 0.25 * MM, 12 * MM, 0.5 * MM, 26 * MM),
+}
+
+
+def _builtin_specs() -> list[TaskSpec]:
+    def spec(name, instruction, symmetry, bias, **kw):
+        family, _shape, clearance, depth, _chamfer, _length = PART_TABLE[name]
+        b = (bias[0] * MM, bias[1] * MM, bias[2] * DEG)
+        return _builtin(name, family, instruction, depth=depth, clearance=clearance,
+                        yaw_symmetry=symmetry, estimate_bias=b, **kw)
+
+    return [
+        spec("rect_peg", "insert the rectangular peg into its hole", 2, (1.2, -0.6, 2.0)),
+        spec("round_peg", "insert the round peg into its hole", 0, (-1.0, 1.0, 0.0)),
+        spec("gear", "slide the gear onto its shaft, meshing with the neighbour gear", 8, (0.6, 1.2, -3.0),
+             max_steps=90),
+        spec("cross", "insert the cross plug into its socket", 4, (1.4, 0.4, -2.5)),
+        spec("star", "insert the star plug into its socket", 5, (-1.2, -0.8, 2.5)),
+        spec("hexagon", "insert the hexagonal plug into its socket", 6, (0.3, 1.5, 2.0)),
+        spec("triangle", "insert the triangular plug into its socket", 3, (-1.5, 0.2, -3.0)),
+        spec("d_shape", "insert the D-shaped plug into its socket", 1, (0.9, -1.3, 3.0)),
+        spec("l_shape", "insert the L-shaped plug into its socket", 1, (-0.5, -1.4, -2.0)),
+        spec("keyed_round", "insert the keyed round plug into its socket", 1, (1.5, 1.0, -3.5)),
+        spec("twin_pins", "insert the twin-pin plug into its socket", 2, (-1.3, 1.2, 1.5)),
+    ]
+
+
+for _s in _builtin_specs():
+    _REGISTRY[_s.task_id] = _s
+
+
+def list_tasks(family: str | None = None) -> list[str]:
+    return sorted(t for t, s in _REGISTRY.items() if family is None or s.family == family)
+
+
+def get_task(task_id: str) -> TaskSpec:
+    try:
+        return _REGISTRY[task_id]
+    except (KeyError, TypeError):
+        raise AccrueError(f"unknown task id {task_id!r}; known: {', '.join(list_tasks())}") from None
+
+
+def add_task(spec: TaskSpec, *, replace: bool = False) -> TaskSpec:
+    if spec.task_id in _REGISTRY and not replace:
+        raise AccrueError(f"task id {spec.task_id!r} is already registered")
+    _REGISTRY[spec.task_id] = spec
+    return spec
+
+
+def with_overrides(spec: TaskSpec, **kw) -> TaskSpec:
+    """A copy with some fields changed (e.g. a harder clearance check or a longer time limit)."""
+    return dataclasses.replace(spec, **kw)

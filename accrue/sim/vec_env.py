@@ -1,0 +1,227 @@
+"""N assembly environments of one task stepped together on mujoco.batch's C thread pool.
+
+Physics runs in the socket frame (socket fixed at the origin). The policy sees and acts in a
+robot frame where the socket sits at a random pose (placement noise) known only through a noisy,
+per-task-biased estimate. Every random draw comes from a generator seeded by
+(seed, env index, episode count), so trajectories do not depend on which other envs were reset.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from accrue.errors import AccrueError
+from accrue.sim.model import KP_POS, KP_ROT, build_model, damping_for, socket_geom_ids
+from accrue.sim.observation import ACTION_DIM, assemble_state, rotate_xy
+from accrue.sim.tasks import MM, DEG, TaskSpec, get_task
+
+TARGET_LEAD_POS = 4 * MM  # the position target never leads the plug by more (bounds the push)
+TARGET_LEAD_ROT = 6 * DEG
+MAX_TILT = 5 * DEG  # success also needs the plug upright
+WORKSPACE = 40 * MM  # target box half-width around the socket
+
+
+@dataclass
+class StepResult:
+    obs: dict
+    reward: np.ndarray  # (N,) discounted sum over the executed steps
+    rewards: np.ndarray  # (N, H)
+    terminated: np.ndarray  # (N,) success reached
+    truncated: np.ndarray  # (N,) time limit
+    success: np.ndarray  # (N,)
+    steps: np.ndarray  # (N,) control steps actually executed
+
+    @property
+    def done(self) -> np.ndarray:
+        return self.terminated | self.truncated
+
+
+def wrap_angle(a):
+    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
+
+
+def yaw_error(yaw: np.ndarray, period: float) -> np.ndarray:
+    """Yaw distance to the nearest aligned orientation (0 for round parts)."""
+    if period <= 0:
+        return np.zeros_like(yaw)
+    return np.abs((yaw + period / 2) % period - period / 2)
+
+
+def is_success(task: TaskSpec, qpos: np.ndarray) -> np.ndarray:
+    """Inserted to depth, laterally centred, upright and yaw-aligned (socket frame joint values)."""
+    deep = qpos[:, 2] <= -task.depth + task.depth_tol
+    centred = np.hypot(qpos[:, 0], qpos[:, 1]) <= task.xy_tol
+    upright = np.maximum(np.abs(qpos[:, 3]), np.abs(qpos[:, 4])) <= MAX_TILT
+    aligned = yaw_error(qpos[:, 5], task.yaw_period) <= task.yaw_tol
+    return deep & centred & upright & aligned
+
+
+class VecAssemblyEnv:
+    def __init__(self, task: TaskSpec | str, num_envs: int, seed: int = 0, obs_mode: str = "state",
+                 image_size: int = 64, nthread: int | None = None):
+        from mujoco import batch
+
+        self.task = get_task(task) if isinstance(task, str) else task
+        if obs_mode not in ("state", "state+image"):
+            raise AccrueError(f"obs_mode must be 'state' or 'state+image', got {obs_mode!r}")
+        if num_envs < 1:
+            raise AccrueError(f"num_envs must be >= 1, got {num_envs}")
+        self.num_envs, self.seed, self.obs_mode, self.image_size = int(num_envs), int(seed), obs_mode, image_size
+        self.model = build_model(self.task)
+        threads = nthread or max(1, min(self.num_envs, os.cpu_count() or 1))
+        self.batch = batch.Batch(self.model, nsim=self.num_envs, nthread=threads)
+        self._qpos, self._qvel = self.batch.bind("qpos"), self.batch.bind("qvel")
+        self._ctrl, self._sensor = self.batch.bind("ctrl"), self.batch.bind("sensordata")
+        self._friction = self.batch.expand("geom_friction")
+        self._mass = self.batch.expand("body_mass")
+        self._gain, self._bias = self.batch.expand("actuator_gainprm"), self.batch.expand("actuator_biasprm")
+        self._socket_geoms = socket_geom_ids(self.model)
+        self._plug_body = self.model.body("plug").id
+        self._limits = np.array([self.task.max_delta_pos] * 3 + [self.task.max_delta_rot] * 3)
+        self._lead = np.array([TARGET_LEAD_POS] * 3 + [TARGET_LEAD_ROT] * 3)
+        n = self.num_envs
+        self.episode = np.full(n, -1, dtype=np.int64)  # episodes started per env
+        self.t = np.zeros(n, dtype=np.int64)
+        self.done = np.ones(n, dtype=bool)
+        self.target = np.zeros((n, 6))
+        self.socket_pose = np.zeros((n, 3))  # true socket (x, y, yaw) in the robot frame
+        self.estimate = np.zeros((n, 4))  # estimated socket (x, y, z, yaw) in the robot frame
+        self._rngs: list[np.random.Generator | None] = [None] * n
+        self._renderer = None
+        self._noise = np.zeros((n, 12))
+
+    # ---------------------------------------------------------------- reset
+    def reset(self, mask=None) -> dict:
+        ids = np.arange(self.num_envs) if mask is None else np.flatnonzero(np.asarray(mask, dtype=bool))
+        if len(ids):
+            self.batch.reset(ids)
+            for i in ids:
+                self._start_episode(int(i))
+            self.batch.forward(ids)
+        return self._observe(ids)
+
+    def _start_episode(self, i: int) -> None:
+        task, r = self.task, self.task.randomisation
+        self.episode[i] += 1
+        rng = np.random.default_rng([self.seed, i, int(self.episode[i])])
+        self._rngs[i] = rng
+        self.t[i], self.done[i] = 0, False
+        self.socket_pose[i] = [*rng.uniform(-r.socket_xy, r.socket_xy, 2), rng.uniform(-r.socket_yaw, r.socket_yaw)]
+        err = [*rng.normal(0, r.estimate_xy, 2), rng.normal(0, r.estimate_xy / 2), rng.normal(0, r.estimate_yaw)]
+        bias = np.array([task.estimate_bias[0], task.estimate_bias[1], 0.0, task.estimate_bias[2]])
+        self.estimate[i] = np.array([*self.socket_pose[i, :2], 0.0, self.socket_pose[i, 2]]) + bias + err
+        q0 = np.array([*rng.uniform(-r.init_xy, r.init_xy, 2), rng.uniform(*r.init_z),
+                       *rng.uniform(-r.init_tilt, r.init_tilt, 2), rng.uniform(-r.init_yaw, r.init_yaw)])
+        self._qpos[i] = q0
+        self._qvel[i] = 0.0
+        self.target[i] = q0
+        self._ctrl[i] = q0
+        self._friction[i, self._socket_geoms, 0] = rng.uniform(*r.friction)
+        self._mass[i, self._plug_body] = task.plug_mass + rng.uniform(-r.mass_delta, r.mass_delta)
+        gain = rng.uniform(*r.gain_scale)
+        kv_pos, kv_rot = damping_for(KP_POS * gain, KP_ROT * gain, task.plug_mass)
+        kp = np.array([KP_POS * gain] * 3 + [KP_ROT * gain] * 3)
+        self._gain[i, :, 0] = kp
+        self._bias[i, :, 1] = -kp
+        self._bias[i, :, 2] = [-kv_pos] * 3 + [-kv_rot] * 3
+
+    # ---------------------------------------------------------------- step
+    def step(self, actions: np.ndarray) -> StepResult:
+        return self.step_chunk(np.asarray(actions)[:, None, :], gamma=1.0)
+
+    def step_chunk(self, actions: np.ndarray, gamma: float = 0.99) -> StepResult:
+        actions = np.asarray(actions, dtype=np.float64)
+        n = self.num_envs
+        if actions.ndim != 3 or actions.shape[0] != n or actions.shape[2] != ACTION_DIM:
+            raise AccrueError(f"actions must have shape ({n}, H, {ACTION_DIM}), got {actions.shape}")
+        horizon = actions.shape[1]
+        rewards = np.zeros((n, horizon))
+        steps = np.zeros(n, dtype=np.int64)
+        success = np.zeros(n, dtype=bool)
+        truncated = np.zeros(n, dtype=bool)
+        active = ~self.done
+        for h in range(horizon):
+            ids = np.flatnonzero(active)
+            if len(ids) == 0:
+                break
+            self._apply_action(ids, np.clip(actions[ids, h], -1.0, 1.0))
+            self.batch.step(ids, nstep=self.task.substeps)
+            self.t[ids] += 1
+            steps[ids] += 1
+            won = is_success(self.task, self._qpos[ids])
+            late = ~won & (self.t[ids] >= self.task.max_steps)
+            # the paper's rule: the final three steps of a successful episode carry reward 1
+            for i in ids[won]:
+                rewards[i, max(0, h - 2):h + 1] = 1.0
+            success[ids[won]] = True
+            truncated[ids[late]] = True
+            active[ids[won | late]] = False
+            self.done[ids[won | late]] = True
+        discounts = gamma ** np.arange(horizon)
+        return StepResult(obs=self._observe(np.flatnonzero(steps > 0)), reward=rewards @ discounts, rewards=rewards,
+                          terminated=success.copy(), truncated=truncated, success=success, steps=steps)
+
+    def _apply_action(self, ids: np.ndarray, act: np.ndarray) -> None:
+        """Robot-frame deltas -> socket-frame joint targets, kept within a lead of the current pose."""
+        delta = act * self._limits
+        yaw = self.socket_pose[ids, 2]
+        delta[:, 0:2] = rotate_xy(delta[:, 0:2], -yaw)
+        delta[:, 3:5] = rotate_xy(delta[:, 3:5], -yaw)
+        q = self._qpos[ids]
+        target = np.clip(self.target[ids] + delta, q - self._lead, q + self._lead)
+        target[:, :3] = np.clip(target[:, :3], -WORKSPACE, WORKSPACE)
+        self.target[ids] = target
+        self._ctrl[ids] = target
+
+    # ---------------------------------------------------------------- observation
+    def _observe(self, updated) -> dict:
+        n, r = self.num_envs, self.task.randomisation
+        q, v, s = self._qpos, self._qvel, self._sensor
+        for i in updated:  # one draw per env state, from that env's own stream
+            self._noise[i] = self._rngs[i].standard_normal(12)
+        noise = self._noise
+        sx, sy, syaw = self.socket_pose[:, 0], self.socket_pose[:, 1], self.socket_pose[:, 2]
+        pos = np.column_stack([rotate_xy(q[:, 0:2], syaw) + np.column_stack([sx, sy]), q[:, 2]])
+        pos = pos + noise[:, 0:3] * r.obs_pos
+        tilt = rotate_xy(q[:, 3:5], syaw) + noise[:, 3:5] * r.obs_rot
+        yaw = q[:, 5] + syaw + noise[:, 5] * r.obs_rot
+        lin_vel = np.column_stack([rotate_xy(v[:, 0:2], syaw), v[:, 2]])
+        ang_vel = np.column_stack([rotate_xy(v[:, 3:5], syaw), v[:, 5]])
+        force = s[:, 0:3] + noise[:, 6:9] * r.obs_force
+        torque = s[:, 3:6] + noise[:, 9:12] * r.obs_force * 0.02
+        frac = np.minimum(self.t / self.task.max_steps, 1.0).astype(np.float64)
+        state = assemble_state(pos, tilt, yaw, lin_vel, ang_vel, force, torque,
+                               self.estimate[:, 0:3], self.estimate[:, 3], frac)
+        obs = {"state": state}
+        if self.obs_mode == "state+image":
+            obs["image"] = self.render()
+        return obs
+
+    def render(self, camera: str = "front") -> np.ndarray:
+        """(N, h, w, 3) uint8 frames of every env (MUJOCO_GL=egl renders on CPU)."""
+        import mujoco
+
+        if self._renderer is None:
+            self._renderer = mujoco.Renderer(self.model, self.image_size, self.image_size)
+        frames = np.empty((self.num_envs, self.image_size, self.image_size, 3), dtype=np.uint8)
+        for i in range(self.num_envs):
+            self._renderer.update_scene(self.batch.get_data(i), camera=camera)
+            frames[i] = self._renderer.render()
+        return frames
+
+    def true_socket_pose(self) -> np.ndarray:
+        """(N, 3) socket (x, y, yaw) in the robot frame, for diagnostics and tests (not an observation)."""
+        return self.socket_pose.copy()
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+
+def make_vec_env(task_id: str, num_envs: int = 1, seed: int = 0, obs_mode: str = "state",
+                 image_size: int = 64, nthread: int | None = None) -> VecAssemblyEnv:
+    return VecAssemblyEnv(task_id, num_envs, seed=seed, obs_mode=obs_mode, image_size=image_size, nthread=nthread)
