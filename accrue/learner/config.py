@@ -1,0 +1,180 @@
+"""LearnerConfig: every knob of the chunked actor-critic and of the continual rule, JSON-able.
+
+The workflow YAML's `learner:` section is parsed into this dataclass with `LearnerConfig.from_dict`.
+A bad value raises AccrueError naming the field. Defaults are the small CPU configuration (a stage's
+RL fits in a few minutes on 2 cores); `LearnerConfig.paper()` gives the paper-scale GPU sizes
+(FastSAC 768/512 hidden, batch 8192, H = 16 is the caller's horizon).
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+from accrue.errors import AccrueError
+
+ALGOS = ("fasttd3", "fastsac")
+# The continual rule (paper Sec. V-A baselines + ACCRUE itself).
+METHODS = ("accrue", "sequential", "er", "ewc", "retain", "single-task", "isolated")
+# The paper's ablations of ACCRUE (Table IV).
+ABLATIONS = ("none", "no-reference", "beta0", "reset-critic", "critic-all-replay")
+
+
+@dataclass
+class LearnerConfig:
+    algo: str = "fasttd3"              # "fasttd3" (deterministic + noise) or "fastsac" (tanh-Gaussian)
+    method: str = "accrue"             # continual rule, one of METHODS
+    ablation: str = "none"             # one of ABLATIONS (only with method "accrue")
+    seed: int = 0
+
+    # networks
+    actor_hidden: list[int] = field(default_factory=lambda: [256, 256])
+    critic_hidden: list[int] = field(default_factory=lambda: [256, 256])
+    projector_dim: int = 64            # each network's own trainable projector of s
+    layer_norm: bool = True
+    actor_residual: bool = True        # a = tanh(atanh(ã) + δ): start at the reference (see networks.py)
+    actor_init_scale: float = 0.01     # last actor layer init scale (FastTD3), so δ ≈ 0 at start
+    ref_dropout: float = 0.1           # fraction p of each batch whose ã is replaced by zeros
+
+    # categorical critic (C51, Eq. 2)
+    num_atoms: int = 101
+    v_min: float = -1.0                # sparse returns lie in [0, ~3]; a margin on both sides
+    v_max: float = 4.0
+    gamma: float = 0.99
+    n_step: int = 1                    # chunk transitions per bootstrap (1 = the paper's H-step backup)
+    use_cdq: bool = True               # clipped double-Q: target dist with the smaller expectation
+    tau: float = 0.1                   # Polyak rate of the target critic
+
+    # optimisation
+    batch_size: int = 256
+    utd: int = 2                       # gradient updates per chunk env step
+    policy_frequency: int = 2          # actor update every n-th critic update
+    actor_lr: float = 3e-4
+    critic_lr: float = 3e-4
+    weight_decay: float = 0.1          # AdamW
+    max_grad_norm: float = 0.0         # 0 = no clipping
+    obs_normalization: bool = True     # running mean/std of s, part of the saved state
+
+    # exploration
+    std_min: float = 0.001             # FastTD3: per-env noise std drawn in [std_min, std_max]
+    std_max: float = 0.2
+    policy_noise: float = 0.001        # FastTD3 target-policy smoothing
+    noise_clip: float = 0.5
+    alpha_init: float = 0.01           # FastSAC temperature
+    alpha_lr: float = 3e-4
+    target_entropy_per_dim: float = -1.0
+    log_std_min: float = -5.0
+    log_std_max: float = 0.0
+
+    # losses and continual rule (Eqs. 1, 4, 5)
+    beta: float = 0.1                  # Eq. 1 anchor β‖a − ã‖²
+    lam: float = 1.0                   # Eq. 5 distillation weight λ
+    ewc_lambda: float = 100.0          # EWC penalty weight
+    ewc_samples: int = 1024            # transitions used to estimate the Fisher at handoff
+    retain_alpha: float = 0.5          # RETAIN: θ ← (1−α)·θ_prev + α·θ_cur
+    retain_interval: int = 0           # RETAIN: also merge every n actor updates (0 = end of stage only)
+
+    # speed (GPU only; ignored on CPU)
+    device: str = "cpu"
+    amp: bool = False                  # bf16 autocast
+    compile: bool = False              # torch.compile of the update
+
+    # ---- construction / validation -------------------------------------------------------
+    def __post_init__(self) -> None:
+        self.validate()
+
+    @classmethod
+    def paper(cls, **overrides) -> "LearnerConfig":
+        """The paper-scale GPU configuration (FastSAC sizes, batch 8192, γ = 0.997)."""
+        base = dict(algo="fastsac", actor_hidden=[512, 256, 128], critic_hidden=[768, 384, 192],
+                    projector_dim=256, batch_size=8192, utd=8, policy_frequency=4, gamma=0.997,
+                    tau=0.125, weight_decay=0.001, alpha_init=0.001, device="cuda", amp=True,
+                    compile=True)
+        base.update(overrides)
+        return cls(**base)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "LearnerConfig":
+        if not isinstance(data, dict):
+            raise AccrueError(f"learner: expected a mapping, got {type(data).__name__}")
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise AccrueError(f"learner.{unknown[0]}: unknown setting")
+        return cls(**data)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    def replace(self, **changes) -> "LearnerConfig":
+        return dataclasses.replace(self, **changes)
+
+    def validate(self) -> None:
+        def bad(name: str, why: str) -> AccrueError:
+            return AccrueError(f"learner.{name}: {why} (got {getattr(self, name)!r})")
+
+        for name in ("algo", "method", "ablation"):
+            allowed = {"algo": ALGOS, "method": METHODS, "ablation": ABLATIONS}[name]
+            if getattr(self, name) not in allowed:
+                raise bad(name, f"must be one of {', '.join(allowed)}")
+        if self.ablation != "none" and self.method != "accrue":
+            raise bad("ablation", "ablations apply to method 'accrue' only")
+        for name in ("actor_hidden", "critic_hidden"):
+            v = getattr(self, name)
+            if isinstance(v, tuple):
+                setattr(self, name, list(v))
+                v = getattr(self, name)
+            if not isinstance(v, list) or not v or not all(
+                    isinstance(h, int) and not isinstance(h, bool) and h > 0 for h in v):
+                raise bad(name, "must be a non-empty list of positive integers")
+        positive_ints = ("projector_dim", "num_atoms", "n_step", "batch_size", "utd", "policy_frequency",
+                         "ewc_samples")
+        for name in positive_ints:
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v < 1:
+                raise bad(name, "must be a positive integer")
+        if self.num_atoms < 2:
+            raise bad("num_atoms", "needs at least 2 atoms")
+        for name in ("seed", "retain_interval"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v < 0:
+                raise bad(name, "must be a non-negative integer")
+        floats = ("v_min", "v_max", "gamma", "tau", "actor_lr", "critic_lr", "weight_decay", "max_grad_norm",
+                  "std_min", "std_max", "policy_noise", "noise_clip", "alpha_init", "alpha_lr",
+                  "target_entropy_per_dim", "log_std_min", "log_std_max", "beta", "lam", "ewc_lambda",
+                  "retain_alpha", "ref_dropout", "actor_init_scale")
+        for name in floats:
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or v != v:
+                raise bad(name, "must be a number")
+            setattr(self, name, float(v))
+        if self.v_max <= self.v_min:
+            raise bad("v_max", "must be greater than v_min")
+        if not 0.0 < self.gamma <= 1.0:
+            raise bad("gamma", "must be in (0, 1]")
+        if not 0.0 < self.tau <= 1.0:
+            raise bad("tau", "must be in (0, 1]")
+        if not 0.0 <= self.ref_dropout <= 1.0:
+            raise bad("ref_dropout", "must be in [0, 1]")
+        if not 0.0 <= self.retain_alpha <= 1.0:
+            raise bad("retain_alpha", "must be in [0, 1]")
+        for name in ("actor_lr", "critic_lr", "alpha_lr", "alpha_init", "actor_init_scale"):
+            if getattr(self, name) <= 0:
+                raise bad(name, "must be positive")
+        for name in ("weight_decay", "max_grad_norm", "std_min", "policy_noise", "noise_clip", "beta", "lam",
+                     "ewc_lambda"):
+            if getattr(self, name) < 0:
+                raise bad(name, "must be non-negative")
+        if self.std_max < self.std_min:
+            raise bad("std_max", "must be >= std_min")
+        if self.log_std_max <= self.log_std_min:
+            raise bad("log_std_max", "must be greater than log_std_min")
+        for name in ("layer_norm", "actor_residual", "use_cdq", "obs_normalization", "amp", "compile"):
+            if not isinstance(getattr(self, name), bool):
+                raise bad(name, "must be true or false")
+        if not isinstance(self.device, str) or not (self.device == "cpu" or self.device.startswith("cuda")):
+            raise bad("device", "must be 'cpu' or 'cuda[:n]'")
+
+    # ---- derived rules -------------------------------------------------------------------
+    @property
+    def effective_beta(self) -> float:
+        return 0.0 if self.ablation == "beta0" else self.beta

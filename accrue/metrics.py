@@ -1,0 +1,155 @@
+"""The paper's continual metrics (Sec. V-A) from success curves, plus seed means and bootstrap CIs.
+
+Input: c[i][j][e] = success rate of task j evaluated at grid point e of stage i (0-based, j ≤ i).
+    c_{i,i}   = max_e c[i][i][e]
+    e_i*      = the earliest e attaining that maximum (ties → earliest)
+    c_{i,j}   = c[i][j][e_i*]                         (j < i: prior task at stage i's chosen checkpoint)
+    FWT_k     = mean_e c[k][k][e]
+    NBT_k     = 1/(K−k) Σ_{m>k} (c_{k,k} − c_{m,k})      (k < K)
+    AUC_k     = 1/(K−k+1) (FWT_k + Σ_{m>k} c_{m,k})
+    FWT, AUC  averaged over all K stages; NBT over the first K−1
+    ACC_final = 1/K Σ_k c_{K,k}            F_final = 1/(K−1) Σ_{k<K} (c_{k,k} − c_{K,k})
+With K = 1, NBT and F_final are undefined and reported as None.
+Confidence intervals: percentile bootstrap over seeds, 4000 resamples, 95%, numpy seed 0 (the Continual
+World procedure, at 95% rather than 90%).
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from accrue.errors import AccrueError
+
+METRICS = ("FWT", "NBT", "AUC", "ACC_final", "F_final")
+BOOTSTRAP_RESAMPLES = 4000
+CONFIDENCE = 0.95
+
+
+def _check_curves(curves) -> list[list[list[float]]]:
+    if not isinstance(curves, list) or not curves:
+        raise AccrueError("curves: expected a non-empty list (one entry per stage)")
+    n_points = None
+    for i, stage in enumerate(curves):
+        if not isinstance(stage, list) or len(stage) != i + 1:
+            raise AccrueError(f"curves[{i}]: stage {i} must list tasks 0..{i} ({i + 1} curves), "
+                              f"got {len(stage) if isinstance(stage, list) else type(stage).__name__}")
+        for j, curve in enumerate(stage):
+            if not isinstance(curve, list) or not curve:
+                raise AccrueError(f"curves[{i}][{j}]: expected a non-empty list of success rates")
+            if n_points is None:
+                n_points = len(curve)
+            if len(curve) != n_points:
+                raise AccrueError(f"curves[{i}][{j}]: has {len(curve)} evaluation points, expected {n_points}")
+            for e, v in enumerate(curve):
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 <= v <= 1.0:
+                    raise AccrueError(f"curves[{i}][{j}][{e}]: success rate must be a number in [0, 1], got {v!r}")
+    return curves
+
+
+def success_matrix(curves) -> tuple[np.ndarray, list[int]]:
+    """c_{i,j} (K × K, NaN above the diagonal) and each stage's earliest maximising checkpoint e_i*."""
+    curves = _check_curves(curves)
+    k = len(curves)
+    c = np.full((k, k), np.nan)
+    best = []
+    for i in range(k):
+        own = np.asarray(curves[i][i], dtype=float)
+        e_star = int(np.argmax(own))          # argmax returns the first maximum: the earliest checkpoint
+        best.append(e_star)
+        for j in range(i + 1):
+            c[i, j] = curves[i][j][e_star]
+    return c, best
+
+
+def continual_metrics(curves) -> dict:
+    """FWT, NBT, AUC, ACC_final, F_final for one run (one seed), plus per-stage values and c_{i,j}."""
+    c, best = success_matrix(curves)
+    k = len(curves)
+    fwt = [float(np.mean(curves[s][s])) for s in range(k)]
+    nbt = [float(np.mean([c[s, s] - c[m, s] for m in range(s + 1, k)])) for s in range(k - 1)]
+    auc = [(fwt[s] + float(sum(c[m, s] for m in range(s + 1, k)))) / (k - s) for s in range(k)]
+    out = {
+        "FWT": float(np.mean(fwt)),
+        "NBT": float(np.mean(nbt)) if nbt else None,
+        "AUC": float(np.mean(auc)),
+        "ACC_final": float(np.mean(c[k - 1, :])),
+        "F_final": float(np.mean([c[s, s] - c[k - 1, s] for s in range(k - 1)])) if k > 1 else None,
+        "per_stage": {"FWT": fwt, "NBT": nbt, "AUC": auc},
+        "c": [[None if np.isnan(v) else float(v) for v in row] for row in c],
+        "best_checkpoint": best,
+    }
+    return out
+
+
+def bootstrap_ci(values, resamples: int = BOOTSTRAP_RESAMPLES, confidence: float = CONFIDENCE,
+                 seed: int = 0) -> tuple[float, float]:
+    """Percentile bootstrap CI of the mean over seeds."""
+    v = np.asarray(values, dtype=float)
+    if v.size == 1:
+        return float(v[0]), float(v[0])
+    rng = np.random.default_rng(seed)
+    means = v[rng.integers(0, v.size, size=(resamples, v.size))].mean(1)
+    tail = (1 - confidence) / 2
+    return float(np.quantile(means, tail)), float(np.quantile(means, 1 - tail))
+
+
+def aggregate(runs: list) -> dict:
+    """Metrics of each run (seed), and per metric the mean and the bootstrap CI over runs."""
+    per_run = [continual_metrics(r) for r in runs]
+    summary = {}
+    for name in METRICS:
+        vals = [m[name] for m in per_run if m[name] is not None]
+        if not vals:
+            summary[name] = {"mean": None, "ci_low": None, "ci_high": None, "n": 0}
+            continue
+        lo, hi = bootstrap_ci(vals)
+        summary[name] = {"mean": float(np.mean(vals)), "ci_low": lo, "ci_high": hi, "n": len(vals)}
+    return {"metrics": summary, "runs": per_run, "confidence": CONFIDENCE, "resamples": BOOTSTRAP_RESAMPLES}
+
+
+def load_metrics_file(path: str | Path) -> tuple[list[str], list, list]:
+    """Parse FILE.json: one run {"tasks", "grid", "curves"} or a list of them (one per seed).
+    Returns (task names, grid, [curves of each run]); every problem is a one-line AccrueError."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise AccrueError(f"{path}: no such file") from None
+    except json.JSONDecodeError as exc:
+        raise AccrueError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno} column {exc.colno})") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise AccrueError(f"{path}: cannot read ({exc})") from None
+    runs = data if isinstance(data, list) else [data]
+    if not runs:
+        raise AccrueError(f"{path}: empty list of runs")
+    tasks = grid = None
+    curves = []
+    for r, run in enumerate(runs):
+        where = f"{path}: run {r}" if isinstance(data, list) else f"{path}"
+        if not isinstance(run, dict):
+            raise AccrueError(f"{where}: expected an object with tasks, grid, curves")
+        for key in ("tasks", "grid", "curves"):
+            if key not in run:
+                raise AccrueError(f"{where}: missing field '{key}'")
+        if not isinstance(run["tasks"], list) or not all(isinstance(t, str) for t in run["tasks"]):
+            raise AccrueError(f"{where}: 'tasks' must be a list of names")
+        if not isinstance(run["grid"], list) or not all(isinstance(g, (int, float)) and not isinstance(g, bool)
+                                                        for g in run["grid"]):
+            raise AccrueError(f"{where}: 'grid' must be a list of env-step counts")
+        try:
+            _check_curves(run["curves"])
+        except AccrueError as exc:
+            raise AccrueError(f"{where}: {exc}") from None
+        if len(run["curves"]) != len(run["tasks"]):
+            raise AccrueError(f"{where}: {len(run['curves'])} stages in 'curves' but {len(run['tasks'])} tasks")
+        if len(run["curves"][0][0]) != len(run["grid"]):
+            raise AccrueError(f"{where}: curves have {len(run['curves'][0][0])} points but 'grid' has "
+                              f"{len(run['grid'])}")
+        if tasks is None:
+            tasks, grid = run["tasks"], run["grid"]
+        elif run["tasks"] != tasks:
+            raise AccrueError(f"{where}: task list differs from run 0")
+        curves.append(run["curves"])
+    return tasks, grid, curves
