@@ -3,6 +3,11 @@
 Light imports only here; mujoco and pxr load when an env, expert or USD part is first used.
 """
 
+import os
+
+# MuJoCo reads MUJOCO_GL at import; EGL renders headless (Mesa on CPU). A user's choice wins.
+os.environ.setdefault("MUJOCO_GL", "egl")
+
 from accrue.sim.observation import ACTION_DIM, ACTION_NAMES, STATE_DIM, STATE_NAMES
 from accrue.sim.tasks import TaskSpec, get_task, list_tasks
 

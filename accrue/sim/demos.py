@@ -3,7 +3,8 @@
 Features follow lerobot's names: `observation.state` float32 (STATE_DIM,) named by STATE_NAMES,
 `action` float32 (6,) (the normalised end-effector delta), `next.reward` float32 (1,),
 `next.done` bool (1,), `next.success` bool (1,), and with obs_mode "state+image" the wrist
-camera `observation.images.wrist` (mp4 video, or PNG images with `use_video=False`). Every frame's
+camera `observation.images.wrist` (mp4 video, or PNG images with `use_video=False` or frames
+smaller than 32x32). Every frame's
 `task` is the task's instruction. Frame t holds the observation *before* action t and the
 reward/done/success that action t produced.
 
@@ -39,6 +40,7 @@ SCALAR_KEYS = (REWARD_KEY, DONE_KEY, SUCCESS_KEY)
 ACCRUE_META = Path("meta") / "accrue.json"
 OBS_MODES = ("state", "state+image")
 ACCRUE_META_FORMAT = 1
+MIN_VIDEO_SIDE = 32
 
 
 def _sim_api() -> ModuleType:
@@ -106,6 +108,8 @@ def demo_features(state_names: list[str], image_shape: tuple[int, int, int] | No
         SUCCESS_KEY: {"dtype": "bool", "shape": (1,), "names": None},
     }
     if image_shape is not None:
+        # the AV1 encoder kills the process (SIGFPE) on frames below 32x32: store those as PNGs
+        use_video = use_video and min(image_shape[:2]) >= MIN_VIDEO_SIDE
         features[IMAGE_KEY] = {
             "dtype": "video" if use_video else "image",
             "shape": tuple(int(s) for s in image_shape),
@@ -201,10 +205,14 @@ def write_demos(
     features = demo_features(list(sim.STATE_NAMES), image_shape, use_video)
 
     os.environ.setdefault("SVT_LOG", "1")  # the AV1 encoder prints its whole config per video otherwise
+    import datasets
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+    bars_were_on = not datasets.are_progress_bars_disabled()
+    datasets.disable_progress_bars()  # one "Map" bar per saved episode otherwise; ours suffices
     ds = LeRobotDataset.create(repo_id=repo_id_for(task_id), root=out_dir, fps=int(round(spec.control_hz)),
-                               features=features, use_videos=use_video, video_backend="pyav")
+                               features=features, use_videos=any(f["dtype"] == "video" for f in features.values()),
+                               video_backend="pyav")
     frames: list[list[dict]] = [[] for _ in range(n)]
     active = np.ones(n, dtype=bool)    # env i is running an episode we will count
     started, attempts, successes, written, total_frames = n, 0, 0, 0, 0
@@ -213,7 +221,7 @@ def write_demos(
         while written < episodes and active.any():
             states = np.asarray(obs["state"], dtype=np.float32)
             images = np.asarray(obs["image"]) if with_image else None
-            actions = np.clip(np.asarray(expert.act(obs), dtype=np.float32), -1.0, 1.0)
+            actions = np.clip(np.asarray(expert.act(states), dtype=np.float32), -1.0, 1.0)
             res = env.step(actions)
             rewards = np.asarray(res.reward, dtype=np.float32).reshape(n)
             success = np.asarray(res.success, dtype=bool).reshape(n)
@@ -250,6 +258,8 @@ def write_demos(
     finally:
         bar.stop()
         ds.finalize()
+        if bars_were_on:
+            datasets.enable_progress_bars()
 
     if written == 0:
         shutil.rmtree(out_dir, ignore_errors=True)

@@ -14,7 +14,7 @@ from accrue.sim.observation import decode_state, rotate_xy
 from accrue.sim.tasks import DEG, MM, TaskSpec, get_task
 
 CONTACT_FORCE = 1.5  # N of |Fz| above which the plug is taken to rest on something
-SURFACE = 1.0 * MM  # below this tip height the plug is at or inside the socket opening
+ENTERED = 1.2 * MM  # tip this far below the socket top: past the chamfer, inside the hole
 
 
 def _wrap(a, period):
@@ -61,12 +61,13 @@ class ScriptedExpert:
         touching = np.abs(force_r[:, 2]) > CONTACT_FORCE
         sinking = z < self.last_z - 0.15 * MM
         self.last_z = z
-        blocked = touching & (z > -0.5 * task.depth) & ~sinking
+        inside = z < -ENTERED
+        blocked = touching & ~sinking
         self.stuck = np.where(blocked, self.stuck + 1, np.where(sinking, 0, self.stuck))
         # admittance: yield to the lateral contact force (the sensor reads the plug's reaction)
-        self.shift += np.where(blocked[:, None], -force_r[:, :2] * 0.05 * MM, 0.0)
-        self.shift = np.clip(self.shift, -1.0 * MM, 1.0 * MM)
-        k = self.stuck
+        lateral = -force_r[:, :2] * 0.08 * MM
+        self.shift = np.clip(self.shift + np.where(blocked[:, None] & ~inside[:, None], lateral, 0.0), -MM, MM)
+        k = np.where(inside, 0, self.stuck)
         radius = np.minimum(0.12 * MM * k, 1.2 * MM)
         theta = 0.9 * k
         spiral = np.column_stack([radius * np.cos(theta), radius * np.sin(theta)])
@@ -74,11 +75,13 @@ class ScriptedExpert:
         wiggle = np.where(k > 0, 1.5 * DEG * np.sin(1.3 * k), 0.0) if period > 0 else 0.0
         yaw_err = _wrap(goal_yaw + wiggle - yaw, period) if period > 0 else np.zeros(n)
 
-        inside = z < -0.3 * MM
-        xy_err = np.where(inside[:, None], 0.0, goal_xy + spiral + self.shift - pos[:, :2])
+        # outside: servo onto the (searched) goal; inside: comply with the walls, unjam by lifting
+        xy_err = np.where(inside[:, None], lateral, goal_xy + spiral + self.shift - pos[:, :2])
         aligned = (np.hypot(*xy_err.T) < 0.4 * MM) & (np.abs(yaw_err) < 1.5 * DEG)
         high = z > 3 * MM
+        jammed = inside & (self.stuck > 0) & (self.stuck % 4 == 0)
         dz = np.where(high, np.where(aligned, -1.0, -0.4), np.where(aligned | inside | (k > 0), -0.6, 0.0))
+        dz = np.where(jammed, 0.5, dz)
         act = np.zeros((n, 6))
         act[:, :2] = xy_err / task.max_delta_pos
         act[:, 2] = dz

@@ -83,7 +83,7 @@ def _twin_pins() -> ShapeDef:
 
 SHAPES = {
     "rect_peg": lambda: _convex(g.rect(-6 * MM, -4 * MM, 6 * MM, 4 * MM)),
-    "round_peg": lambda: _convex(g.regular_polygon(32, 5.0 * MM)),
+    "round_peg": lambda: _convex(g.regular_polygon(16, 5.0 * MM)),  # 16 sides: round to within 0.1 mm
     "cross": _cross,
     "star": _star,
     "hexagon": lambda: _convex(g.regular_polygon(6, 7.0 * MM)),

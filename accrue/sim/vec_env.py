@@ -101,7 +101,8 @@ class VecAssemblyEnv:
             for i in ids:
                 self._start_episode(int(i))
             self.batch.forward(ids)
-        return self._observe(ids)
+            self._draw_noise(ids)
+        return self._observe()
 
     def _start_episode(self, i: int) -> None:
         task, r = self.task, self.task.randomisation
@@ -151,6 +152,7 @@ class VecAssemblyEnv:
             self.batch.step(ids, nstep=self.task.substeps)
             self.t[ids] += 1
             steps[ids] += 1
+            self._draw_noise(ids)
             won = is_success(self.task, self._qpos[ids])
             late = ~won & (self.t[ids] >= self.task.max_steps)
             # the paper's rule: the final three steps of a successful episode carry reward 1
@@ -161,7 +163,7 @@ class VecAssemblyEnv:
             active[ids[won | late]] = False
             self.done[ids[won | late]] = True
         discounts = gamma ** np.arange(horizon)
-        return StepResult(obs=self._observe(np.flatnonzero(steps > 0)), reward=rewards @ discounts, rewards=rewards,
+        return StepResult(obs=self._observe(), reward=rewards @ discounts, rewards=rewards,
                           terminated=success.copy(), truncated=truncated, success=success, steps=steps)
 
     def _apply_action(self, ids: np.ndarray, act: np.ndarray) -> None:
@@ -177,11 +179,14 @@ class VecAssemblyEnv:
         self._ctrl[ids] = target
 
     # ---------------------------------------------------------------- observation
-    def _observe(self, updated) -> dict:
+    def _draw_noise(self, ids) -> None:
+        """One observation-noise draw per env per control step, from that env's own stream."""
+        for i in ids:
+            self._noise[i] = self._rngs[i].standard_normal(12)
+
+    def _observe(self) -> dict:
         n, r = self.num_envs, self.task.randomisation
         q, v, s = self._qpos, self._qvel, self._sensor
-        for i in updated:  # one draw per env state, from that env's own stream
-            self._noise[i] = self._rngs[i].standard_normal(12)
         noise = self._noise
         sx, sy, syaw = self.socket_pose[:, 0], self.socket_pose[:, 1], self.socket_pose[:, 2]
         pos = np.column_stack([rotate_xy(q[:, 0:2], syaw) + np.column_stack([sx, sy]), q[:, 2]])
@@ -208,7 +213,9 @@ class VecAssemblyEnv:
             self._renderer = mujoco.Renderer(self.model, self.image_size, self.image_size)
         frames = np.empty((self.num_envs, self.image_size, self.image_size, 3), dtype=np.uint8)
         for i in range(self.num_envs):
-            self._renderer.update_scene(self.batch.get_data(i), camera=camera)
+            data = self.batch.get_data(i)
+            mujoco.mj_kinematics(self.model, data)  # materialised data carries state, not poses
+            self._renderer.update_scene(data, camera=camera)
             frames[i] = self._renderer.render()
         return frames
 
