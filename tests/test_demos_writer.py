@@ -34,8 +34,8 @@ class FakeVecEnv:
     state = [episode serial, 0, 0, 0, step]: the serial says which episode a frame came from.
     """
 
-    def __init__(self, num_envs: int, seed: int, obs_mode: str, p_success: float) -> None:
-        self.n, self.obs_mode, self.p = num_envs, obs_mode, p_success
+    def __init__(self, num_envs: int, seed: int, obs_mode: str, p_success: float, image_hw: tuple[int, int]) -> None:
+        self.n, self.obs_mode, self.p, self.image_hw = num_envs, obs_mode, p_success, image_hw
         self.rng = np.random.default_rng(seed)
         self.serial = 0
         self.ep = np.zeros(num_envs, int)
@@ -56,7 +56,7 @@ class FakeVecEnv:
         state[:, 0], state[:, 4] = self.ep, self.t
         obs = {"state": state}
         if self.obs_mode == "state+image":
-            obs["image"] = np.broadcast_to((self.ep % 256).astype(np.uint8)[:, None, None, None], (self.n, 8, 10, 3)).copy()
+            obs["image"] = np.broadcast_to((self.ep % 256).astype(np.uint8)[:, None, None, None], (self.n, *self.image_hw, 3)).copy()
         return obs
 
     def reset(self, mask: np.ndarray | None = None) -> dict:
@@ -73,9 +73,10 @@ class FakeVecEnv:
         return _Step(self._obs(), success.astype(np.float32), success, end & ~self.will_succeed, success)
 
 
-def fake_sim(p_success: float = 1.0) -> SimpleNamespace:
+def fake_sim(p_success: float = 1.0, image_hw: tuple[int, int] = (8, 10)) -> SimpleNamespace:
     envs: list[FakeVecEnv] = []
-    spec = SimpleNamespace(task_id="fake/peg", instruction="insert the fake peg", control_hz=20.0, max_steps=6)
+    spec = SimpleNamespace(task_id="fake/peg", family="fake", instruction="insert the fake peg", control_hz=20.0,
+                           max_steps=6, clearance=0.0003)
 
     def get_task(task_id: str):
         if task_id != "fake/peg":
@@ -83,10 +84,10 @@ def fake_sim(p_success: float = 1.0) -> SimpleNamespace:
         return spec
 
     def make_vec_env(task_id: str, num_envs: int, seed: int, obs_mode: str) -> FakeVecEnv:
-        envs.append(FakeVecEnv(num_envs, seed, obs_mode, p_success))
+        envs.append(FakeVecEnv(num_envs, seed, obs_mode, p_success, image_hw))
         return envs[-1]
 
-    expert = SimpleNamespace(act=lambda obs: np.full((len(obs["state"]), 6), 2.0, np.float32))  # clipped by writer
+    expert = SimpleNamespace(act=lambda state: np.full((len(state), 6), 2.0, np.float32))  # clipped by writer
     return SimpleNamespace(get_task=get_task, make_vec_env=make_vec_env, list_tasks=lambda: ["fake/peg"],
                            make_expert=lambda task_id, quality, seed: expert, STATE_NAMES=STATE_NAMES,
                            STATE_DIM=len(STATE_NAMES), ACTION_DIM=6, envs=envs)
@@ -117,7 +118,7 @@ def test_only_successes_kept_with_retries(tmp_path: Path, monkeypatch: pytest.Mo
         assert list(ep["frame_index"]) == list(range(len(ep)))
         assert list(ep["next.done"]) == [False] * (len(ep) - 1) + [True]
         assert list(ep["next.success"]) == list(ep["next.done"])
-        assert list(ep["next.reward"]) == [0.0] * (len(ep) - 1) + [1.0]
+        assert list(ep["next.reward"]) == [0.0] * (len(ep) - 3) + [1.0] * 3  # the success tail
         assert [int(s[4]) for s in ep["observation.state"]] == list(range(len(ep)))  # obs before the action
     assert np.allclose(np.stack(df["action"]), 1.0)  # expert output clipped to [-1, 1]
     meta = json.loads((out / "meta" / "accrue.json").read_text())
@@ -151,7 +152,8 @@ def test_attempt_bound_gives_partial_dataset_or_error(tmp_path: Path, monkeypatc
 
 def test_images_and_info(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(demos, "_sim_api", lambda: fake_sim())
-    demos.write_demos("fake/peg", 2, tmp_path / "img", obs_mode="state+image", use_video=False, progress=False)
+    # frames too small for the video encoder are stored as images even though video was asked for
+    demos.write_demos("fake/peg", 2, tmp_path / "img", obs_mode="state+image", use_video=True, progress=False)
     task_id, instruction, n, features = demos.read_demo_info(tmp_path / "img")
     assert (task_id, instruction, n) == ("fake/peg", "insert the fake peg", 2)
     assert features["observation.images.wrist"]["dtype"] == "image"

@@ -6,7 +6,8 @@ Features follow lerobot's names: `observation.state` float32 (STATE_DIM,) named 
 camera `observation.images.wrist` (mp4 video, or PNG images with `use_video=False` or frames
 smaller than 32x32). Every frame's
 `task` is the task's instruction. Frame t holds the observation *before* action t and the
-reward/done/success that action t produced.
+reward/done/success that action t produced; in a successful episode the last three frames carry
+reward 1 (the paper's sparse reward, see INTERFACES.md).
 
 Beside lerobot's metadata, `meta/accrue.json` records which accrue task the demos belong to,
 how they were made (seed, expert quality, obs mode) and the expert's success rate.
@@ -41,6 +42,7 @@ ACCRUE_META = Path("meta") / "accrue.json"
 OBS_MODES = ("state", "state+image")
 ACCRUE_META_FORMAT = 1
 MIN_VIDEO_SIDE = 32
+SUCCESS_TAIL = 3
 
 
 def _sim_api() -> ModuleType:
@@ -133,6 +135,15 @@ def _add_frame(ds: Any, frame: dict) -> None:
     # the episode buffer, as lerobot does for its own (1,)-shaped columns (timestamp, ...).
     for key in SCALAR_KEYS:
         ds.episode_buffer[key][-1] = np.asarray(ds.episode_buffer[key][-1]).reshape(())
+
+
+def _label_success_tail(frames: list[dict]) -> None:
+    """The paper's sparse reward: the last SUCCESS_TAIL steps of a successful episode carry 1.
+
+    A single env.step() can only reward the step that succeeded, so the tail is labelled here.
+    """
+    for frame in frames[-SUCCESS_TAIL:]:
+        frame[REWARD_KEY] = np.maximum(frame[REWARD_KEY], np.float32(1.0))
 
 
 def _write_json_atomic(path: Path, data: dict) -> None:
@@ -242,6 +253,8 @@ def write_demos(
                 attempts += 1
                 successes += int(success[i])
                 if (success[i] or not only_successful) and written < episodes:
+                    if success[i]:
+                        _label_success_tail(frames[i])
                     for frame in frames[i]:
                         _add_frame(ds, frame)
                     ds.save_episode()
