@@ -118,21 +118,34 @@ def content_objects(store: Store, manifest: dict) -> list[tuple[str, int, str]]:
     return [(e["id"], e["size"], e["path"]) for e in read_tree(store, manifest["content"])]
 
 
-def verify_artifact(store: Store, artifact_id: str, full: bool = True) -> None:
-    """Raise StoreError if the artifact's manifest or any of its objects is missing or corrupt."""
+def verify_artifact(store: Store, artifact_id: str, full: bool = True, quarantine: bool = False) -> None:
+    """Raise StoreError if the artifact's manifest or any of its objects is missing or corrupt.
+
+    With quarantine, a corrupt object is moved aside first, so that the next writer of the same
+    bytes re-creates it instead of deduplicating against the damaged copy."""
     manifest = read_artifact(store, artifact_id)  # manifests are always re-hashed
     for oid, size, rel in content_objects(store, manifest):
         actual = store.object_size(oid)
         if actual is None:
             raise StoreError(f"artifact {artifact_id[:12]}: object {oid[:12]} ({rel}) is missing")
-        if actual != size:
-            raise StoreError(f"artifact {artifact_id[:12]}: object {oid[:12]} ({rel}) has size "
-                             f"{actual}, expected {size}")
-        if full and hash_file(store.object_path(oid))[0] != oid:
-            raise StoreError(f"artifact {artifact_id[:12]}: object {oid[:12]} ({rel}) is corrupt")
+        if actual != size or (full and hash_file(store.object_path(oid))[0] != oid):
+            if quarantine:
+                _quarantine(store, oid)
+            why = "is corrupt" if actual == size else f"has size {actual}, expected {size}"
+            raise StoreError(f"artifact {artifact_id[:12]}: object {oid[:12]} ({rel}) {why}")
 
 
-def materialize(store: Store, artifact_id: str, dest: Path) -> Path:
+def _quarantine(store: Store, oid: str) -> None:
+    from artifacts.auditlog import append_event
+
+    try:
+        store.quarantine(oid)
+    except FileNotFoundError:
+        return
+    append_event(store, "quarantined", object=oid, reason="hash mismatch found on use")
+
+
+def materialize(store: Store, artifact_id: str, dest: Path, quarantine: bool = False) -> Path:
     """A verified, read-only view of an artifact.
 
     A file artifact is its object itself (read-only, re-hashed now). A directory artifact is copied
@@ -141,7 +154,7 @@ def materialize(store: Store, artifact_id: str, dest: Path) -> Path:
     """
     manifest = read_artifact(store, artifact_id)
     if manifest["layout"] == "file":
-        verify_artifact(store, artifact_id, full=True)
+        verify_artifact(store, artifact_id, full=True, quarantine=quarantine)
         return store.object_path(manifest["content"])
     dest.mkdir(parents=True, exist_ok=False)
     for oid, size, rel in content_objects(store, manifest):
@@ -158,6 +171,8 @@ def materialize(store: Store, artifact_id: str, dest: Path) -> Path:
             finally:
                 os.close(fd)
         if got != oid or n != size:
+            if quarantine:
+                _quarantine(store, oid)
             raise StoreError(f"artifact {artifact_id[:12]}: object {oid[:12]} ({rel}) is corrupt")
     _make_read_only(dest)
     return dest

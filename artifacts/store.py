@@ -146,8 +146,10 @@ class Store:
         replay shards cost one read); otherwise the file itself is fsynced and hard-linked in.
         """
         oid, size = hash_file(path)
-        if self.has_object(oid):
+        if self.object_size(oid) == size:
             return oid, size
+        if self.has_object(oid):  # a damaged copy of the same id: move it aside, then replace it
+            self.quarantine(oid)
         fd = os.open(path, os.O_RDONLY)
         try:
             os.fsync(fd)
@@ -161,8 +163,10 @@ class Store:
         """Store a file the caller may still hold open (checkpoints): hash first so a file that is
         already an object is never rewritten; else copy it, and refuse if it changed meanwhile."""
         oid, size = hash_file(path)
-        if self.has_object(oid):
+        if self.object_size(oid) == size:
             return oid, size
+        if self.has_object(oid):
+            self.quarantine(oid)
         copied, copied_size = self.ingest_file(path)
         if copied != oid:
             raise StoreError(f"{path}: file changed while it was being stored")

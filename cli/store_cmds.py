@@ -254,7 +254,9 @@ def verify(full: Annotated[bool, typer.Option("--full", help="Re-hash every obje
         out.print(f"verify {'--full' if full else '(quick)'}: {status} — {what}, "
                   f"{report.log_events} log events chained")
     if not report.ok:
-        raise typer.Exit(1)
+        # SystemExit, not typer.Exit: cli.main runs the app with standalone_mode=False, where click
+        # turns typer.Exit into a return value that main() does not pass on.
+        raise SystemExit(1)
 
 
 def gc(yes: Annotated[bool, typer.Option("--yes", help="Really delete (default is a dry run).")] = False,

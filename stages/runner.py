@@ -197,7 +197,7 @@ class Runner:
             try:
                 record = self.store.read_json(a["record_id"])
                 for role, oid in record["outputs"].items():
-                    verify_artifact(self.store, oid, full=self.verify_hits == "full")
+                    verify_artifact(self.store, oid, full=self.verify_hits == "full", quarantine=True)
             except StoreError as exc:
                 self.console.print(f"[yellow]step {name}: cached result of attempt {a['attempt']} is "
                                    f"damaged ({exc}); it does not count[/]")
@@ -221,7 +221,7 @@ class Runner:
                              f"{_progress_text(c['progress'])}); pass --continue to resume it or --rerun to start over")
         for attempt, c in reversed(candidates):
             try:
-                verify_artifact(self.store, c["id"], full=True)
+                verify_artifact(self.store, c["id"], full=True, quarantine=True)
             except StoreError as exc:
                 self.console.print(f"[yellow]step {name}: checkpoint {c['id'][:12]} is damaged ({exc}); "
                                    "trying an older one[/]")
@@ -296,7 +296,7 @@ class Runner:
         for role, oid in pinned.items():
             try:
                 manifests[role] = read_artifact(store, oid)
-                paths[role] = materialize(store, oid, work_dir / "inputs" / role)
+                paths[role] = materialize(store, oid, work_dir / "inputs" / role, quarantine=True)
             except StoreError as exc:
                 raise StoreError(f"step {step.name} refuses input {role!r} ({oid[:12]}): {exc}") from None
 

@@ -136,9 +136,8 @@ def parse_workflow(data: Any, source: str, default_name: str = "workflow") -> Wo
 
 def _check_learner(wf: Workflow, source: str) -> None:
     """The learner section is checked by the learner's own config class, so the two never drift."""
-    try:
-        from accrue.learner.config import LearnerConfig
-    except ImportError:
+    LearnerConfig = _learner_config_class()
+    if LearnerConfig is None:
         return
     from accrue.errors import AccrueError
 
@@ -151,6 +150,30 @@ def _check_learner(wf: Workflow, source: str) -> None:
         raise StageError(f"{source}: {exc}") from None
     except TypeError as exc:
         raise StageError(f"{source}: learner: {exc}") from None
+
+
+def _learner_config_class():
+    """accrue.learner.config.LearnerConfig without importing accrue.learner (whose __init__ pulls in
+    torch, seconds of start-up): the config module itself only needs accrue.errors."""
+    import importlib.util
+    import sys
+
+    if "accrue.learner.config" in sys.modules:
+        return sys.modules["accrue.learner.config"].LearnerConfig
+    try:
+        package = importlib.util.find_spec("accrue.learner")
+    except ImportError:
+        return None
+    if package is None or not package.submodule_search_locations:
+        return None
+    path = Path(next(iter(package.submodule_search_locations))) / "config.py"
+    spec = importlib.util.spec_from_file_location("_accrue_learner_config", path)
+    if spec is None or spec.loader is None or not path.is_file():
+        return None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up while building the class
+    spec.loader.exec_module(module)
+    return module.LearnerConfig
 
 
 def load_workflow(path: Path | str) -> Workflow:

@@ -1,0 +1,139 @@
+"""verify (quick/full, quarantine) and gc (roots, dry run, grace period, lock)."""
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_runner_support import count_invocation  # noqa: E402
+
+from artifacts.errors import StoreError
+from artifacts.gc import collect_garbage
+from artifacts.ingest import add_path
+from artifacts.locks import store_lock
+from artifacts.reachability import walk
+from artifacts.records import list_attempts
+from artifacts.refs import set_ref
+from artifacts.store import Store
+from artifacts.verify import verify_store
+from rich.console import Console
+from stages.runner import Runner
+
+
+def quiet_runner(store: Store) -> Runner:
+    return Runner(store, console=Console(file=open(os.devnull, "w")))
+
+
+@pytest.fixture
+def populated(tmp_path: Path) -> Store:
+    store = Store.init(tmp_path / "store")[0]
+    src = tmp_path / "demos"
+    src.mkdir()
+    (src / "a.bin").write_bytes(os.urandom(3000))
+    (src / "seed.txt").write_text("42")
+    aid, _ = add_path(store, src, "demos")
+    quiet_runner(store).run(count_invocation(n=6, every=2, inputs={"seed": aid}))
+    return store
+
+
+def flip_byte(path: Path, offset: int) -> None:
+    os.chmod(path, 0o644)
+    data = bytearray(path.read_bytes())
+    data[offset % len(data)] ^= 0x40
+    path.write_bytes(bytes(data))
+
+
+def test_clean_store_verifies(populated):
+    assert verify_store(populated).ok
+    report = verify_store(populated, full=True)
+    assert report.ok and report.objects_checked == len(list(populated.iter_object_ids()))
+
+
+def test_flipped_byte_in_any_object_is_found_and_quarantined(populated, tmp_path):
+    ids = list(populated.iter_object_ids())
+    reachable = set(walk(populated).sizes)
+    assert len(ids) > 8 and len(reachable) < len(ids)
+    for n, oid in enumerate(ids):
+        store = Store.init(tmp_path / f"copy{n}")[0]
+        os.system(f"cp -a {populated.root}/. {store.root}/")
+        flip_byte(store.object_path(oid), n * 7919)
+        report = verify_store(store, full=True)
+        assert not report.ok and report.quarantined == [oid], oid
+        assert not store.has_object(oid)
+        assert any(p.name.startswith(oid) for p in store.quarantine_dir.iterdir())
+        again = verify_store(store, full=False)  # afterwards: missing, if anything still names it
+        if oid in reachable:
+            assert any("missing object " + oid[:12] in p for p in again.problems), again.problems
+        else:
+            assert again.ok
+
+
+def test_quick_verify_reports_missing_and_wrong_size(populated):
+    reachable = [o for o in populated.iter_object_ids()]
+    victim = max(reachable, key=lambda o: populated.object_size(o))
+    flip = populated.object_path(victim)
+    os.chmod(flip, 0o644)
+    with open(flip, "ab") as f:
+        f.write(b"extra")
+    report = verify_store(populated)
+    assert not report.ok and any("has size" in p or "not a JSON" in p or "corrupt" in p for p in report.problems)
+    flip.unlink()
+    assert any("missing object" in p for p in verify_store(populated).problems)
+
+
+def test_gc_keeps_roots_and_honours_dry_run_and_grace(populated, tmp_path):
+    loose = populated.put_bytes(b"nobody refers to me")
+    report = collect_garbage(populated, dry_run=True, grace_s=0)
+    assert loose in [o for o, _ in report.removed] and populated.has_object(loose)
+    young = collect_garbage(populated, dry_run=False, grace_s=3600)
+    assert young.removed == [] and young.young >= 1 and populated.has_object(loose)
+    done = collect_garbage(populated, dry_run=False, grace_s=0)
+    assert loose in [o for o, _ in done.removed] and not populated.has_object(loose)
+    # committed checkpoints were superseded by the record: collectable; everything else verifies
+    assert verify_store(populated, full=True).ok
+    again = Runner(populated, console=Console(file=open(os.devnull, "w")))
+    # the committed result is still a cache hit after gc
+    aid = list_attempts(populated)[0]["inputs"]["seed"]
+    assert again.run(count_invocation(n=6, every=2, inputs={"seed": aid})).cached
+
+
+def test_gc_keeps_checkpoints_of_interrupted_attempts(tmp_path):
+    store = Store.init(tmp_path / "s")[0]
+
+    class Stop(Exception):
+        pass
+
+    from stages.runner_types import StepDef, StepInvocation
+
+    def body(ctx):
+        d = ctx.scratch_dir("c")
+        (d / "w.bin").write_bytes(b"weights")
+        ctx.save_checkpoint(d, {"i": 1})
+        raise Stop("crash")
+
+    inv = StepInvocation(step=StepDef("train", "1", body), config={})
+    with pytest.raises(Stop):
+        quiet_runner(store).run(inv)
+    ckpt = list_attempts(store)[0]["checkpoints"][0]["id"]
+    collect_garbage(store, dry_run=False, grace_s=0)
+    assert store.has_object(ckpt)
+    assert verify_store(store, full=True).ok
+
+
+def test_gc_refuses_while_another_gc_holds_the_lock(populated):
+    lock = store_lock(populated.locks_dir, "gc")
+    with lock:
+        # filelock is re-entrant per object, so test with a second lock object on the same file
+        with pytest.raises(StoreError, match="locked"):
+            collect_garbage(populated)
+
+
+def test_gc_refuses_to_delete_from_a_damaged_store(populated):
+    some_ref_target = populated.put_json({"type": "artifact", "layout": "file", "content": "ab" * 32,
+                                          "size": 1, "inputs": {}})
+    set_ref(populated, "broken", some_ref_target)
+    with pytest.raises(StoreError, match="gc refused"):
+        collect_garbage(populated, dry_run=False, grace_s=0)
