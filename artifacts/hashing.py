@@ -44,22 +44,87 @@ def hash_file(path: Path) -> tuple[str, int]:
 
 
 def copy_hashing(src: BinaryIO, dst_fd: int, size_hint: int = 0) -> tuple[str, int]:
-    """Copy src into dst_fd while hashing it: one pass over the bytes. Returns (id, size)."""
+    """Copy src into dst_fd while hashing it: one pass over the bytes. Returns (id, size).
+
+    Large copies overlap the write of one chunk with the read and hash of the next (a writer
+    thread; both blake3 and os.write release the GIL), so the copy costs little over hashing.
+    """
+    if size_hint < _PIPELINE_MIN:
+        return _copy_hashing_serial(src, dst_fd, size_hint)
+    return _copy_hashing_pipelined(src, dst_fd)
+
+
+_PIPELINE_MIN = 32 * 1024 * 1024
+_SYNC_EVERY = 128 * 1024 * 1024
+
+
+def _write_all(fd: int, chunk: memoryview) -> None:
+    written = 0
+    while written < len(chunk):
+        written += os.write(fd, chunk[written:])
+
+
+def _copy_hashing_serial(src: BinaryIO, dst_fd: int, size_hint: int) -> tuple[str, int]:
     hasher = _hasher(size_hint)
     buffer = bytearray(CHUNK_SIZE)
     view = memoryview(buffer)
     total = 0
-    while True:
-        n = src.readinto(buffer)
-        if not n:
-            break
-        chunk = view[:n]
-        hasher.update(chunk)
-        written = 0
-        while written < n:
-            written += os.write(dst_fd, chunk[written:])
+    while n := src.readinto(buffer):
+        hasher.update(view[:n])
+        _write_all(dst_fd, view[:n])
         total += n
     return hasher.hexdigest(), total
+
+
+def _copy_hashing_pipelined(src: BinaryIO, dst_fd: int) -> tuple[str, int]:
+    """Hash the source through mmap (no user-space copy) while a writer thread writes the chunks
+    already hashed. The source must not be truncated meanwhile (mmap readers get SIGBUS)."""
+    import mmap
+    import queue
+    import threading
+
+    try:
+        mapped = mmap.mmap(src.fileno(), 0, access=mmap.ACCESS_READ)
+    except (OSError, ValueError):  # not a regular file, or empty
+        return _copy_hashing_serial(src, dst_fd, 0)
+    view = memoryview(mapped)
+    size = len(view)
+    todo: "queue.Queue[tuple[int, int] | None]" = queue.Queue(maxsize=4)
+    failure: list[BaseException] = []
+
+    def writer() -> None:
+        unsynced = 0
+        while (item := todo.get()) is not None:
+            if failure:
+                continue
+            start, end = item
+            try:
+                _write_all(dst_fd, view[start:end])
+                unsynced += end - start
+                if unsynced >= _SYNC_EVERY:  # start writeback early: the final fsync is then short
+                    os.fdatasync(dst_fd)
+                    unsynced = 0
+            except BaseException as exc:  # noqa: BLE001 - re-raised in the caller's thread
+                failure.append(exc)
+
+    thread = threading.Thread(target=writer, name="accrue-copy-writer", daemon=True)
+    thread.start()
+    hasher = blake3.blake3(max_threads=1)  # the other core is writing
+    try:
+        for start in range(0, size, CHUNK_SIZE):
+            if failure:
+                break
+            end = min(size, start + CHUNK_SIZE)
+            hasher.update(view[start:end])
+            todo.put((start, end))
+    finally:
+        todo.put(None)
+        thread.join()
+        view.release()
+        mapped.close()
+    if failure:
+        raise failure[0]
+    return hasher.hexdigest(), size
 
 
 def is_full_id(text: str) -> bool:

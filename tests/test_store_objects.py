@@ -58,7 +58,7 @@ def test_canonical_json_is_order_independent_and_rejects_nan():
         canonical_json({"x": float("nan")})
 
 
-@pytest.mark.parametrize("size", [0, 1, 4096, 5 * 1024 * 1024 + 3])
+@pytest.mark.parametrize("size", [0, 1, 4096, 5 * 1024 * 1024 + 3, 33 * 1024 * 1024 + 5])  # last: pipelined copy
 def test_file_hash_and_one_pass_copy_match_blake3(tmp_path, size):
     data = os.urandom(size)
     src = tmp_path / "f"
