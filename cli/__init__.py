@@ -13,6 +13,7 @@ _COMMAND_MODULES = [
     "cli.sim_cmds",       # sim tasks/demos/watch
     "cli.policy_cmds",    # policy finetune/chunk
     "cli.metrics_cmds",   # metrics FILE.json
+    "cli.report_cmds",    # report WORKFLOW
 ]
 
 
