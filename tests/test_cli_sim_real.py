@@ -68,16 +68,18 @@ def test_watch_writes_rerun_and_mcap(tmp_path: Path) -> None:
     from accrue.logs.rerun_log import read_rrd_table
 
     rrd, logs = tmp_path / "w.rrd", tmp_path / "mcap"
-    result = CliRunner().invoke(app, ["sim", "watch", TASK, "--policy", "random", "--seed", "2",
+    result = CliRunner().invoke(app, ["sim", "watch", TASK, "--policy", "random", "--seed", "2", "--images",
                                       "--out", str(rrd), "--mcap", str(logs)])
     assert result.exit_code == 0, result.output
     table = read_rrd_table(rrd)
     steps = table["step"]
     assert steps == list(range(len(steps))) and len(steps) > 1
     assert "/wrench/fz:Scalars:scalars" in table and "/world/ee:Transform3D:translation" in table
+    assert all(v is not None for v in table["/camera/front:EncodedImage:blob"])
     (episode_file,) = sorted(logs.glob("episode-*.mcap"))
     log = read_episode(episode_file)
     assert len(log.messages["/state"]) == len(steps)
+    assert log.image(0, "/camera/front").shape == (64, 64, 3) and log.schemas["/camera/front"] == "foxglove.CompressedImage"
     assert log.schemas["/ee/pose"] == "foxglove.PoseInFrame" and log.schemas["/wrist/wrench"] == "accrue.Wrench"
     assert log.episode["task_id"] == TASK and log.episode["policy"] == "random"
     assert json.loads(log.episode["length"]) == len(steps)

@@ -210,3 +210,20 @@ def test_read_demo_info_needs_a_dataset_and_the_task_record(tmp_path: Path, monk
     (tmp_path / "d" / "meta" / "accrue.json").unlink()
     with pytest.raises(AccrueError, match="accrue task is unknown"):
         demos.read_demo_info(tmp_path / "d")
+
+
+def test_interrupted_run_leaves_nothing_behind(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    sim = fake_sim()
+    calls = {"n": 0}
+
+    def act(state):
+        calls["n"] += 1
+        if calls["n"] == 9:  # some episodes are already saved by then
+            raise KeyboardInterrupt
+        return np.zeros((len(state), 6), np.float32)
+
+    sim.make_expert = lambda task_id, quality, seed: SimpleNamespace(act=act)
+    monkeypatch.setattr(demos, "_sim_api", lambda: sim)
+    with pytest.raises(KeyboardInterrupt):
+        demos.write_demos("fake/peg", 5, tmp_path / "d", progress=False, num_envs=1)
+    assert list(tmp_path.iterdir()) == []  # neither the dataset nor its staging directory

@@ -70,6 +70,14 @@ def test_optional_topics_absent_and_rotation_vector_pose(tmp_path: Path) -> None
     rec.log_step(0, 0, state=[0.0], action=np.zeros(6), ee_pose=[0, 0, 0, 0, 0, np.pi])
     log = read_episode(rec.end(0, success=False, truncated=True))
     assert set(log.messages) == {"/state", "/action", "/reward", "/ee/pose", "/episode/label"}
+    named = EpisodeRecorder(tmp_path / "front", camera="front")
+    named.start(0)
+    named.log_step(0, 0, state=[0.0], action=np.zeros(6), image=np.zeros((4, 4, 3), np.uint8))
+    front = read_episode(named.end(0, success=True))
+    assert front.schemas["/camera/front"] == "foxglove.CompressedImage"
+    assert front.messages["/camera/front"][0]["frame_id"] == "front_camera"
+    with pytest.raises(AccrueError, match="camera name"):
+        EpisodeRecorder(tmp_path, camera="../x")
     q = log.messages["/ee/pose"][0]["pose"]["orientation"]
     assert q["z"] == pytest.approx(1.0) and q["w"] == pytest.approx(0.0, abs=1e-9)
     assert log.messages["/episode/label"][0]["truncated"] is True

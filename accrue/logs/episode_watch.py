@@ -73,7 +73,8 @@ def watch_episode(task_id: str, policy: str = "expert", seed: int = 0, out: Path
     act = _policy(policy, task_id, seed)
     out = Path(out) if out is not None else default_rrd_path(task_id, policy, seed)
     env = make_vec_env(task_id, num_envs=1, seed=seed, obs_mode="state+image" if images else "state")
-    recorder = EpisodeRecorder(mcap_dir, control_hz=spec.control_hz, state_names=list(STATE_NAMES)) if mcap_dir else None
+    recorder = EpisodeRecorder(mcap_dir, control_hz=spec.control_hz, state_names=list(STATE_NAMES),
+                               camera="front") if mcap_dir else None
     rec_id = f"watch-{task_id}-{policy}-seed{seed}"
     mcap_path = None
     try:

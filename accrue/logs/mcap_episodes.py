@@ -17,7 +17,8 @@ Topics and schemas (messages are JSON; schemas are JSON Schema, named as below):
 | /ee/pose         | foxglove.PoseInFrame      | steps where an end-effector pose is given        |
 | /socket/pose     | foxglove.PoseInFrame      | steps where a socket pose is given               |
 | /wrist/wrench    | accrue.Wrench             | steps where a wrist force/torque is given        |
-| /camera/wrist    | foxglove.CompressedImage  | steps where an image is given (jpeg or png)      |
+| /camera/<name>   | foxglove.CompressedImage  | steps where an image is given (jpeg or png);     |
+|                  |                           | <name> is the recorder's camera, default wrist   |
 | /episode/label   | accrue.EpisodeLabel       | once, at the end                                 |
 
 Joint states are not logged: accrue's tasks are driven in end-effector space with the part held
@@ -53,7 +54,7 @@ TOPIC_REFERENCE = "/reference"
 TOPIC_EE_POSE = "/ee/pose"
 TOPIC_SOCKET_POSE = "/socket/pose"
 TOPIC_WRENCH = "/wrist/wrench"
-TOPIC_WRIST_IMAGE = "/camera/wrist"
+TOPIC_WRIST_IMAGE = "/camera/wrist"  # the image topic of the default camera name
 TOPIC_LABEL = "/episode/label"
 
 # topic -> JSON schema; the schema's title is its registered MCAP schema name
@@ -180,6 +181,7 @@ class EpisodeRecorder:
         image_format: str = "jpeg",
         jpeg_quality: int = 90,
         chunk_size: int = 256 * 1024,
+        camera: str = "wrist",
     ) -> None:
         if image_format not in ("jpeg", "png"):
             raise AccrueError(f"image format must be jpeg or png, got {image_format!r}")
@@ -192,6 +194,10 @@ class EpisodeRecorder:
         self.image_format = image_format
         self.jpeg_quality = jpeg_quality
         self.chunk_size = chunk_size
+        if not re.fullmatch(r"[A-Za-z0-9_]+", camera):
+            raise AccrueError(f"camera name must be letters, digits or _, got {camera!r}")
+        self.camera = camera
+        self.image_topic = f"/camera/{camera}"
         self._open: dict[int, _OpenEpisode] = {}
         self._next = _next_index(self.out_dir)
 
@@ -268,11 +274,11 @@ class EpisodeRecorder:
             data = encode_image(image, self.image_format, self.jpeg_quality)
             msg = {
                 "timestamp": _stamp(ns),
-                "frame_id": "wrist_camera",
+                "frame_id": f"{self.camera}_camera",
                 "data": base64.b64encode(data).decode("ascii"),
                 "format": self.image_format,
             }
-            self._write(ep, TOPIC_WRIST_IMAGE, ns, msg)
+            self._write(ep, self.image_topic, ns, msg, S.FOXGLOVE_COMPRESSED_IMAGE)
 
     def end(self, env_index: int, success: bool, truncated: bool = False, metadata: Mapping[str, Any] | None = None) -> Path:
         """Seal env `env_index`'s episode: label, metadata, summary, fsync, rename. Returns the file."""
@@ -330,12 +336,12 @@ class EpisodeRecorder:
         except KeyError:
             raise AccrueError(f"env {env_index}: log_step before start") from None
 
-    def _write(self, ep: _OpenEpisode, topic: str, ns: int, msg: dict) -> None:
+    def _write(self, ep: _OpenEpisode, topic: str, ns: int, msg: dict, schema: dict | None = None) -> None:
         from mcap.well_known import MessageEncoding, SchemaEncoding
 
         channel = ep.channels.get(topic)
         if channel is None:
-            schema = TOPIC_SCHEMAS[topic]
+            schema = schema or TOPIC_SCHEMAS[topic]
             schema_id = ep.writer.register_schema(
                 name=schema["title"], encoding=SchemaEncoding.JSONSchema, data=json.dumps(schema).encode()
             )

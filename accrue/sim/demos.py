@@ -25,7 +25,7 @@ import shutil
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from types import ModuleType
-from typing import Any, NamedTuple
+from typing import Any, Callable, Iterator, NamedTuple
 
 import numpy as np
 
@@ -120,11 +120,14 @@ def demo_features(state_names: list[str], image_shape: tuple[int, int, int] | No
     return features
 
 
-def _prepare_out_dir(out_dir: Path) -> None:
+def _check_out_dir(out_dir: Path) -> None:
     if out_dir.exists():
-        if not out_dir.is_dir() or any(out_dir.iterdir()):
-            raise AccrueError(f"output directory {out_dir} exists and is not empty; pick a new one")
-        out_dir.rmdir()  # lerobot creates the root itself and refuses an existing one
+        if not out_dir.is_dir():
+            raise AccrueError(f"output path {out_dir} exists and is not a directory")
+        if any(out_dir.iterdir()):
+            hint = (" and holds a dataset without meta/accrue.json (an interrupted run?)"
+                    if (out_dir / "meta" / "info.json").exists() and not (out_dir / ACCRUE_META).exists() else "")
+            raise AccrueError(f"output directory {out_dir} exists and is not empty{hint}; pick a new one")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
 
 
@@ -177,6 +180,56 @@ class _Progress:
             self._bar.stop()
 
 
+@dataclass
+class _Episode:
+    frames: list[dict]
+    success: bool
+
+
+def _expert_episodes(env: Any, expert: Any, obs: dict, instruction: str, max_attempts: int,
+                     still_needed: Callable[[], int]) -> Iterator[_Episode]:
+    """Finished expert episodes from the vectorised env, in the order they end.
+
+    An env that finishes starts another episode only while fewer episodes are running than
+    `still_needed()` and fewer than `max_attempts` have been started.
+    """
+    states0 = np.asarray(obs["state"])
+    n = len(states0)
+    with_image = "image" in obs
+    frames: list[list[dict]] = [[] for _ in range(n)]
+    active = np.ones(n, dtype=bool)  # env i runs an episode that will be counted
+    started = n
+    while active.any():
+        states = np.asarray(obs["state"], dtype=np.float32)
+        images = np.asarray(obs["image"]) if with_image else None
+        actions = np.clip(np.asarray(expert.act(states), dtype=np.float32), -1.0, 1.0)
+        res = env.step(actions)
+        rewards = np.asarray(res.reward, dtype=np.float32).reshape(n)
+        success = np.asarray(res.success, dtype=bool).reshape(n)
+        done = np.asarray(res.terminated, dtype=bool).reshape(n) | np.asarray(res.truncated, dtype=bool).reshape(n)
+        for i in np.flatnonzero(active):
+            frame = {
+                STATE_KEY: states[i].copy(),
+                ACTION_KEY: actions[i].copy(),
+                REWARD_KEY: np.array([rewards[i]], dtype=np.float32),
+                DONE_KEY: np.array([done[i]]),
+                SUCCESS_KEY: np.array([success[i]]),
+                "task": instruction,
+            }
+            if images is not None:
+                frame[IMAGE_KEY] = images[i].copy()
+            frames[i].append(frame)
+        for i in np.flatnonzero(done & active):
+            yield _Episode(frames[i], bool(success[i]))
+            frames[i] = []
+            running_elsewhere = int(active.sum()) - 1
+            if started < max_attempts and still_needed() > running_elsewhere:
+                started += 1
+            else:
+                active[i] = False
+        obs = env.reset(done) if done.any() else res.obs
+
+
 def write_demos(
     task_id: str,
     episodes: int,
@@ -195,7 +248,9 @@ def write_demos(
 
     `max_attempts` bounds the expert episodes run (default `max(3 * episodes, episodes + 8)`);
     if it is reached first, the episodes written so far still form a valid dataset and the
-    summary's `complete` is False. `out_dir` must not exist or be empty.
+    summary's `complete` is False. `out_dir` must not exist or be empty. The dataset is built
+    under a temporary sibling name and renamed to `out_dir` when finished, so an interrupted
+    run leaves nothing under `out_dir`.
     """
     if episodes < 1:
         raise AccrueError(f"episodes must be at least 1, got {episodes}")
@@ -204,84 +259,71 @@ def write_demos(
     out_dir = Path(out_dir)
     sim = _sim_api()
     spec = get_task_spec(task_id)
-    _prepare_out_dir(out_dir)
+    _check_out_dir(out_dir)
     max_attempts = max(3 * episodes, episodes + 8) if max_attempts is None else max(int(max_attempts), 1)
     n = max(1, min(num_envs or 8, episodes, max_attempts))
 
     env = sim.make_vec_env(task_id, num_envs=n, seed=seed, obs_mode=obs_mode)
     expert = sim.make_expert(task_id, quality=quality, seed=seed)
     obs = env.reset()
-    with_image = obs_mode == "state+image"
-    image_shape = tuple(np.asarray(obs["image"]).shape[1:]) if with_image else None
+    image_shape = tuple(np.asarray(obs["image"]).shape[1:]) if obs_mode == "state+image" else None
     features = demo_features(list(sim.STATE_NAMES), image_shape, use_video)
 
     os.environ.setdefault("SVT_LOG", "1")  # the AV1 encoder prints its whole config per video otherwise
     import datasets
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+    staging = out_dir.with_name(f".{out_dir.name}.partial-{os.getpid()}")
+    shutil.rmtree(staging, ignore_errors=True)
     bars_were_on = not datasets.are_progress_bars_disabled()
     datasets.disable_progress_bars()  # one "Map" bar per saved episode otherwise; ours suffices
-    ds = LeRobotDataset.create(repo_id=repo_id_for(task_id), root=out_dir, fps=int(round(spec.control_hz)),
-                               features=features, use_videos=any(f["dtype"] == "video" for f in features.values()),
-                               video_backend="pyav")
-    frames: list[list[dict]] = [[] for _ in range(n)]
-    active = np.ones(n, dtype=bool)    # env i is running an episode we will count
-    started, attempts, successes, written, total_frames = n, 0, 0, 0, 0
     bar = _Progress(progress, episodes, f"demos {task_id}")
+    attempts = successes = written = total_frames = 0
     try:
-        while written < episodes and active.any():
-            states = np.asarray(obs["state"], dtype=np.float32)
-            images = np.asarray(obs["image"]) if with_image else None
-            actions = np.clip(np.asarray(expert.act(states), dtype=np.float32), -1.0, 1.0)
-            res = env.step(actions)
-            rewards = np.asarray(res.reward, dtype=np.float32).reshape(n)
-            success = np.asarray(res.success, dtype=bool).reshape(n)
-            done = np.asarray(res.terminated, dtype=bool).reshape(n) | np.asarray(res.truncated, dtype=bool).reshape(n)
-            for i in np.flatnonzero(active):
-                frame = {
-                    STATE_KEY: states[i].copy(),
-                    ACTION_KEY: actions[i].copy(),
-                    REWARD_KEY: np.array([rewards[i]], dtype=np.float32),
-                    DONE_KEY: np.array([done[i]]),
-                    SUCCESS_KEY: np.array([success[i]]),
-                    "task": spec.instruction,
-                }
-                if images is not None:
-                    frame[IMAGE_KEY] = images[i].copy()
-                frames[i].append(frame)
-            for i in np.flatnonzero(done & active):
+        ds = LeRobotDataset.create(repo_id=repo_id_for(task_id), root=staging, fps=int(round(spec.control_hz)),
+                                   features=features, use_videos=any(f["dtype"] == "video" for f in features.values()),
+                                   video_backend="pyav")
+        try:
+            for ep in _expert_episodes(env, expert, obs, spec.instruction, max_attempts, lambda: episodes - written):
                 attempts += 1
-                successes += int(success[i])
-                if (success[i] or not only_successful) and written < episodes:
-                    if success[i]:
-                        _label_success_tail(frames[i])
-                    for frame in frames[i]:
+                successes += int(ep.success)
+                if (ep.success or not only_successful) and written < episodes:
+                    if ep.success:
+                        _label_success_tail(ep.frames)
+                    for frame in ep.frames:
                         _add_frame(ds, frame)
                     ds.save_episode()
                     written += 1
-                    total_frames += len(frames[i])
-                frames[i] = []
-                # start another episode here only if more may still be needed and allowed
-                if started < max_attempts and written + int(active.sum()) - 1 < episodes:
-                    started += 1
-                else:
-                    active[i] = False
-            bar.update(written, attempts, successes)
-            obs = env.reset(done) if done.any() else res.obs
+                    total_frames += len(ep.frames)
+                bar.update(written, attempts, successes)
+                if written == episodes:
+                    break
+        finally:
+            ds.finalize()
+        if written == 0:
+            raise AccrueError(f"the {task_id} expert (quality {quality}) succeeded in none of {attempts} episodes; "
+                              "nothing written")
+        summary = DemoSummary(root=out_dir, task_id=task_id, instruction=spec.instruction, requested=episodes,
+                              episodes=written, frames=total_frames, attempts=attempts, successes=successes,
+                              seed=seed, quality=float(quality), obs_mode=obs_mode)
+        _write_json_atomic(staging / ACCRUE_META, _accrue_meta(summary, only_successful, list(sim.STATE_NAMES)))
+        _publish(staging, out_dir)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
     finally:
         bar.stop()
-        ds.finalize()
         if bars_were_on:
             datasets.enable_progress_bars()
-
-    if written == 0:
-        shutil.rmtree(out_dir, ignore_errors=True)
-        raise AccrueError(f"the {task_id} expert (quality {quality}) succeeded in none of {attempts} episodes; nothing written")
-    summary = DemoSummary(root=out_dir, task_id=task_id, instruction=spec.instruction, requested=episodes,
-                          episodes=written, frames=total_frames, attempts=attempts, successes=successes,
-                          seed=seed, quality=float(quality), obs_mode=obs_mode)
-    _write_json_atomic(out_dir / ACCRUE_META, _accrue_meta(summary, only_successful, list(sim.STATE_NAMES)))
+        if hasattr(env, "close"):
+            env.close()
     return summary
+
+
+def _publish(staging: Path, out_dir: Path) -> None:
+    if out_dir.exists():
+        out_dir.rmdir()  # still empty (checked at the start); fails loudly if someone wrote there since
+    os.replace(staging, out_dir)
 
 
 def _accrue_meta(summary: DemoSummary, only_successful: bool, state_names: list[str]) -> dict:
