@@ -4,6 +4,7 @@ not written yet), under an exclusive lock."""
 from __future__ import annotations
 
 import os
+import re
 import time
 from dataclasses import dataclass, field
 
@@ -39,6 +40,15 @@ def _age(st: os.stat_result, now: float) -> float:
     return now - max(st.st_mtime, st.st_ctime)
 
 
+def _owner_alive(name: str) -> bool:
+    """Temp names carry their writer's pid (…-<pid>-<hex>); a live writer's staging area — a
+    step that has run for days, say — is never swept, whatever its age."""
+    import psutil
+
+    m = re.search(r"-(\d+)-[0-9a-f]+$", name)
+    return bool(m) and psutil.pid_exists(int(m.group(1)))
+
+
 def collect_garbage(store: Store, dry_run: bool = True, grace_s: float = DEFAULT_GRACE_S) -> GcReport:
     report = GcReport(dry_run=dry_run)
     lock = try_lock(store_lock(store.locks_dir, "gc"), "the store (gc)", timeout=0)
@@ -60,7 +70,7 @@ def collect_garbage(store: Store, dry_run: bool = True, grace_s: float = DEFAULT
             if not dry_run:
                 path.unlink()
         for entry in sorted(store.tmp_dir.iterdir()) if store.tmp_dir.is_dir() else []:
-            if _age(entry.lstat(), now) >= grace_s:
+            if _age(entry.lstat(), now) >= grace_s and not _owner_alive(entry.name):
                 report.tmp_removed.append(entry.name)
                 if not dry_run:
                     remove_tree(entry) if entry.is_dir() else entry.unlink(missing_ok=True)

@@ -20,10 +20,10 @@ class Reach:
     problems: list[str] = field(default_factory=list)
 
 
-def roots(store: Store) -> list[tuple[str, str]]:
+def roots(store: Store, problems: list[str] | None = None) -> list[tuple[str, str]]:
     """(id, where it is named) for every gc root."""
-    out = [(oid, f"ref {name}") for name, oid in list_refs(store).items()]
-    for a in list_attempts(store):
+    out = [(oid, f"ref {name}") for name, oid in _refs(store, problems).items()]
+    for a in list_attempts(store, problems=problems):
         where = f"attempt {a['cache_key'][:12]}/{a['attempt']:04d} ({a['step']})"
         if a["state"] == "committed" and a.get("record_id"):
             out.append((a["record_id"], where))
@@ -33,9 +33,19 @@ def roots(store: Store) -> list[tuple[str, str]]:
     return out
 
 
+def _refs(store: Store, problems: list[str] | None) -> dict[str, str]:
+    try:
+        return list_refs(store)
+    except StoreError as exc:
+        if problems is None:
+            raise
+        problems.append(str(exc))
+        return {}
+
+
 def walk(store: Store) -> Reach:
     reach = Reach()
-    stack = [(oid, where, None) for oid, where in roots(store)]
+    stack = [(oid, where, None) for oid, where in roots(store, reach.problems)]
     while stack:
         oid, where, size = stack.pop()
         if oid in reach.sizes:

@@ -35,15 +35,22 @@ def read_attempt(path: Path) -> dict:
         raise StoreError(f"{path}: damaged attempt record ({exc.__class__.__name__})") from None
 
 
-def list_attempts(store: Store, key: str | None = None) -> list[dict]:
-    """Attempts of one cache key (or of all keys), oldest first within a key."""
+def list_attempts(store: Store, key: str | None = None, problems: list[str] | None = None) -> list[dict]:
+    """Attempts of one cache key (or of all keys), oldest first within a key. A damaged file
+    raises StoreError, or is reported into `problems` and skipped when a list is given."""
     keys = [key] if key else sorted(p.name for p in store.records_dir.iterdir()
                                      if p.is_dir() and is_full_id(p.name)) if store.records_dir.is_dir() else []
     out = []
     for k in keys:
         d = store.records_dir / k
         if d.is_dir():
-            out.extend(read_attempt(p) for p in sorted(d.glob("[0-9][0-9][0-9][0-9].json")))
+            for p in sorted(d.glob("[0-9][0-9][0-9][0-9].json")):
+                try:
+                    out.append(read_attempt(p))
+                except StoreError as exc:
+                    if problems is None:
+                        raise
+                    problems.append(str(exc))
     return out
 
 

@@ -62,7 +62,7 @@ def set_ref(store: Store, name: str, oid: str, log: bool = True) -> str | None:
 
 
 def list_refs(store: Store, prefix: str = "") -> dict[str, str]:
-    """All refs (name -> id) whose name starts with prefix."""
+    """All refs (name -> id) whose name starts with prefix; a damaged ref raises StoreError."""
     out: dict[str, str] = {}
     if not store.refs_dir.is_dir():
         return out

@@ -77,9 +77,12 @@ class Store:
             raise StoreError(f"{config}: unsupported store format {cfg.get('format')!r} / hash "
                              f"{cfg.get('hash')!r} (this accrue reads format {STORE_FORMAT}, {HASH_NAME})")
         store = cls(root)
-        for sub in _SUBDIRS:  # tolerate a store whose empty dirs were lost (e.g. copied with git)
-            (store.root / sub).mkdir(exist_ok=True)
-        store.objects_dir.mkdir(exist_ok=True)
+        try:  # tolerate a store whose empty dirs were lost (e.g. copied with git)
+            for sub in _SUBDIRS:
+                (store.root / sub).mkdir(exist_ok=True)
+            store.objects_dir.mkdir(exist_ok=True)
+        except OSError:
+            pass  # a read-only store can still be read and verified
         return store
 
     # ----------------------------------------------------------------- objects
@@ -233,13 +236,10 @@ class Store:
 
 
 def make_writable_tree(path: Path) -> None:
-    """Give the owner write access again so a materialised read-only copy can be removed."""
+    """Give the owner write access to the directories (not the files: some may be hard links to
+    read-only objects) so a materialised read-only copy can be removed."""
     for root, dirs, files in os.walk(path):
         os.chmod(root, stat.S_IRWXU)
-        for name in files:
-            p = os.path.join(root, name)
-            if not os.path.islink(p):
-                os.chmod(p, stat.S_IRUSR | stat.S_IWUSR)
 
 
 def remove_tree(path: Path) -> None:

@@ -57,7 +57,7 @@ def verify_store(store: Store, full: bool = False,
     report.problems += reach.problems
     report.log_events, chain_problems = check_chain(store)
     report.problems += chain_problems
-    for a in list_attempts(store):
+    for a in list_attempts(store, problems=[]):
         if a["state"] == "running":
             report.notes.append(f"attempt {a['cache_key'][:12]}/{a['attempt']:04d} ({a['step']}) "
                                 f"is marked running by pid {a.get('pid')}")

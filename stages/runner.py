@@ -213,7 +213,12 @@ class Runner:
                       for c in a.get("checkpoints", [])]
         if not candidates:
             if mode == "continue":
-                self.console.print(f"step [bold]{name}[/]: no checkpoint to continue from; starting at the beginning")
+                other = [a for a in list_attempts(self.store, problems=[]) if a["step"] == name and
+                         a["cache_key"] != key and a["state"] != "committed" and a.get("checkpoints")]
+                why = (f" (attempt {other[-1]['attempt']} of key {other[-1]['cache_key'][:12]} has checkpoints, "
+                       "but its inputs, config or code version differ from this run's)") if other else ""
+                self.console.print(f"step [bold]{name}[/]: no checkpoint to continue from{why}; "
+                                   "starting at the beginning")
             return None
         if mode == "normal":
             attempt, c = candidates[-1]

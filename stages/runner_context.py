@@ -90,6 +90,16 @@ class StepContext:
                 raise StoreError(f"checkpoint {cid[:12]} of step {self.step}: {exc}") from None
         return self._resume_path, dict(progress)
 
+    def progress(self):
+        """A rich Progress on the step's console: `with ctx.progress() as p: t = p.add_task("train",
+        total=n); p.advance(t)`."""
+        from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
+                                   TimeRemainingColumn)
+
+        return Progress(TextColumn(f"{self.step} [progress.description]{{task.description}}"), BarColumn(),
+                        MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn(),
+                        console=self.console, transient=True)
+
     def log_event(self, event: str, **fields: Any) -> None:
         """Add a step-specific event to the audit log (e.g. an evaluation summary)."""
         self._log(event, **fields)

@@ -82,6 +82,8 @@ def test_second_run_is_a_cached_no_op_that_says_so(store, tmp_path):
     record = store.read_json(first.record_id)
     assert record["type"] == "step-record" and record["inputs"] == {"seed": seed}
     assert record["config"]["n"] == 6 and record["outputs"] == first.outputs
+    for oid in result_content(store, first).values():  # outputs were adopted, and stay read-only
+        assert store.object_path(oid).stat().st_mode & 0o777 == 0o444
     out = read_artifact(store, first.outputs["result"])
     assert out["kind"] == "eval" and out["inputs"] == {"seed": seed} and out["producer"]["step"] == "train"
     events = [e["event"] for e in iter_events(store)][2:]   # after the seed's add
@@ -311,3 +313,26 @@ def test_plan_wires_outputs_to_later_steps_and_moves_stage_refs(store, tmp_path)
     backwards = StagePlan("demo", 3, (StepInvocation(train, {}, inputs={"episodes": FromStep("warmup", "episodes")}),))
     with pytest.raises(StageError, match="does not run before it"):
         r.run_plan(backwards)
+
+
+def test_continue_with_changed_config_explains_why_nothing_resumes(store):
+    def body(ctx):
+        with ctx.progress() as bar:
+            task = bar.add_task("iterations", total=1)
+            bar.advance(task)
+        d = ctx.scratch_dir("c")
+        (d / "x").write_text("1")
+        ctx.save_checkpoint(d, {"i": 1})
+        if ctx.config["lr"] == 1:
+            raise RuntimeError("crash")
+        ctx.log_event("custom-summary", value=3)
+        ctx.new_output("out", "eval")
+
+    step = StepDef("train", "1", body)
+    r, console = runner(store)
+    with pytest.raises(RuntimeError):
+        r.run(StepInvocation(step, {"lr": 1}))
+    r.run(StepInvocation(step, {"lr": 2}), mode="continue")
+    text = console.export_text()
+    assert "no checkpoint to continue from (attempt 1 of key" in text and "differ" in text
+    assert [e["value"] for e in iter_events(store) if e["event"] == "custom-summary"] == [3]

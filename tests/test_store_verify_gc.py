@@ -137,3 +137,20 @@ def test_gc_refuses_to_delete_from_a_damaged_store(populated):
     set_ref(populated, "broken", some_ref_target)
     with pytest.raises(StoreError, match="gc refused"):
         collect_garbage(populated, dry_run=False, grace_s=0)
+
+
+def test_gc_never_sweeps_a_live_writers_staging_area(populated):
+    live = populated.new_tmp_dir("attempt-live")          # carries this (live) process's pid
+    dead = populated.tmp_dir / "attempt-dead-999999999-abcd"
+    dead.mkdir()
+    report = collect_garbage(populated, dry_run=False, grace_s=0)
+    assert live.exists() and not dead.exists() and report.tmp_removed == [dead.name]
+
+
+def test_damaged_attempt_record_is_a_verify_problem_not_a_crash(populated):
+    victim = next(populated.records_dir.glob("*/0001.json"))
+    victim.write_text("{not json")
+    report = verify_store(populated)
+    assert not report.ok and any("damaged attempt record" in p for p in report.problems)
+    with pytest.raises(StoreError, match="gc refused"):
+        collect_garbage(populated, dry_run=False, grace_s=0)
