@@ -37,19 +37,6 @@ def default_rrd_path(task_id: str, policy: str, seed: int) -> Path:
     return Path(f"watch-{task_id.replace('/', '_')}-{policy}-seed{seed}.rrd")
 
 
-def euler_to_quat_xyzw(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    """Quaternion of R = Rz(yaw) Ry(pitch) Rx(roll)."""
-    cr, sr = np.cos(roll / 2), np.sin(roll / 2)
-    cp, sp = np.cos(pitch / 2), np.sin(pitch / 2)
-    cy, sy = np.cos(yaw / 2), np.sin(yaw / 2)
-    return np.array([
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-        cr * cp * cy + sr * sp * sy,
-    ])
-
-
 def _policy(name: str, task_id: str, seed: int):
     if name == "expert":
         from accrue.sim import make_expert
@@ -67,7 +54,7 @@ def watch_episode(task_id: str, policy: str = "expert", seed: int = 0, out: Path
     from accrue.logs.mcap_episodes import EpisodeRecorder
     from accrue.logs.rerun_log import RerunLog
     from accrue.sim import ACTION_NAMES, STATE_NAMES, get_task, make_vec_env
-    from accrue.sim.observation import decode_state
+    from accrue.logs.sim_fields import state_fields, yaw_pose
 
     spec = get_task(task_id)
     act = _policy(policy, task_id, seed)
@@ -90,12 +77,10 @@ def watch_episode(task_id: str, policy: str = "expert", seed: int = 0, out: Path
                 res = env.step(action)
                 reward = float(res.reward[0])
                 ret += reward
-                parts = {k: v[0] for k, v in decode_state(state).items()}
-                ee = np.concatenate([parts["pos"], euler_to_quat_xyzw(*parts["tilt"], parts["yaw"])])
+                fields = state_fields(state[0])
+                ee, estimate, wrench = fields["ee_pose"], fields["socket_estimate"], fields["wrench"]
                 sx, sy, syaw = env.true_socket_pose()[0]
-                socket = np.array([sx, sy, 0.0, *euler_to_quat_xyzw(0.0, 0.0, syaw)])
-                estimate = np.concatenate([parts["est_pos"], euler_to_quat_xyzw(0.0, 0.0, parts["est_yaw"])])
-                wrench = np.concatenate([parts["force"], parts["torque"]])
+                socket = yaw_pose(sx, sy, 0.0, syaw)
                 image = obs["image"][0] if images else None
 
                 rl.set_step(t)

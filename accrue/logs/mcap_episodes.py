@@ -10,7 +10,9 @@ Topics and schemas (messages are JSON; schemas are JSON Schema, named as below):
 
 | topic            | schema                    | when                                             |
 |------------------|---------------------------|--------------------------------------------------|
-| /state           | accrue.State              | every step (state names in channel metadata)     |
+| /state           | accrue.State              | steps where a state is given (names in channel   |
+|                  |                           | metadata; inside an action chunk only the first  |
+|                  |                           | step has an observed state)                      |
 | /action          | accrue.Action             | every step                                       |
 | /reward          | accrue.Reward             | every step (reward and the return so far)        |
 | /reference       | accrue.ReferenceChunk     | steps where a reference chunk is given           |
@@ -234,7 +236,7 @@ class EpisodeRecorder:
         self,
         env_index: int,
         t: int,
-        state: Any,
+        state: Any | None,
         action: Any,
         reference: Any | None = None,
         reward: float = 0.0,
@@ -256,7 +258,8 @@ class EpisodeRecorder:
         ep.ret += float(reward)
         ep.length += 1
         ep.last_t = t
-        self._write(ep, TOPIC_STATE, ns, {"t": t, "values": np.asarray(state, dtype=float).reshape(-1).tolist()})
+        if state is not None:
+            self._write(ep, TOPIC_STATE, ns, {"t": t, "values": np.asarray(state, dtype=float).reshape(-1).tolist()})
         self._write(ep, TOPIC_ACTION, ns, {"t": t, "action": np.asarray(action, dtype=float).reshape(-1).tolist()})
         self._write(ep, TOPIC_REWARD, ns, {"t": t, "reward": float(reward), "return": ep.ret})
         if reference is not None:
