@@ -20,9 +20,14 @@ SUPPORT = Path(__file__).resolve().parent / "test_runner_support.py"
 TRIALS = 24
 
 
-def _wait_for_log(store: Store, proc: subprocess.Popen, timeout: float = 30) -> None:
+def _log_size(store: Store) -> int:
+    return store.log_path.stat().st_size if store.log_path.exists() else 0
+
+
+def _wait_for_log(store: Store, proc: subprocess.Popen, before: int, timeout: float = 60) -> None:
+    """Wait until this writer has logged something, so the kill lands in its work, not its start-up."""
     start = time.monotonic()
-    while not store.log_path.exists() or store.log_path.stat().st_size == 0:
+    while _log_size(store) <= before:
         assert proc.poll() is None, proc.stderr.read().decode()
         assert time.monotonic() - start < timeout
         time.sleep(0.01)
@@ -32,9 +37,10 @@ def test_kill_9_at_random_points_leaves_a_verifiable_store(tmp_path):
     store = Store.init(tmp_path / "store")[0]
     rng = random.Random(1234)
     for trial in range(TRIALS):
+        before = _log_size(store)
         proc = subprocess.Popen([sys.executable, str(SUPPORT), "writer", str(store.root), str(trial)],
                                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-        _wait_for_log(store, proc)
+        _wait_for_log(store, proc, before)
         time.sleep(rng.uniform(0.0, 0.6))
         assert proc.poll() is None, proc.stderr.read().decode()
         os.kill(proc.pid, signal.SIGKILL)
