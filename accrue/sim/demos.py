@@ -22,6 +22,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import warnings
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from types import ModuleType
@@ -292,7 +293,10 @@ def write_demos(
                         _label_success_tail(ep.frames)
                     for frame in ep.frames:
                         _add_frame(ds, frame)
-                    ds.save_episode()
+                    with warnings.catch_warnings():
+                        # lerobot's histogram of bool columns warns on every episode; harmless
+                        warnings.filterwarnings("ignore", "Converting input from bool", RuntimeWarning)
+                        ds.save_episode()
                     written += 1
                     total_frames += len(ep.frames)
                 bar.update(written, attempts, successes)
