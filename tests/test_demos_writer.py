@@ -202,6 +202,15 @@ def test_read_demo_info_names_the_wrong_feature(tmp_path: Path, monkeypatch: pyt
     assert "\n" not in str(err.value)
 
 
+def test_read_demo_info_rejects_other_format_versions(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(demos, "_sim_api", lambda: fake_sim())
+    demos.write_demos("fake/peg", 1, tmp_path / "d", progress=False)
+    path = tmp_path / "d" / "meta" / "info.json"
+    path.write_text(path.read_text().replace('"v3.0"', '"v2.1"'))
+    with pytest.raises(AccrueError, match="is LeRobotDataset v2.1; accrue reads v3.0"):
+        demos.read_demo_info(tmp_path / "d")
+
+
 def test_read_demo_info_needs_a_dataset_and_the_task_record(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(demos, "_sim_api", lambda: fake_sim())
     with pytest.raises(AccrueError, match="not a LeRobot dataset"):

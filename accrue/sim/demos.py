@@ -4,8 +4,7 @@ Features follow lerobot's names: `observation.state` float32 (STATE_DIM,) named 
 `action` float32 (6,) (the normalised end-effector delta), `next.reward` float32 (1,),
 `next.done` bool (1,), `next.success` bool (1,), and with obs_mode "state+image" the wrist
 camera `observation.images.wrist` (mp4 video, or PNG images with `use_video=False` or frames
-smaller than 32x32). Every frame's
-`task` is the task's instruction. Frame t holds the observation *before* action t and the
+smaller than 32x32). Every frame's `task` is the task's instruction. Frame t holds the observation *before* action t and the
 reward/done/success that action t produced; in a successful episode the last three frames carry
 reward 1 (the paper's sparse reward, see INTERFACES.md).
 
@@ -16,6 +15,9 @@ Failed expert episodes: by default only successful episodes are kept. The vector
 drawing fresh randomised episodes (its seeded generator) until `episodes` successes are written
 or `max_attempts` expert episodes have been run; the summary says how many were run, how many
 succeeded, and whether the requested count was reached.
+
+The dataset is built in a hidden sibling directory (`.<name>.partial-<pid>`) and renamed into
+place when complete; only a killed process (SIGKILL) can leave such a directory behind.
 """
 from __future__ import annotations
 
@@ -44,6 +46,7 @@ OBS_MODES = ("state", "state+image")
 ACCRUE_META_FORMAT = 1
 MIN_VIDEO_SIDE = 32
 SUCCESS_TAIL = 3
+LEROBOT_FORMAT = "v3.0"
 
 
 def _sim_api() -> ModuleType:
@@ -126,9 +129,7 @@ def _check_out_dir(out_dir: Path) -> None:
         if not out_dir.is_dir():
             raise AccrueError(f"output path {out_dir} exists and is not a directory")
         if any(out_dir.iterdir()):
-            hint = (" and holds a dataset without meta/accrue.json (an interrupted run?)"
-                    if (out_dir / "meta" / "info.json").exists() and not (out_dir / ACCRUE_META).exists() else "")
-            raise AccrueError(f"output directory {out_dir} exists and is not empty{hint}; pick a new one")
+            raise AccrueError(f"output directory {out_dir} exists and is not empty; pick a new one")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
 
 
@@ -360,8 +361,11 @@ def read_demo_info(root: Path | str, *, state_dim: int | None = None) -> DemoInf
         info = json.loads(info_path.read_text())
         features = dict(info["features"])
         num_episodes = int(info["total_episodes"])
+        version = str(info.get("codebase_version"))
     except (ValueError, KeyError, TypeError) as exc:
         raise AccrueError(f"{info_path} is unreadable ({type(exc).__name__}: {exc})") from None
+    if version != LEROBOT_FORMAT:
+        raise AccrueError(f"dataset {root} is LeRobotDataset {version}; accrue reads {LEROBOT_FORMAT}")
     if state_dim is None:
         state_dim = int(_sim_api().STATE_DIM)
     _expect(features, root, STATE_KEY, "float32", [state_dim], " (accrue's STATE_DIM)")
