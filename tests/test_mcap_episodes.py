@@ -172,3 +172,12 @@ def test_killed_recorder_keeps_sealed_episodes_and_no_half_file(tmp_path: Path) 
     rec.log_step(0, 0, [0], np.zeros(6))
     assert rec.end(0, success=True).name == "episode-000003.mcap"
     assert os.listdir(out).count("episode-000002.mcap") == 0
+
+
+def test_module_docstring_documents_every_topic_and_schema() -> None:
+    rows = [line.split("|") for line in me.__doc__.splitlines() if line.startswith("| /")]
+    documented = {cells[1].strip(): cells[2].strip() for cells in rows}
+    expected = {topic: name for topic, name in me.SCHEMA_NAMES.items() if topic != me.TOPIC_WRIST_IMAGE}
+    expected["/camera/<name>"] = "foxglove.CompressedImage"
+    assert documented == expected
+    assert me.METADATA_NAME == "episode" and f"one named `{me.METADATA_NAME}`" in me.__doc__
