@@ -54,9 +54,14 @@ def _print_summary(s: dict) -> None:
     metrics = Table(title="metrics (Sec. V-A)", title_justify="left")
     metrics.add_column("metric")
     metrics.add_column("value", justify="right")
+    undefined = any(v is None for v in s["metrics"].values())
+    if undefined:
+        metrics.add_column("note", style="dim")
     for name, value in s["metrics"].items():
-        why = "  (needs ≥ 2 stages)" if value is None else ""
-        metrics.add_row(f"{name} {ARROWS[name]}", _num(value) + why)
+        row = [f"{name} {ARROWS[name]}", _num(value)]
+        if undefined:
+            row.append("needs ≥ 2 stages" if value is None else "")
+        metrics.add_row(*row)
     con.print(metrics)
 
     stages = Table(title="per stage", title_justify="left")

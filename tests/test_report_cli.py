@@ -195,3 +195,20 @@ def test_stages_on_different_grids_are_refused(tmp_path, store):
 
     with pytest.raises(StageError, match="stage 2 was evaluated at 3 grid points but stage 1 at 5"):
         invoke(str(write_workflow(tmp_path)), "--out", str(tmp_path / "o"), store=store)
+
+
+@pytest.mark.parametrize("grid, ok", [([0.0, 100.0, 200.0, 300.0, 400.0], True), ([0, 100, 100, 300, 400], False),
+                                      ([50, 100, 200, 300, 400], False), ([0, 100.5, 200, 300, 400], False)])
+def test_grid_must_count_env_steps_from_zero(grid, ok):
+    from stages.errors import StageError
+    from stages.report.data import parse_curves
+    from stages.workflow import parse_workflow
+
+    wf = parse_workflow({"name": "rep", "tasks": TASKS, "method": "accrue",
+                         "budgets": {"env_steps": 400, "eval_every": 100}}, "rep.yaml")
+    data = dict(curve_json(1), grid=grid)
+    if ok:
+        assert parse_curves(data, 1, wf, "here", "r", "a").grid == [0, 100, 200, 300, 400]
+    else:
+        with pytest.raises(StageError, match="here: grid: expected increasing env-step counts starting at 0"):
+            parse_curves(data, 1, wf, "here", "r", "a")

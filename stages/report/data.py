@@ -126,6 +126,16 @@ def _count(value, where: str) -> int:
     return value
 
 
+def _grid(value, where: str) -> list[int]:
+    """Increasing env-step counts from 0; integral floats (e.g. 500.0) are taken as ints."""
+    ok = isinstance(value, list) and bool(value) and all(
+        not isinstance(g, bool) and isinstance(g, (int, float)) and float(g).is_integer() for g in value)
+    grid = [int(g) for g in value] if ok else []
+    if not ok or grid[0] != 0 or any(b <= a for a, b in zip(grid, grid[1:])):
+        raise StageError(f"{where}: expected increasing env-step counts starting at 0 (got {value!r})")
+    return grid
+
+
 def _check_header(data: dict, k: int, wf: Workflow, where: str) -> list[str]:
     if data.get("stage") != k:
         raise StageError(f"{where}: stage: expected {k} (got {data.get('stage')!r})")
@@ -148,11 +158,7 @@ def _rates_of(data: dict, key: str, tasks: list[str], where: str) -> dict:
 
 def parse_curves(data: dict, k: int, wf: Workflow, where: str, record: str, artifact: str) -> StageCurves:
     tasks = _check_header(data, k, wf, where)
-    grid = data.get("grid")
-    if (not isinstance(grid, list) or not grid or grid[0] != 0
-            or any(isinstance(g, bool) or not isinstance(g, int) for g in grid)
-            or any(b <= a for a, b in zip(grid, grid[1:]))):
-        raise StageError(f"{where}: grid: expected increasing env-step counts starting at 0 (got {grid!r})")
+    grid = _grid(data.get("grid"), f"{where}: grid")
     rates = _rates_of(data, "success", tasks, where)
     success = {}
     for t in tasks:
@@ -162,7 +168,7 @@ def parse_curves(data: dict, k: int, wf: Workflow, where: str, record: str, arti
                              f"(got {len(curve) if isinstance(curve, list) else type(curve).__name__})")
         success[t] = [_rate(v, f"{where}: success[{t}][{e}]") for e, v in enumerate(curve)]
     episodes = _count(data.get("episodes_per_point"), f"{where}: episodes_per_point")
-    return StageCurves(k, tasks, list(grid), success, episodes, record, artifact)
+    return StageCurves(k, tasks, grid, success, episodes, record, artifact)
 
 
 def parse_eval(data: dict, k: int, wf: Workflow, where: str, record: str, artifact: str) -> StageEval:
