@@ -198,8 +198,8 @@ def log(n: Annotated[int, typer.Option("-n", "--lines", help="Show the last N ev
 
 
 def _short(value: Any) -> str:
-    if isinstance(value, str) and len(value) == 64:
-        return value[:12]
+    if isinstance(value, str):
+        return re.sub(r"([0-9a-f]{12})[0-9a-f]{52}", r"\1", value)  # ids, also inside ref names
     if isinstance(value, dict):
         return "{" + ",".join(f"{k}:{_short(v)}" for k, v in value.items()) + "}"
     return str(value)
