@@ -6,6 +6,7 @@ checked exactly; tests/test_demos_sim.py runs the same writer on the real simula
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
@@ -236,3 +237,17 @@ def test_interrupted_run_leaves_nothing_behind(tmp_path: Path, monkeypatch: pyte
     with pytest.raises(KeyboardInterrupt):
         demos.write_demos("fake/peg", 5, tmp_path / "d", progress=False, num_envs=1)
     assert list(tmp_path.iterdir()) == []  # neither the dataset nor its staging directory
+
+
+def test_staging_left_by_a_killed_run_is_cleaned(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import subprocess
+    import sys
+
+    monkeypatch.setattr(demos, "_sim_api", lambda: fake_sim())
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    stale = tmp_path / f".d.partial-{dead.stdout.strip()}"
+    (stale / "meta").mkdir(parents=True)
+    alive = tmp_path / f".d.partial-{os.getppid()}"  # a running process (our parent) may still be writing
+    alive.mkdir()
+    demos.write_demos("fake/peg", 1, tmp_path / "d", progress=False)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["d", alive.name])

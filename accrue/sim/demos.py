@@ -275,8 +275,8 @@ def write_demos(
     import datasets
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+    _remove_stale_staging(out_dir)
     staging = out_dir.with_name(f".{out_dir.name}.partial-{os.getpid()}")
-    shutil.rmtree(staging, ignore_errors=True)
     bars_were_on = not datasets.are_progress_bars_disabled()
     datasets.disable_progress_bars()  # one "Map" bar per saved episode otherwise; ours suffices
     bar = _Progress(progress, episodes, f"demos {task_id}")
@@ -323,6 +323,25 @@ def write_demos(
         if hasattr(env, "close"):
             env.close()
     return summary
+
+
+def _remove_stale_staging(out_dir: Path) -> None:
+    """Delete staging directories of earlier runs into `out_dir` whose process no longer exists."""
+    prefix = f".{out_dir.name}.partial-"
+    for path in out_dir.parent.glob(prefix + "*"):
+        pid = path.name[len(prefix):]
+        if pid.isdigit() and (int(pid) == os.getpid() or not _process_alive(int(pid))):
+            shutil.rmtree(path, ignore_errors=True)
+
+
+def _process_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def _publish(staging: Path, out_dir: Path) -> None:
