@@ -48,13 +48,26 @@ def _policy(name: str, task_id: str, seed: int):
     raise AccrueError(f"unknown policy {name!r}; choose one of {', '.join(POLICIES)}")
 
 
+def _log_rerun_step(rl, ee: np.ndarray, socket: np.ndarray, estimate: np.ndarray, wrench: np.ndarray,
+                    action: dict[str, float], reward: float, ret: float, image: np.ndarray | None) -> None:
+    rl.pose("world/ee", ee[:3], ee[3:], color=(230, 120, 20))
+    rl.pose("world/socket", socket[:3], socket[3:], color=(40, 160, 60))
+    rl.pose("world/socket_estimate", estimate[:3], estimate[3:], radius=0.002, color=(120, 120, 220))
+    rl.scalars("wrench", dict(zip(WRENCH_NAMES, map(float, wrench))))
+    rl.scalars("action", action)
+    rl.scalar("reward", reward)
+    rl.scalar("return", ret)
+    if image is not None:
+        rl.image("camera/front", image)
+
+
 def watch_episode(task_id: str, policy: str = "expert", seed: int = 0, out: Path | None = None,
                   images: bool = False, mcap_dir: Path | None = None) -> WatchResult:
     """Run one episode of `task_id` with the expert or a random policy; write it to `out` (.rrd)."""
     from accrue.logs.mcap_episodes import EpisodeRecorder
     from accrue.logs.rerun_log import RerunLog
-    from accrue.sim import ACTION_NAMES, STATE_NAMES, get_task, make_vec_env
     from accrue.logs.sim_fields import state_fields, yaw_pose
+    from accrue.sim import ACTION_NAMES, STATE_NAMES, get_task, make_vec_env
 
     spec = get_task(task_id)
     act = _policy(policy, task_id, seed)
@@ -84,15 +97,8 @@ def watch_episode(task_id: str, policy: str = "expert", seed: int = 0, out: Path
                 image = obs["image"][0] if images else None
 
                 rl.set_step(t)
-                rl.pose("world/ee", ee[:3], ee[3:], color=(230, 120, 20))
-                rl.pose("world/socket", socket[:3], socket[3:], color=(40, 160, 60))
-                rl.pose("world/socket_estimate", estimate[:3], estimate[3:], radius=0.002, color=(120, 120, 220))
-                rl.scalars("wrench", dict(zip(WRENCH_NAMES, map(float, wrench))))
-                rl.scalars("action", dict(zip(ACTION_NAMES, map(float, action[0]))))
-                rl.scalar("reward", reward)
-                rl.scalar("return", ret)
-                if image is not None:
-                    rl.image("camera/front", image)
+                _log_rerun_step(rl, ee, socket, estimate, wrench, dict(zip(ACTION_NAMES, map(float, action[0]))),
+                                reward, ret, image)
                 if recorder:
                     recorder.log_step(0, t, state[0], action[0], reward=reward, image=image,
                                       ee_pose=ee, socket_pose=socket, wrench=wrench)
