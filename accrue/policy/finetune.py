@@ -28,6 +28,7 @@ class FinetuneSettings:
     chunk_size: int = 16            # from-scratch policies only; a checkpoint keeps its own
     embedding_dim: int = DEFAULT_EMBEDDING_DIM  # from-scratch only; a checkpoint keeps its own
     device: str = "cpu"
+    torch_threads: int = 1          # small models train no slower on one thread, and a busy CPU stays usable
     keep_training_set: bool = False  # keep the merged dataset under out_dir/_work for inspection
 
     def check(self) -> None:
@@ -125,7 +126,7 @@ def finetune(
         "--wandb.enable=false",
     ]
     log_path = work / "lerobot-train.log"
-    run_lerobot_train(args, log_path, settings.steps, progress)
+    run_lerobot_train(args, log_path, settings.steps, progress, threads=settings.torch_threads)
 
     final = train_dir / "checkpoints" / "last" / "pretrained_model"
     if not final.is_dir():

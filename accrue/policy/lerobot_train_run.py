@@ -34,11 +34,14 @@ def parse_step(line: str) -> int | None:
 
 
 def run_lerobot_train(
-    args: list[str], log_path: Path, total_steps: int, progress: Callable[[int, int], None] | None = None
+    args: list[str], log_path: Path, total_steps: int, progress: Callable[[int, int], None] | None = None,
+    threads: int | None = None,
 ) -> None:
     """Run lerobot's training entry point with `args`; raise AccrueError naming the log on failure."""
     command = [sys.executable, "-m", "lerobot.scripts.lerobot_train", *args]
     env = {**os.environ, **OFFLINE_ENV}
+    if threads:
+        env.update(OMP_NUM_THREADS=str(threads), MKL_NUM_THREADS=str(threads))
     log_path.parent.mkdir(parents=True, exist_ok=True)
     with open(log_path, "w", encoding="utf-8") as log:
         log.write(" ".join(command) + "\n")

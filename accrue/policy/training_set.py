@@ -78,8 +78,10 @@ def build_training_set(
             if src.image_keys != image_keys:
                 raise AccrueError(f"dataset {src.root}: cameras {src.image_keys} differ from {sources[0].root} ({image_keys})")
 
+    import datasets as hf_datasets
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+    hf_datasets.disable_progress_bars()  # one "Map" bar per saved episode otherwise
     writer = LeRobotDataset.create(
         repo_id=TRAINING_REPO_ID, root=out_root, fps=sources[0].fps,
         features=_features(sources[0], embedding_dim, image_keys), use_videos=False,
