@@ -96,8 +96,13 @@ def list_episodes(out_dir: Path | str) -> list[Path]:
 
 
 def _next_index(out_dir: Path) -> int:
-    used = [int(m.group(1)) for p in out_dir.iterdir() for m in [_FINAL_RE.match(p.name) or _PARTIAL_RE.match(p.name)] if m]
-    return max(used, default=-1) + 1
+    """One past the highest episode number in use, counting crashed (partial) episodes too."""
+    used = [-1]
+    for path in out_dir.iterdir():
+        match = _FINAL_RE.match(path.name) or _PARTIAL_RE.match(path.name)
+        if match:
+            used.append(int(match.group(1)))
+    return max(used) + 1
 
 
 def _stamp(ns: int) -> dict:
