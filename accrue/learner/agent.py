@@ -56,8 +56,8 @@ class ChunkLearner:
         self._critic_loss_fn = self._critic_loss
         self._actor_loss_fn = self._actor_loss
         if cfg.compile:
-            self._critic_loss_fn = torch.compile(self._critic_loss)
-            self._actor_loss_fn = torch.compile(self._actor_loss)
+            self._critic_loss_fn = torch.compile(self._critic_loss, mode=cfg.compile_mode)
+            self._actor_loss_fn = torch.compile(self._actor_loss, mode=cfg.compile_mode)
 
     # ---- construction ---------------------------------------------------------------------
     def _actor_kwargs(self) -> dict:

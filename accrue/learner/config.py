@@ -48,8 +48,8 @@ class LearnerConfig:
     batch_size: int = 256
     utd: int = 2                       # gradient updates per chunk env step
     policy_frequency: int = 2          # actor update every n-th critic update
-    actor_lr: float = 3e-4
-    critic_lr: float = 3e-4
+    actor_lr: float = 1e-3             # CPU stages are short; the paper-scale config uses 3e-4
+    critic_lr: float = 1e-3
     weight_decay: float = 0.1          # AdamW
     max_grad_norm: float = 0.0         # 0 = no clipping
     obs_normalization: bool = True     # running mean/std of s, part of the saved state
@@ -76,7 +76,8 @@ class LearnerConfig:
     # speed (GPU only; ignored on CPU)
     device: str = "cpu"
     amp: bool = False                  # bf16 autocast
-    compile: bool = False              # torch.compile of the update
+    compile: bool = False              # torch.compile of the critic and actor loss functions
+    compile_mode: str = "default"      # "reduce-overhead" = CUDA graphs
 
     # ---- construction / validation -------------------------------------------------------
     def __post_init__(self) -> None:
@@ -87,7 +88,8 @@ class LearnerConfig:
         """The paper-scale GPU configuration (FastSAC sizes, batch 8192, γ = 0.997)."""
         base = dict(algo="fastsac", actor_hidden=[512, 256, 128], critic_hidden=[768, 384, 192],
                     projector_dim=256, batch_size=8192, utd=8, policy_frequency=4, gamma=0.997,
-                    tau=0.125, weight_decay=0.001, alpha_init=0.001, device="cuda", amp=True,
+                    tau=0.125, weight_decay=0.001, alpha_init=0.001, actor_lr=3e-4, critic_lr=3e-4,
+                    device="cuda", amp=True,
                     compile=True)
         base.update(overrides)
         return cls(**base)
@@ -171,6 +173,8 @@ class LearnerConfig:
         for name in ("layer_norm", "actor_residual", "use_cdq", "obs_normalization", "amp", "compile"):
             if not isinstance(getattr(self, name), bool):
                 raise bad(name, "must be true or false")
+        if self.compile_mode not in ("default", "reduce-overhead", "max-autotune"):
+            raise bad("compile_mode", "must be one of default, reduce-overhead, max-autotune")
         if not isinstance(self.device, str) or not (self.device == "cpu" or self.device.startswith("cuda")):
             raise bad("device", "must be 'cpu' or 'cuda[:n]'")
 
