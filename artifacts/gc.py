@@ -74,6 +74,13 @@ def collect_garbage(store: Store, dry_run: bool = True, grace_s: float = DEFAULT
                 report.tmp_removed.append(entry.name)
                 if not dry_run:
                     remove_tree(entry) if entry.is_dir() else entry.unlink(missing_ok=True)
+        # temp files of atomic replaces (refs, attempt records) whose writer died before the rename
+        for area in (store.refs_dir, store.records_dir):
+            for entry in sorted(area.rglob(".tmp-*")) if area.is_dir() else []:
+                if _age(entry.lstat(), now) >= grace_s and not _owner_alive(entry.name):
+                    report.tmp_removed.append(str(entry.relative_to(store.root)))
+                    if not dry_run:
+                        entry.unlink(missing_ok=True)
         if not dry_run and (report.removed or report.tmp_removed):
             for fan in {store.object_path(o).parent for o, _ in report.removed}:
                 if fan.exists():

@@ -143,8 +143,11 @@ def test_gc_never_sweeps_a_live_writers_staging_area(populated):
     live = populated.new_tmp_dir("attempt-live")          # carries this (live) process's pid
     dead = populated.tmp_dir / "attempt-dead-999999999-abcd"
     dead.mkdir()
+    stray = populated.refs_dir / ".tmp-999999999-00ff"      # a ref update cut off before its rename
+    stray.write_text("x")
     report = collect_garbage(populated, dry_run=False, grace_s=0)
-    assert live.exists() and not dead.exists() and report.tmp_removed == [dead.name]
+    assert live.exists() and not dead.exists() and not stray.exists()
+    assert report.tmp_removed == [dead.name, "refs/.tmp-999999999-00ff"]
 
 
 def test_damaged_attempt_record_is_a_verify_problem_not_a_crash(populated):
