@@ -34,8 +34,6 @@ class BasePolicySpec(_Strict):
     demos: dict[str, str] = {}              # task id -> artifact id/ref of recorded demos (else the expert's)
     demo_quality: float = Field(1.0, ge=0, le=1)    # scripted expert's quality when it records demos
     demo_retention: float = Field(1.0, gt=0, le=1)  # fraction of earlier tasks' demos kept (paper Table VI)
-    demo_quality: float = Field(1.0, gt=0, le=1)     # scripted-expert quality of recorded demos (stages.plan)
-    demo_retention: float = Field(1.0, gt=0, le=1)   # fraction of earlier tasks' demos kept (paper Table VI)
 
 
 class Budgets(_Strict):
@@ -48,7 +46,6 @@ class Budgets(_Strict):
     retained_episodes: int = Field(20, ge=0)    # N: episodes per task kept in B^{<k+1} at handoff
     checkpoint_every: int = Field(0, ge=0)      # env steps between intra-step checkpoints (0 = at eval points)
     log_episodes: int = Field(1, ge=0)          # evaluation episodes per task recorded to MCAP (0 = none)
-    log_episodes: int = Field(2, ge=0)          # evaluate-all: episodes per task logged as MCAP (stages.plan)
 
     @model_validator(mode="after")
     def _grid(self) -> "Budgets":
