@@ -8,7 +8,8 @@ FastTD3-style update at the same sizes, in the same run.
 backpropagating into the critic weights, critic + actor on the current batch only. "accrue" is
 accrue.learner's update: both critic heads in one batched matmul, the critic frozen during the actor
 step, and the student's prior-batch forward stacked with the current one (one actor pass for Eqs. 1 and 4).
-Every update here includes an actor step (policy_frequency = 1) so both sides do the same kind of work.
+By default every update includes an actor step (--policy-frequency 1), the heaviest case for ACCRUE;
+--policy-frequency 2 is the learner's default schedule (both sides then step the actor every 2nd update).
 """
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ import torch
 from torch import nn
 
 
-def reference_fasttd3(state_dim, chunk, hidden, proj, atoms, v_min, v_max, lr, wd, device):
+def reference_fasttd3(state_dim, chunk, hidden, proj, atoms, v_min, v_max, lr, wd, device, policy_frequency=1):
     """A plain FastTD3-style C51 TD3 update over chunks (the baseline being compared against)."""
     def mlp(sizes):
         layers = []
@@ -59,8 +60,11 @@ def reference_fasttd3(state_dim, chunk, hidden, proj, atoms, v_min, v_max, lr, w
         out.scatter_add_(1, up, probs * (b - lo.float()))
         return out
 
+    calls = [0]
+
     def update(b):
         s, a, r, rew, s2, r2, disc = b
+        calls[0] += 1
         with torch.no_grad():
             a2 = (actor(s2, r2) + (torch.randn_like(a) * 0.001).clamp(-0.5, 0.5)).clamp(-1, 1)
             l1, l2 = qtarget(s2, a2, r2)
@@ -72,13 +76,14 @@ def reference_fasttd3(state_dim, chunk, hidden, proj, atoms, v_min, v_max, lr, w
         q_opt.zero_grad(set_to_none=True)
         q_loss.backward()
         q_opt.step()
-        act = actor(s, r)
-        l1, l2 = qnet(s, act, r)
-        q = torch.minimum((l1.softmax(-1) * support).sum(-1), (l2.softmax(-1) * support).sum(-1))
-        a_loss = (-q + 0.1 * (act - r).square().sum(-1)).mean()
-        a_opt.zero_grad(set_to_none=True)
-        a_loss.backward()
-        a_opt.step()
+        if calls[0] % policy_frequency == 0:
+            act = actor(s, r)
+            l1, l2 = qnet(s, act, r)
+            q = torch.minimum((l1.softmax(-1) * support).sum(-1), (l2.softmax(-1) * support).sum(-1))
+            a_loss = (-q + 0.1 * (act - r).square().sum(-1)).mean()
+            a_opt.zero_grad(set_to_none=True)
+            a_loss.backward()
+            a_opt.step()
         with torch.no_grad():
             torch._foreach_lerp_(list(qtarget.parameters()), list(qnet.parameters()), 0.1)
     return update
@@ -119,6 +124,7 @@ def main() -> None:
     p.add_argument("--iters", type=int, default=60)
     p.add_argument("--warmup", type=int, default=10)
     p.add_argument("--rounds", type=int, default=5)
+    p.add_argument("--policy-frequency", type=int, default=1)
     p.add_argument("--threads", type=int, default=0, help="torch CPU threads (0 = torch default)")
     p.add_argument("--amp", action="store_true", help="bf16 autocast (CUDA)")
     p.add_argument("--compile", action="store_true", help="torch.compile the loss functions")
@@ -132,7 +138,7 @@ def main() -> None:
 
     d, h, a_dim, n = args.state_dim, args.horizon, args.action_dim, args.batch
     cfg = LearnerConfig(algo="fasttd3", method="accrue", actor_hidden=args.hidden, critic_hidden=args.hidden,
-                        projector_dim=args.projector, num_atoms=args.atoms, batch_size=n, policy_frequency=1,
+                        projector_dim=args.projector, num_atoms=args.atoms, batch_size=n, policy_frequency=args.policy_frequency,
                         device=args.device, amp=args.amp, compile=args.compile or args.cudagraphs,
                         compile_mode="reduce-overhead" if args.cudagraphs else "default")
     learner = make_learner(cfg, d, h, a_dim)
@@ -147,7 +153,7 @@ def main() -> None:
     cur, prior = batch(), batch()
     prior = prior.with_teacher(compute_teacher_targets(learner, prior.state, prior.ref, n))
     ref_update = reference_fasttd3(d, h * a_dim, args.hidden, args.projector, args.atoms, cfg.v_min, cfg.v_max,
-                                   cfg.critic_lr, cfg.weight_decay, args.device)
+                                   cfg.critic_lr, cfg.weight_decay, args.device, args.policy_frequency)
     disc = (cfg.gamma ** h) * (1 - cur.done)
     ref_batch = (cur.state, cur.action.flatten(1), cur.ref.flatten(1), cur.reward, cur.next_state,
                  cur.next_ref.flatten(1), disc)
@@ -159,7 +165,7 @@ def main() -> None:
     }, args.iters, args.warmup, args.rounds, args.device)
     print(f"device={args.device} threads={torch.get_num_threads()} state_dim={d} H={h} d={a_dim} batch={n} "
           f"(+{n} prior rows for ACCRUE) hidden={args.hidden} atoms={args.atoms} amp={args.amp} "
-          f"compile={args.compile} cudagraphs={args.cudagraphs}; median of {args.rounds} interleaved rounds")
+          f"compile={args.compile} cudagraphs={args.cudagraphs} policy_frequency={args.policy_frequency}; median of {args.rounds} interleaved rounds")
     base = results["reference FastTD3 update (critic+actor, B^k)"]
     for name, ups in results.items():
         print(f"  {name:<66s} {ups:8.1f} updates/s   ({ups / base:4.2f}x reference)")

@@ -116,3 +116,22 @@ def test_config_roundtrip_and_unknown_field():
     with pytest.raises(AccrueError, match="learner.ablation"):
         LearnerConfig(method="er", ablation="beta0")
     assert LearnerConfig(ablation="beta0").effective_beta == 0.0
+
+
+def test_running_norm_matches_batch_statistics():
+    from accrue.learner.networks import RunningNorm
+    g = torch.Generator().manual_seed(0)
+    parts = [torch.randn(n, 3, generator=g) * 2 + 1 for n in (5, 17, 40)]
+    norm = RunningNorm(3)
+    for p in parts:
+        norm.update(p)
+    x = torch.cat(parts)
+    assert torch.allclose(norm.mean, x.mean(0), atol=1e-5)
+    assert torch.allclose(norm.var, x.var(0, unbiased=False), atol=1e-4)
+    assert torch.allclose(norm(x).mean(0), torch.zeros(3), atol=1e-4)
+
+
+def test_config_accepts_yaml_style_float_strings():
+    assert LearnerConfig.from_dict({"actor_lr": "1e-3"}).actor_lr == 1e-3
+    with pytest.raises(AccrueError, match="learner.actor_lr"):
+        LearnerConfig.from_dict({"actor_lr": "fast"})

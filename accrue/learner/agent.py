@@ -98,15 +98,13 @@ class ChunkLearner:
     def act(self, state, ref, explore: bool = True, reset_mask=None):
         """Action chunk (B, H, d) in [-1, 1] for states (B, D) and references (B, H, d).
 
-        explore=True also updates the observation normaliser with these states (data collection) and
-        adds the algorithm's exploration noise; explore=False gives π̄_θ (deterministic, for evaluation).
+        explore=True adds the algorithm's exploration noise; explore=False gives π̄_θ (deterministic, for
+        evaluation and the Eq. 3 teacher).
         reset_mask (B,) marks envs that just reset: FastTD3 redraws their noise std there.
         """
         as_numpy = isinstance(state, np.ndarray)
         s = torch.as_tensor(state, dtype=torch.float32, device=self.device)
         r = torch.as_tensor(ref, dtype=torch.float32, device=self.device).view(-1, self.horizon, self.action_dim)
-        if explore:
-            self.actor.obs_norm.update(s)
         with self._autocast():
             a = self._explore(s, self._actor_ref(r), reset_mask) if explore else \
                 self.actor.deterministic(s, self._actor_ref(r))
@@ -266,6 +264,9 @@ class ChunkLearner:
         counts: dict[str, int] = {}
         for _ in range(self.cfg.utd):
             cur = self.sample(buffer, self.cfg.batch_size).to_device(self.device)
+            # running mean/std of s from uniform samples of the current task's buffer (warmup included,
+            # whoever collected it); prior-task memory never moves the statistics
+            self.actor.obs_norm.update(cur.state)
             pri = None
             if use_prior:
                 pri = self.sample(prior, self.cfg.batch_size).to_device(self.device)

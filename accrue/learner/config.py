@@ -146,6 +146,11 @@ class LearnerConfig:
                   "retain_alpha", "ref_dropout", "actor_init_scale")
         for name in floats:
             v = getattr(self, name)
+            if isinstance(v, str):      # PyYAML reads "1e-3" (no dot) as a string
+                try:
+                    v = float(v)
+                except ValueError:
+                    raise bad(name, "must be a number") from None
             if isinstance(v, bool) or not isinstance(v, (int, float)) or v != v:
                 raise bad(name, "must be a number")
             setattr(self, name, float(v))

@@ -22,7 +22,8 @@ _ATANH_CLIP = 1.0 - 1e-4   # atanh(±1) is infinite; references at the bound map
 
 
 class RunningNorm(nn.Module):
-    """Running mean/std of s (parallel-variance update). Buffers, so they are part of the saved state."""
+    """Running mean/std of s (parallel-variance update). Buffers, so they are part of the saved state.
+    ChunkLearner.train_step feeds it the current-task minibatch states before each update."""
 
     def __init__(self, dim: int, enabled: bool = True, eps: float = 1e-6):
         super().__init__()
