@@ -47,7 +47,9 @@ def _user_error_types() -> tuple[type[BaseException], ...]:
 def main() -> None:
     """Console-script entry: user mistakes become one line on stderr and exit code 2."""
     try:
-        app(standalone_mode=False)
+        # With standalone_mode=False, click returns a command's exit code instead of exiting.
+        rc = app(standalone_mode=False)
+        sys.exit(rc if isinstance(rc, int) else 0)
     except typer.Abort:
         print("aborted", file=sys.stderr)
         sys.exit(130)
