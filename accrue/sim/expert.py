@@ -59,7 +59,7 @@ class ScriptedExpert:
         z = pos[:, 2] - d["est_pos"][:, 2]
         force_r = np.column_stack([rotate_xy(d["force"][:, :2], yaw), d["force"][:, 2]])
         touching = np.abs(force_r[:, 2]) > CONTACT_FORCE
-        sinking = z < self.last_z - 0.15 * MM
+        sinking = z < self.last_z - 0.3 * MM  # well above the per-step position noise
         self.last_z = z
         inside = z < -ENTERED
         blocked = touching & ~sinking
@@ -68,11 +68,12 @@ class ScriptedExpert:
         lateral = -force_r[:, :2] * 0.08 * MM
         self.shift = np.clip(self.shift + np.where(blocked[:, None] & ~inside[:, None], lateral, 0.0), -MM, MM)
         k = np.where(inside, 0, self.stuck)
-        radius = np.minimum(0.12 * MM * k, 1.2 * MM)
+        radius = 0.1 * MM * (k % 14)  # spiral out to 1.3 mm, then start over
         theta = 0.9 * k
         spiral = np.column_stack([radius * np.cos(theta), radius * np.sin(theta)])
         period = task.yaw_period
-        wiggle = np.where(k > 0, 1.5 * DEG * np.sin(1.3 * k), 0.0) if period > 0 else 0.0
+        amplitude = np.minimum(0.8 * DEG + 0.25 * DEG * k, 4 * DEG)  # widen the yaw search as it drags on
+        wiggle = np.where(k > 0, amplitude * np.sin(1.3 * k), 0.0) if period > 0 else 0.0
         yaw_err = _wrap(goal_yaw + wiggle - yaw, period) if period > 0 else np.zeros(n)
 
         # outside: servo onto the (searched) goal; inside: comply with the walls, unjam by lifting

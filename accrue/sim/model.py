@@ -65,8 +65,10 @@ def build_spec(task: TaskSpec):
 
     world = spec.worldbody
     world.add_light(pos=[0.0, -0.05, 0.3], dir=[0.0, 0.15, -1.0], diffuse=[0.8, 0.8, 0.8])
-    world.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.1, 0.1, 0.01],
-                   pos=[0, 0, -task.depth - 0.004], rgba=[0.35, 0.37, 0.4, 1], contype=0, conaffinity=0)
+    # the table the fixture stands on: a plug pushed beside the socket lands on it
+    world.add_geom(name="socket_table", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.1, 0.1, 0.01],
+                   pos=[0, 0, -task.depth - 0.004], rgba=[0.35, 0.37, 0.4, 1], contype=0, conaffinity=1,
+                   solref=CONTACT_SOLREF, solimp=CONTACT_SOLIMP)
     _add_pieces(spec, world, socket, "socket", collide=(0, 1), rgba=[0.55, 0.6, 0.7, 1], group=0)
     world.add_camera(name="front", pos=[0.0, -0.09, 0.07], xyaxes=[1, 0, 0, 0, 0.6, 0.8], fovy=45)
 
