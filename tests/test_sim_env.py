@@ -5,6 +5,7 @@ import pytest
 
 from accrue.errors import AccrueError
 from accrue.sim import STATE_DIM, make_expert, make_vec_env
+from accrue.sim.observation import FORCE_SCALE, IDX
 from accrue.sim.tasks import DEG, MM, get_task
 from accrue.sim.vec_env import is_success
 
@@ -67,9 +68,7 @@ def test_per_env_reset_leaves_other_envs_untouched():
 def test_success_terminates_and_last_three_steps_carry_reward():
     env = make_vec_env("plugs/triangle", num_envs=4, seed=2)
     expert = make_expert("plugs/triangle", 1.0, seed=0)
-    obs, h = env.reset(), 50
-    chunk = np.zeros((4, h, 6), dtype=np.float32)
-    # closed-loop expert inside one chunk is not possible; run it step by step and record
+    obs = env.reset()
     rewards, done = np.zeros((4, 0)), np.zeros(4, bool)
     for _ in range(env.task.max_steps):
         res = env.step(expert.act(obs["state"]))
@@ -83,7 +82,7 @@ def test_success_terminates_and_last_three_steps_carry_reward():
     for i in won:  # H=1 steps: only the success step itself is inside the call
         assert rewards[i].sum() == 1.0
     # once done, a chunk executes nothing and pays nothing
-    res = env.step_chunk(chunk, 0.9)
+    res = env.step_chunk(np.zeros((4, 50, 6), dtype=np.float32), 0.9)
     assert res.steps.sum() == 0 and res.rewards.sum() == 0
 
 
@@ -144,7 +143,7 @@ def test_plug_resting_on_socket_is_not_a_success():
     res = env.step_chunk(acts, 1.0)
     assert not res.success[0]
     assert -1.5 * MM < env._qpos[0, 2] < 0.5 * MM  # it sits on the rim/chamfer, not in the hole
-    force_z = res.obs["state"][0, 15] / 0.1
+    force_z = res.obs["state"][0, IDX["wrist_fz"]] / FORCE_SCALE
     assert abs(force_z) > 1.0  # and the wrist feels it
 
 

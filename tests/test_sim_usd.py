@@ -5,7 +5,6 @@ import pytest
 
 from accrue.errors import AccrueError
 from accrue.sim import get_task, list_tasks, load_task_yaml, make_vec_env, register_usd_task
-from accrue.sim import geometry as g
 from accrue.sim.tasks import MM
 from accrue.sim.usd_parts import read_part, write_part
 

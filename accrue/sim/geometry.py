@@ -102,11 +102,3 @@ def check_reflex_clearance(hole: np.ndarray, normals: np.ndarray, reflex: np.nda
         if outside_angle < np.pi / 2 - 1e-6:
             raise ValueError(f"hole vertex {i} has an outside angle of {np.degrees(outside_angle):.0f} deg (< 90)")
 
-
-def polygon_contains(poly: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Even-odd point-in-polygon test, vectorised over points (M, 2)."""
-    x, y = pts[:, 0:1], pts[:, 1:2]
-    xa, ya = poly[:, 0][None], poly[:, 1][None]
-    xb, yb = np.roll(poly[:, 0], -1)[None], np.roll(poly[:, 1], -1)[None]
-    crosses = ((ya > y) != (yb > y)) & (x < (xb - xa) * (y - ya) / (yb - ya + 1e-300) + xa)
-    return np.count_nonzero(crosses, axis=1) % 2 == 1

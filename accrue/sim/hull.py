@@ -21,9 +21,7 @@ def convex_hull(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     verts = model.mesh_vert[start:start + count].astype(float)
     faces = model.mesh_face[fstart:fstart + fcount].astype(np.int64)
     # undo the compiler's frame change (mesh_pos/mesh_quat) so vertices are in the input frame
-    import mujoco as mj
-
     rot = np.zeros(9)
-    mj.mju_quat2Mat(rot, model.mesh_quat[0])
+    mujoco.mju_quat2Mat(rot, model.mesh_quat[0])
     verts = verts @ rot.reshape(3, 3).T + model.mesh_pos[0] + centre
     return verts, faces
