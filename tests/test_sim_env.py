@@ -182,3 +182,14 @@ def test_gymnasium_wrapper_passes_checker():
     assert obs.shape == (STATE_DIM,)
     obs2, reward, terminated, truncated, info = env.step(np.zeros(6, dtype=np.float32))
     assert obs2.shape == (STATE_DIM,) and reward == 0.0 and "success" in info
+
+
+def test_gymnasium_registered_ids():
+    import gymnasium as gym
+
+    from accrue.sim.gym_env import register_gym_ids
+
+    register_gym_ids()
+    env = gym.make("accrue/plugs-twin_pins-v0")
+    obs, _ = env.reset(seed=0)
+    assert obs.shape == (STATE_DIM,) and env.unwrapped.task.task_id == "plugs/twin_pins"

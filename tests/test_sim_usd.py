@@ -118,7 +118,7 @@ def test_non_convex_mesh_is_decomposed(tmp_path):
         assert not ((piece[:, 0] > 0.0105).any() and (piece[:, 1] > 0.0105).any())
 
 
-@pytest.mark.parametrize("kind", ["missing", "garbage", "no_mesh"])
+@pytest.mark.parametrize("kind", ["missing", "garbage", "no_mesh", "flat_mesh"])
 def test_bad_usd_files_give_one_line_errors(tmp_path, kind):
     path = tmp_path / "bad.usda"
     if kind == "garbage":
@@ -128,6 +128,15 @@ def test_bad_usd_files_give_one_line_errors(tmp_path, kind):
 
         stage = Usd.Stage.CreateNew(str(path))
         UsdGeom.Xform.Define(stage, "/Empty")
+        stage.GetRootLayer().Save()
+    elif kind == "flat_mesh":  # a single quad: no volume, nothing MuJoCo can collide
+        from pxr import Gf, Usd, UsdGeom, Vt
+
+        stage = Usd.Stage.CreateNew(str(path))
+        mesh = UsdGeom.Mesh.Define(stage, "/Quad")
+        mesh.CreatePointsAttr(Vt.Vec3fArray([Gf.Vec3f(x, y, 0) for x, y in ((0, 0), (1, 0), (1, 1), (0, 1))]))
+        mesh.CreateFaceVertexCountsAttr(Vt.IntArray([4]))
+        mesh.CreateFaceVertexIndicesAttr(Vt.IntArray([0, 1, 2, 3]))
         stage.GetRootLayer().Save()
     with pytest.raises(AccrueError) as e:
         register_usd_task("mine/bad", path, path, depth=0.01)

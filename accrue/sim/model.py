@@ -12,6 +12,7 @@ import functools
 
 import numpy as np
 
+from accrue.errors import AccrueError
 from accrue.sim.tasks import TaskSpec
 from accrue.sim.usd_parts import read_part
 
@@ -103,7 +104,11 @@ def build_spec(task: TaskSpec):
 
 @functools.lru_cache(maxsize=64)
 def _compiled(task: TaskSpec):
-    return build_spec(task).compile()
+    try:
+        return build_spec(task).compile()
+    except ValueError as exc:  # e.g. a flat or degenerate mesh piece
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise AccrueError(f"task {task.task_id}: MuJoCo rejected its part geometry: {first}") from None
 
 
 def build_model(task: TaskSpec):

@@ -104,6 +104,8 @@ def read_part(path: Path, *, decompose_threshold: float = 0.04) -> list[np.ndarr
         v *= scale
         if y_up:  # rotate +90 deg about x so that the file's +y becomes +z
             v = np.column_stack([v[:, 0], -v[:, 2], v[:, 1]])
+        if np.linalg.matrix_rank(v - v.mean(axis=0), tol=1e-9) < 3:
+            raise AccrueError(f"USD file {path}: mesh {prim.GetPath()} is flat or degenerate (no volume)")
         approx = None
         if prim.HasAPI(UsdPhysics.MeshCollisionAPI):
             approx = UsdPhysics.MeshCollisionAPI(prim).GetApproximationAttr().Get()

@@ -36,6 +36,9 @@ def register_usd_task(task_id: str, plug_usd: str | Path, socket_usd: str | Path
                     plug_usd=paths[0].resolve(), socket_usd=paths[1].resolve(),
                     gripper_usd=paths[2].resolve() if gripper_usd else None, depth=float(depth),
                     clearance=float(clearance), yaw_symmetry=int(yaw_symmetry), **overrides)
+    from accrue.sim.model import build_model
+
+    build_model(spec)  # compile once so geometry MuJoCo rejects fails at registration, with the task named
     return add_task(spec, replace=replace)
 
 
