@@ -129,7 +129,8 @@ class ChunkLearner:
         return (self.cfg.gamma ** self.horizon) * (1.0 - batch.done)
 
     def update(self, current: Batch, prior: Batch | None = None) -> dict[str, float]:
-        """One gradient update (critic; actor every policy_frequency-th call; target Polyak)."""
+        """One gradient update (critic; actor every policy_frequency-th call; target Polyak). Unlike
+        train_step it does not feed the observation normaliser."""
         return {k: float(v) for k, v in self._update(current, prior).items()}
 
     def _update(self, current: Batch, prior: Batch | None) -> dict[str, torch.Tensor]:
