@@ -34,6 +34,15 @@ def test_fixed_seed_is_bit_identical_and_seed_matters():
     assert not np.array_equal(runs[0], runs[2])
 
 
+def test_thread_count_does_not_change_results():
+    finals = []
+    for threads in (1, 2):
+        env = make_vec_env("plugs/star", num_envs=5, seed=4, nthread=threads)
+        env.reset()
+        finals.append(env.step_chunk(_random_actions(5, 8, 9), 0.9).obs["state"])
+    assert np.array_equal(finals[0], finals[1])
+
+
 def test_chunk_equals_h_single_steps():
     h, gamma = 6, 0.9
     a = make_vec_env("plugs/cross", num_envs=3, seed=3)
