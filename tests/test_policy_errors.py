@@ -121,7 +121,8 @@ def test_datasets_with_different_action_sizes(tmp_path):
 def test_failed_training_subprocess_names_its_log(tmp_path):
     log = tmp_path / "train.log"
     with pytest.raises(AccrueError) as info:
-        run_lerobot_train(["--no_such_flag=1"], log, total_steps=1)
+        # a quick module that rejects its arguments stands in for a failing lerobot-train
+        run_lerobot_train(["--no_such_flag=1"], log, total_steps=1, module="json.tool")
     assert f"see the log at {log}" in _one_line(info)
     assert log.stat().st_size > 0
 

@@ -35,10 +35,10 @@ def parse_step(line: str) -> int | None:
 
 def run_lerobot_train(
     args: list[str], log_path: Path, total_steps: int, progress: Callable[[int, int], None] | None = None,
-    threads: int | None = None,
+    threads: int | None = None, module: str = "lerobot.scripts.lerobot_train",
 ) -> None:
-    """Run lerobot's training entry point with `args`; raise AccrueError naming the log on failure."""
-    command = [sys.executable, "-m", "lerobot.scripts.lerobot_train", *args]
+    """Run lerobot's training entry point (`module`) with `args`; raise AccrueError naming the log on failure."""
+    command = [sys.executable, "-m", module, *args]
     env = {**os.environ, **OFFLINE_ENV}
     if threads:
         env.update(OMP_NUM_THREADS=str(threads), MKL_NUM_THREADS=str(threads))
