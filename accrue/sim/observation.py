@@ -39,18 +39,8 @@ def rotate_xy(xy: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     return np.stack([c * xy[:, 0] - s * xy[:, 1], s * xy[:, 0] + c * xy[:, 1]], axis=1)
 
 
-def assemble_state(pos, tilt, yaw, lin_vel, ang_vel, force, torque, est_pos, est_yaw, time_frac) -> np.ndarray:
-    """Stack robot-frame quantities (SI units) into the scaled (N, STATE_DIM) float32 state."""
-    cols = [
-        pos * POS_SCALE, tilt * TILT_SCALE, np.sin(yaw)[:, None], np.cos(yaw)[:, None],
-        lin_vel * VEL_SCALE, ang_vel, force * FORCE_SCALE, torque * TORQUE_SCALE,
-        est_pos * POS_SCALE, np.sin(est_yaw)[:, None], np.cos(est_yaw)[:, None], time_frac[:, None],
-    ]
-    return np.concatenate(cols, axis=1).astype(np.float32)
-
-
 def decode_state(state: np.ndarray) -> dict[str, np.ndarray]:
-    """Inverse of assemble_state (SI units), for experts and diagnostics."""
+    """The state back in SI units (robot frame), for experts and diagnostics."""
     s = np.asarray(state, dtype=np.float64)
     sl = lambda a, b: s[:, IDX[a]:IDX[b] + 1]  # noqa: E731
     return {
