@@ -95,8 +95,9 @@ def test_dataset_without_state_feature(tmp_path):
 
 def test_not_a_dataset_and_unknown_init(tmp_path):
     (tmp_path / "empty").mkdir()
-    with pytest.raises(AccrueError, match="not a LeRobotDataset"):
-        finetune("embedded-act", [tmp_path / "empty"], tmp_path / "out", FinetuneSettings(steps=1))
+    for _attempt in range(2):  # a failed attempt's leftovers do not block the next attempt
+        with pytest.raises(AccrueError, match="not a LeRobotDataset"):
+            finetune("embedded-act", [tmp_path / "empty"], tmp_path / "out", FinetuneSettings(steps=1))
     demos = write_synthetic_demos(tmp_path / "d", "t", 1.0, episodes=1, length=3)
     with pytest.raises(AccrueError, match="unknown policy init 'gpt-robot'"):
         finetune("gpt-robot", [demos], tmp_path / "out2", FinetuneSettings(steps=1))

@@ -81,8 +81,9 @@ def finetune(
     """
     settings.check()
     out_dir = Path(out_dir)
-    if out_dir.exists() and any(out_dir.iterdir()):
+    if out_dir.exists() and any(p.name != WORK_DIR for p in out_dir.iterdir()):
         raise AccrueError(f"fine-tune output {out_dir} already exists and is not empty")
+    # a lone _work dir is what a failed attempt leaves behind: start that attempt over
     init_is_dir = isinstance(init, Path) or Path(str(init)).is_dir() or "/" in str(init)
     if init_is_dir:
         init_dir = Path(init)
@@ -93,10 +94,10 @@ def finetune(
         embedding_dim, use_images = settings.embedding_dim, scratch.uses_images
 
     work = out_dir / WORK_DIR
-    work.mkdir(parents=True, exist_ok=True)
+    if work.exists():
+        shutil.rmtree(work)
+    work.mkdir(parents=True)
     training_root = work / "training_set"
-    if training_root.exists():
-        shutil.rmtree(training_root)
     summary = build_training_set(
         [Path(p) for p in datasets], training_root, settings.retention, settings.seed, embedding_dim, use_images
     )
@@ -104,8 +105,6 @@ def finetune(
         _check_dataset_matches_checkpoint(init_dir, training_root)
 
     train_dir = work / "train"
-    if train_dir.exists():
-        shutil.rmtree(train_dir)
     args = [
         f"--dataset.repo_id={TRAINING_REPO_ID}",
         f"--dataset.root={training_root}",
