@@ -10,6 +10,7 @@ import typer
 _COMMAND_MODULES = [
     "cli.store_cmds",     # init, log, show, lineage, verify, gc, add
     "cli.stage_cmds",     # stage run/status, run, report
+    "cli.run_cmds",       # run WORKFLOW (every stage)
     "cli.sim_cmds",       # sim tasks/demos/watch
     "cli.policy_cmds",    # policy finetune/chunk
     "cli.metrics_cmds",   # metrics FILE.json

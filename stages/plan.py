@@ -1,0 +1,162 @@
+"""Turn a workflow's stage k into the runner's plan: which steps, wired to which inputs, with which config.
+
+    plan = plan_stage(workflow, k, store)          # StagePlan of StepInvocations
+    wf = apply_budget(workflow, "0.01")            # scale the env-step budget (CPU runs of GPU workflows)
+
+Stage k runs, in order (paper Algorithm 1; `record-demos` only when the workflow gives no demos of task k):
+
+    record-demos   expert demos D^k of task k                          config: task, seed, quality
+    finetune-base  π_base^{k-1} (or the workflow's init) + D^1..D^k -> π_base^k
+    cache-teacher  handoff k-1 -> Eq. 3 targets (a "skipped" record at stage 1 / non-distilling methods)
+    warmup         π_base^k on task k -> first shard of B^k
+    train          π_base^k, B^k, handoff k-1, targets -> θ^k ψ^k, B^k, learning curve
+    evaluate-all   π_base^k + θ^k on tasks 1..k -> row k of the success matrix, MCAP episodes
+    handoff        θ^k ψ^k, B^k, handoff k-1 -> handoff k (θ^k, ψ^k, B^{<k+1})
+
+Each step's config holds only the settings it reads, so changing one setting re-runs exactly the steps
+that read it and those downstream (through their changed inputs). Earlier stages are reached through
+refs (`workflow/<name>/stage/<i>/<step>:<role>`), resolved and pinned when the step starts.
+"""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+from stages.errors import StageError
+from stages.runner import step_ref
+from stages.runner_types import FromRef, FromStep, StagePlan, StepInvocation
+from stages.workflow import Workflow
+
+SCRATCH_POLICIES = ("embedded-act", "act", "diffusion")
+DEMO_ENVS = 8
+
+
+def output_ref(wf: Workflow, stage: int, step: str, role: str) -> FromRef:
+    return FromRef(f"{step_ref(wf.name, stage, step)}:{role}")
+
+
+def _gamma(wf: Workflow) -> float:
+    from stages.workflow import _learner_config_class
+
+    cls = _learner_config_class()
+    return float(wf.learner.get("gamma", cls().gamma if cls is not None else 0.99))
+
+
+def check_workflow(wf: Workflow) -> None:
+    """Values the schema cannot check alone (task ids exist, given demos name a task of the workflow)."""
+    from accrue.sim import list_tasks
+
+    known = list_tasks()
+    for i, task in enumerate(wf.tasks):
+        if task not in known:
+            raise StageError(f"workflow {wf.name}: tasks[{i}]: unknown task {task!r} "
+                             f"(known: {', '.join(known)})")
+    for task in wf.base_policy.demos:
+        if task not in wf.tasks:
+            raise StageError(f"workflow {wf.name}: base_policy.demos: {task!r} is not one of the workflow's tasks")
+    if not wf.base_policy.init.strip():
+        raise StageError(f"workflow {wf.name}: base_policy.init: must not be empty")
+
+
+def _init_source(wf: Workflow, store) -> str | None:
+    """Stage 1's starting policy: None for a from-scratch name, else an artifact id or ref."""
+    init = wf.base_policy.init
+    if init in SCRATCH_POLICIES:
+        return None
+    path = Path(init).expanduser()
+    if path.is_dir():   # a checkpoint directory on disk is brought into the store (idempotent)
+        from artifacts.ingest import add_path
+
+        return add_path(store, path, "base-policy")[0]
+    return init
+
+
+def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
+    from stages.steps import STEPS
+
+    wf.check_stage(stage)
+    check_workflow(wf)
+    k, task, b, bp = stage, wf.task(stage), wf.budgets, wf.base_policy
+    tasks = wf.tasks[:k]
+    gamma = _gamma(wf)
+    learner = wf.learner_settings()
+    method, ablation = learner["method"], learner.get("ablation", "none")
+    steps: list[StepInvocation] = []
+
+    def add(name: str, config: dict, inputs: dict, step=None) -> None:
+        steps.append(StepInvocation(step=step or STEPS[name], config=config, inputs=inputs,
+                                    workflow=wf.name, stage=k))
+
+    # demos D^1..D^k: given artifacts, else recorded by the scripted expert (this stage records D^k)
+    demos = {}
+    for i, t in enumerate(tasks, 1):
+        if t in bp.demos:
+            demos[f"demos-{i}"] = bp.demos[t]
+        elif i == k:
+            demos[f"demos-{i}"] = FromStep("record-demos", "demos")
+        else:
+            demos[f"demos-{i}"] = output_ref(wf, i, "record-demos", "demos")
+    if task not in bp.demos:
+        add("record-demos", {"task": task, "episodes": bp.demos_per_task, "seed": wf.seed,
+                             "quality": bp.demo_quality, "obs_mode": wf.obs_mode, "num_envs": DEMO_ENVS}, {})
+
+    init = _init_source(wf, store) if k == 1 else output_ref(wf, k - 1, "finetune-base", "base-policy")
+    ft_inputs = dict(demos, **({"init": init} if init is not None else {}))
+    ft_step = dataclasses.replace(STEPS["finetune-base"], inputs=tuple(demos))
+    add("finetune-base", {"stage": k, "tasks": tasks, "init": bp.init if k == 1 else "previous-stage",
+                          "finetune": bp.finetune, "steps": bp.finetune_steps, "batch_size": bp.batch_size,
+                          "lr": bp.lr, "seed": wf.seed, "retention": bp.demo_retention, "chunk_size": wf.horizon},
+        ft_inputs, step=ft_step)
+
+    previous_handoff = output_ref(wf, k - 1, "handoff", "handoff") if k > 1 else None
+    from stages.steps.cache_teacher import skip_reason
+
+    distills = skip_reason(k, method, ablation) is None
+    add("cache-teacher", {"stage": k, "method": method, "ablation": ablation, "seed": wf.seed},
+        {"handoff": previous_handoff} if distills else {})
+
+    env = {"horizon": wf.horizon, "obs_mode": wf.obs_mode, "encoder": wf.encoder, "num_envs": b.num_envs}
+    add("warmup", {"stage": k, "task": task, "seed": wf.seed, "episodes": b.warmup_episodes, "gamma": gamma, **env},
+        {"base-policy": FromStep("finetune-base", "base-policy")})
+
+    train_inputs = {"base-policy": FromStep("finetune-base", "base-policy"), "replay": FromStep("warmup", "replay")}
+    if previous_handoff is not None:
+        train_inputs["handoff"] = previous_handoff
+    if distills:
+        train_inputs["teacher"] = FromStep("cache-teacher", "teacher")
+    add("train", {"stage": k, "task_ids": tasks, "seed": wf.seed, "learner": learner, "env_steps": b.env_steps,
+                  "eval_every": b.eval_every, "eval_episodes": b.eval_episodes,
+                  "checkpoint_every": b.checkpoint_every, **env}, train_inputs)
+
+    add("evaluate-all", {"stage": k, "task_ids": tasks, "seed": wf.seed, "episodes": b.eval_episodes,
+                         "gamma": gamma, "method": method, "record_episodes": b.log_episodes, **env},
+        {"base-policy": FromStep("finetune-base", "base-policy"), "checkpoint": FromStep("train", "checkpoint")})
+
+    handoff_inputs = {"checkpoint": FromStep("train", "checkpoint"), "replay": FromStep("train", "replay")}
+    if previous_handoff is not None:
+        handoff_inputs["handoff"] = previous_handoff
+    add("handoff", {"stage": k, "retained_episodes": b.retained_episodes, "method": method, "ablation": ablation,
+                    "seed": wf.seed}, handoff_inputs)
+    return StagePlan(workflow=wf.name, stage=k, steps=tuple(steps))
+
+
+def apply_budget(wf: Workflow, budget: str | None) -> Workflow:
+    """`--budget 0.01` scales env_steps, eval_every and checkpoint_every by 0.01; `--budget 5000` sets
+    env_steps to 5000 and scales the others alike. The evaluation grid keeps its number of points."""
+    if budget is None:
+        return wf
+    try:
+        value = float(budget)
+    except ValueError:
+        raise StageError(f"--budget: expected a fraction in (0, 1] or a number of env steps (got {budget!r})") from None
+    if not value > 0 or value != value:
+        raise StageError(f"--budget: must be positive (got {budget!r})")
+    if value > 1 and not value.is_integer():
+        raise StageError(f"--budget: env steps must be a whole number (got {budget!r})")
+    b = wf.budgets
+    scale = value if value <= 1 else value / b.env_steps
+    env_steps = max(1, round(b.env_steps * scale))
+    eval_every = min(env_steps, max(1, round(b.eval_every * scale)))
+    ckpt = 0 if b.checkpoint_every == 0 else max(1, round(b.checkpoint_every * scale))
+    budgets = b.model_copy(update={"env_steps": env_steps, "eval_every": eval_every, "checkpoint_every": ckpt})
+    return wf.model_copy(update={"budgets": budgets})

@@ -1,0 +1,111 @@
+"""Helpers the step bodies share: JSON files, determinism, the base policy's reference function, envs.
+
+Heavy libraries (torch, mujoco, lerobot) are imported inside the functions: `stages.plan` imports
+the step definitions, and `accrue --help` must stay fast.
+"""
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from stages.errors import StageError
+
+TORCH_THREADS = 1      # fixed, so that a workflow run is reproducible from its seed on CPU
+
+
+def write_json(path: Path, data: Any) -> Path:
+    """Canonical JSON (sorted keys): identical data gives identical bytes, hence identical content ids."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n", encoding="utf-8")
+    return path
+
+
+def read_json(path: Path) -> Any:
+    try:
+        return json.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise StageError(f"{path.parent.name}: expected {path.name} in this artifact; it is missing") from None
+
+
+def deterministic(seed: int) -> None:
+    """Fixed torch threads, deterministic kernels and seeded global RNGs (CPU runs repeat bit for bit)."""
+    import numpy as np
+    import torch
+
+    torch.set_num_threads(TORCH_THREADS)
+    torch.use_deterministic_algorithms(True, warn_only=True)
+    torch.manual_seed(seed)
+    np.random.seed(seed % 2**32)
+
+
+def load_base_policy(path: Path, seed: int):
+    import contextlib
+    import sys
+
+    from accrue.policy import BasePolicy
+
+    with contextlib.redirect_stdout(sys.stderr):    # lerobot prints while loading; stdout may be --json
+        return BasePolicy.load(path, device="cpu", seed=seed)
+
+
+def reference_fn(policy, task_id: str, horizon: int):
+    """ã = π_base(obs, ℓ): the base policy's chunk for a batch of observations of task_id."""
+    from accrue.sim import get_task
+
+    instruction = get_task(task_id).instruction
+    return lambda obs: policy.reference_chunk(obs, instruction, horizon)
+
+
+def features_fn(encoder_spec: str):
+    """s = (E(I), q): frozen encoder features of the image (if any) ‖ the sim state vector."""
+    import numpy as np
+
+    from accrue.rl_loop import state_features
+
+    if encoder_spec == "none":
+        return state_features
+    from accrue.encoders import make_encoder
+
+    encoder = make_encoder(encoder_spec)
+
+    def features(obs: dict) -> np.ndarray:
+        if "image" not in obs:
+            raise StageError(f"encoder {encoder_spec} needs image observations: set obs_mode: state+image")
+        return np.concatenate([encoder.encode(obs["image"]), state_features(obs)], axis=1).astype(np.float32)
+
+    return features
+
+
+def state_dim(encoder_spec: str, obs_mode: str, task_id: str) -> int:
+    """Size of s, found by encoding one observation (cheap, and never out of step with features_fn)."""
+    env = make_env(task_id, 1, 0, obs_mode)
+    try:
+        return int(features_fn(encoder_spec)(env.reset()).shape[1])
+    finally:
+        env.close()
+
+
+def make_env(task_id: str, num_envs: int, seed: int, obs_mode: str):
+    from accrue.sim import make_vec_env
+
+    return make_vec_env(task_id, num_envs=num_envs, seed=seed, obs_mode=obs_mode)
+
+
+def learner_config(settings: dict):
+    from accrue.learner import LearnerConfig
+
+    return LearnerConfig.from_dict(dict(settings))
+
+
+def copy_tree(src: Path, dst: Path) -> None:
+    """Copy a (read-only, materialised) artifact directory into a writable output directory."""
+    import shutil
+
+    shutil.copytree(src, dst, dirs_exist_ok=True)
+    for root, dirs, files in os.walk(dst):
+        for name in dirs + files:
+            p = Path(root) / name
+            p.chmod(p.stat().st_mode | 0o200)
+    Path(dst).chmod(Path(dst).stat().st_mode | 0o200)

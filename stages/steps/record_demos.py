@@ -1,0 +1,25 @@
+"""`record-demos`: the scripted expert's demonstrations D^k of the stage's task (a LeRobotDataset).
+
+Used when the workflow gives no recorded demos for a task; its config carries the seed, so a
+base policy's lineage reaches back to the seed that drew its demonstrations.
+"""
+from __future__ import annotations
+
+from stages.runner_context import StepContext
+from stages.runner_types import StepDef
+
+
+def run(ctx: StepContext) -> None:
+    from accrue.sim.demos import write_demos
+
+    c = ctx.config
+    out = ctx.new_output("demos", "demos")
+    summary = write_demos(c["task"], c["episodes"], out, seed=c["seed"], quality=c["quality"],
+                          obs_mode=c["obs_mode"], progress=False, num_envs=c["num_envs"])
+    ctx.console.print(f"record-demos: {summary.episodes} episodes of {c['task']} "
+                      f"({summary.successes}/{summary.attempts} expert attempts succeeded)")
+    ctx.log_event("demos-recorded", task=c["task"], episodes=summary.episodes, attempts=summary.attempts)
+
+
+STEP = StepDef(name="record-demos", code_version="record-demos-1", run=run, outputs={"demos": "demos"},
+               description="scripted-expert demonstrations of the stage's task")

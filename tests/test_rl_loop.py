@@ -1,0 +1,142 @@
+"""accrue.rl_loop without the store: warmup, the evaluation grid, repeatable evaluation, and exact resume
+of the train loop from a checkpoint (learner + replay shards + loop state) on the real sim."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from accrue import rl_loop
+from accrue.learner import LearnerConfig, ReplayBuffer, load_learner, make_learner
+from accrue.sim import STATE_DIM, make_vec_env
+
+TASK, H, N = "nist/rect_peg", 4, 2
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    n = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(n)
+
+
+def reference(obs):
+    """A deterministic stand-in for π_base: push down, correct the lateral offset from the estimate."""
+    s = np.asarray(obs["state"], dtype=np.float32)
+    a = np.zeros((len(s), 6), dtype=np.float32)
+    a[:, 2] = -0.6
+    a[:, :2] = np.clip(0.05 * s[:, :2], -1, 1)
+    return np.repeat(a[:, None, :], H, axis=1)
+
+
+def small_learner(seed=0):
+    cfg = LearnerConfig(actor_hidden=[32, 32], critic_hidden=[32, 32], projector_dim=16, batch_size=32,
+                        num_atoms=11, utd=1, seed=seed)
+    return make_learner(cfg, STATE_DIM, H)
+
+
+def make_collector(buffer, next_episode=0):
+    env = make_vec_env(TASK, N, seed=11)
+    return rl_loop.ChunkCollector(env, reference, rl_loop.state_features, buffer, task_index=0, gamma=0.99,
+                                  next_episode=next_episode)
+
+
+def make_evaluator(episodes=3):
+    return rl_loop.Evaluator(lambda t, n: make_vec_env(t, n, seed=99), {TASK: reference}, rl_loop.state_features,
+                             episodes, N, H, 0.99)
+
+
+def test_grid_and_checkpoint_points():
+    s = rl_loop.LoopSettings([TASK], env_steps=1000, eval_every=300, checkpoint_every=0)
+    assert s.grid() == [0, 300, 600, 900, 1000]
+    assert s.checkpoint_points() == [300, 600, 900]
+    assert rl_loop.LoopSettings([TASK], 1000, 500, 200).checkpoint_points() == [200, 400, 600, 800]
+
+
+def test_env_seeds_differ_by_purpose_and_eval_seed_ignores_stage():
+    seeds = {rl_loop.env_seed(0, 1, p) for p in ("warmup", "train")} | {rl_loop.env_seed(0, 1, "eval", 0)}
+    assert len(seeds) == 3
+    assert rl_loop.env_seed(0, 1, "eval", 2) == rl_loop.env_seed(0, 3, "eval", 2)
+    assert rl_loop.env_seed(0, 1, "train") != rl_loop.env_seed(0, 2, "train")
+
+
+def test_warmup_fills_the_buffer_with_base_policy_chunks():
+    buf = ReplayBuffer(STATE_DIM, H)
+    col = make_collector(buf)
+    col.restart()
+    stats = rl_loop.warmup(col, 3)
+    assert stats.episodes >= 3 and len(buf) > 0
+    assert torch.equal(buf.column("action"), buf.column("ref"))      # π_base executed as is
+    assert stats.env_steps > 0 and stats.successes <= stats.episodes
+    ids = buf.column("episode").unique()
+    assert len(ids) >= 3 and col.next_episode > int(ids.max())
+    assert int(buf.column("done").sum()) == stats.successes                 # done = termination (success)
+
+
+def test_evaluation_is_repeatable_and_counts_exactly_m_episodes():
+    ev = make_evaluator(episodes=3)
+    first = ev.success_rate(TASK)
+    assert first == ev.success_rate(TASK)
+    assert first in (0.0, 1 / 3, 2 / 3, 1.0)
+    learner = small_learner()
+    acted = ev.success_rate(TASK, rl_loop.actor_act(learner))
+    assert 0.0 <= acted <= 1.0
+    ev.close()
+
+
+def run_loop(tmp_path, stop_after_checkpoint=None, resume_dir=None):
+    """Train 240 env steps with checkpoints every 80; optionally raise after the n-th checkpoint (a crash)."""
+    settings = rl_loop.LoopSettings([TASK], env_steps=240, eval_every=120, checkpoint_every=80)
+    torch.manual_seed(0)     # the global RNG is part of the saved state (the train step seeds it too)
+    if resume_dir is None:
+        buf = ReplayBuffer(STATE_DIM, H)
+        col = make_collector(buf)
+        col.restart()
+        rl_loop.warmup(col, 2)
+        learner, state = small_learner(), rl_loop.LoopState(next_episode=col.next_episode)
+        col = make_collector(buf, state.next_episode)
+        col.restart()
+    else:
+        buf = ReplayBuffer.load(resume_dir / "replay")
+        learner = load_learner(resume_dir / "learner")
+        state = rl_loop.LoopState.from_json(json.loads((resume_dir / "loop.json").read_text()))
+        col = make_collector(buf, state.next_episode)
+        rl_loop.restore_collector(col, state)
+    saved = []
+
+    def on_checkpoint(st):
+        d = tmp_path / f"ckpt-{len(saved)}"
+        learner.save(d / "learner")
+        buf.save_new_shards(d / "replay")
+        (d / "loop.json").write_text(json.dumps(st.to_json()))
+        saved.append(d)
+        if stop_after_checkpoint is not None and len(saved) == stop_after_checkpoint:
+            raise KeyboardInterrupt
+
+    try:
+        state = rl_loop.train_loop(learner, col, make_evaluator(2), settings, state=state,
+                                   on_checkpoint=on_checkpoint)
+    except KeyboardInterrupt:
+        return None, saved
+    final = tmp_path / "final"
+    learner.save(final / "learner")
+    buf.save_new_shards(final / "replay")
+    return (state, final), saved
+
+
+def files(d):
+    return {p.relative_to(d).as_posix(): p.read_bytes() for p in sorted(d.rglob("*")) if p.is_file()}
+
+
+def test_resumed_loop_ends_with_identical_bytes(tmp_path):
+    (full_state, full_dir), saved = run_loop(tmp_path / "a")
+    assert len(saved) == 2 and full_state.env_steps >= 240
+    assert full_state.grid_done == [0, 120, 240] and len(full_state.curve[TASK]) == 3
+    crashed, crash_saved = run_loop(tmp_path / "b", stop_after_checkpoint=1)
+    assert crashed is None and len(crash_saved) == 1
+    (resumed_state, resumed_dir), _ = run_loop(tmp_path / "c", resume_dir=crash_saved[0])
+    assert resumed_state.to_json() == full_state.to_json()
+    assert files(resumed_dir) == files(full_dir)
