@@ -26,7 +26,7 @@ class FastSACLearner(ChunkLearner):
     def reset_optimizers(self) -> None:
         super().reset_optimizers()
         self.log_alpha = torch.tensor(math.log(self.cfg.alpha_init), device=self.device, requires_grad=True)
-        self.alpha_opt = torch.optim.Adam([self.log_alpha], lr=self.cfg.alpha_lr, foreach=True)
+        self.alpha_opt = torch.optim.Adam([self.log_alpha], lr=self.cfg.alpha_lr, fused=True)
 
     def optimizers(self):
         return {**super().optimizers(), "alpha": self.alpha_opt}
