@@ -18,6 +18,16 @@ def temp_name(directory: Path, prefix: str = "") -> Path:
     return directory / f".{prefix}tmp-{os.getpid()}-{secrets.token_hex(6)}"
 
 
+def write_new_fsynced(path: Path, data: bytes) -> None:
+    """Create path (it must not exist) holding data, flushed to disk before returning."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+    try:
+        os.write(fd, data)
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
 def write_replace(path: Path, data: bytes, tmp_dir: Path | None = None) -> None:
     """Replace path with data atomically: readers see the old or the new bytes, never a mix.
 
@@ -26,12 +36,7 @@ def write_replace(path: Path, data: bytes, tmp_dir: Path | None = None) -> None:
     """
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = temp_name(tmp_dir or path.parent)
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
-    try:
-        os.write(fd, data)
-        os.fsync(fd)
-    finally:
-        os.close(fd)
+    write_new_fsynced(tmp, data)
     try:
         os.replace(tmp, path)
     except BaseException:

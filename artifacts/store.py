@@ -18,7 +18,7 @@ import stat
 from pathlib import Path
 from typing import Any, Iterator
 
-from artifacts.atomic import fsync_dir, link_into_place, temp_name, write_replace
+from artifacts.atomic import fsync_dir, link_into_place, temp_name, write_new_fsynced, write_replace
 from artifacts.errors import StoreError
 from artifacts.hashing import (HASH_NAME, ID_LENGTH, canonical_json, copy_hashing, hash_bytes,
                                hash_file, is_full_id)
@@ -114,12 +114,7 @@ class Store:
         if self.has_object(oid):
             return oid
         tmp = temp_name(self.tmp_dir, "obj-")
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
-        try:
-            os.write(fd, data)
-            os.fsync(fd)
-        finally:
-            os.close(fd)
+        write_new_fsynced(tmp, data)
         self._publish_tmp(tmp, oid)
         return oid
 

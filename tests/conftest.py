@@ -1,6 +1,8 @@
 """Test-wide settings: nothing reaches the network, rendering is headless."""
 import os
 
+import pytest
+
 for _key, _value in {
     "HF_HUB_OFFLINE": "1",
     "HF_DATASETS_OFFLINE": "1",
@@ -9,3 +11,14 @@ for _key, _value in {
     "RERUN": "off",
 }.items():
     os.environ.setdefault(_key, _value)
+
+
+@pytest.fixture()
+def one_torch_thread():
+    """Tiny networks: more torch threads only add overhead on the 2-core CI machine."""
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)

@@ -12,12 +12,7 @@ D, H, A = 6, 2, 3
 SMALL = dict(actor_hidden=[32, 32], critic_hidden=[32], projector_dim=16, batch_size=32, num_atoms=21,
              utd=1, policy_frequency=1)
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)      # tiny networks: threads only add overhead on the 2-core CI machine
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 

@@ -8,12 +8,7 @@ from accrue.learner import retain_last_episodes
 
 D, H, A = 6, 2, 3
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)      # tiny networks: threads only add overhead on the 2-core CI machine
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 
