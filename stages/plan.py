@@ -60,8 +60,10 @@ def check_workflow(wf: Workflow) -> None:
 
 def _init_source(wf: Workflow, store) -> str | None:
     """Stage 1's starting policy: None for a from-scratch name, else an artifact id or ref."""
+    from accrue.scripted_reference import parse_spec
+
     init = wf.base_policy.init
-    if init in SCRATCH_POLICIES:
+    if init in SCRATCH_POLICIES or parse_spec(init) is not None:
         return None
     path = Path(init).expanduser()
     if path.is_dir():   # a checkpoint directory on disk is brought into the store (idempotent)
@@ -87,16 +89,20 @@ def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
         steps.append(StepInvocation(step=step or STEPS[name], config=config, inputs=inputs,
                                     workflow=wf.name, stage=k))
 
-    # demos D^1..D^k: given artifacts, else recorded by the scripted expert (this stage records D^k)
+    # demos D^1..D^k: given artifacts, else recorded by the scripted expert (this stage records D^k);
+    # none for the scripted stand-in reference, which is never fine-tuned
+    from accrue.scripted_reference import parse_spec
+
+    scripted = parse_spec(bp.init) is not None
     demos = {}
-    for i, t in enumerate(tasks, 1):
+    for i, t in enumerate(tasks if not scripted else [], 1):
         if t in bp.demos:
             demos[f"demos-{i}"] = bp.demos[t]
         elif i == k:
             demos[f"demos-{i}"] = FromStep("record-demos", "demos")
         else:
             demos[f"demos-{i}"] = output_ref(wf, i, "record-demos", "demos")
-    if task not in bp.demos:
+    if task not in bp.demos and not scripted:
         add("record-demos", {"task": task, "episodes": bp.demos_per_task, "seed": wf.seed,
                              "quality": bp.demo_quality, "obs_mode": wf.obs_mode, "num_envs": DEMO_ENVS}, {})
 

@@ -140,3 +140,19 @@ def test_resumed_loop_ends_with_identical_bytes(tmp_path):
     (resumed_state, resumed_dir), _ = run_loop(tmp_path / "c", resume_dir=crash_saved[0])
     assert resumed_state.to_json() == full_state.to_json()
     assert files(resumed_dir) == files(full_dir)
+
+
+def test_scripted_reference_holds_one_expert_action_and_misses_by_the_unknown_bias():
+    from accrue.scripted_reference import ScriptedReference, parse_spec
+    from accrue.sim import get_task, make_expert
+
+    assert parse_spec("scripted-reference") == 0.0 and parse_spec("scripted-reference:0.5") == 0.5
+    assert parse_spec("embedded-act") is None
+    obs = make_vec_env(TASK, 3, seed=4).reset()
+    instruction = get_task(TASK).instruction
+    blind = ScriptedReference(0.0).reference_chunk(obs, instruction, H)
+    knowing = ScriptedReference(1.0).reference_chunk(obs, instruction, H)
+    assert blind.shape == (3, H, 6) and blind.dtype == np.float32
+    np.testing.assert_allclose(knowing[:, 0], make_expert(TASK, 1.0, seed=0).act(obs["state"]), atol=1e-6)
+    assert np.all(blind[:, 1:, [0, 1, 3, 4, 5]] == 0) and np.all(blind[:, 1:, 2] == blind[:, :1, 2])
+    assert not np.allclose(blind[:, 0, :2], knowing[:, 0, :2])          # aims at the biased estimate

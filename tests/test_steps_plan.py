@@ -99,12 +99,21 @@ def test_budget_scales_steps_and_grid():
             apply_budget(wf, bad)
 
 
-@pytest.mark.parametrize("name", ["quickstart", "nist", "plugs-s1", "plugs-s2", "plugs-s3", "plugs-s4"])
+def test_the_scripted_stand_in_needs_no_demos(store):
+    for k in (1, 2):
+        steps = by_name(plan_stage(workflow(base_policy={"init": "scripted-reference:0.5"}), k, store))
+        assert "record-demos" not in steps
+        assert not any(r.startswith("demos-") for r in steps["finetune-base"].inputs)
+    with pytest.raises(Exception, match="known bias fraction must be in"):
+        plan_stage(workflow(base_policy={"init": "scripted-reference:2"}), 1, store)
+
+
+@pytest.mark.parametrize("name", ["quickstart", "quickstart-standin", "nist", "plugs-s1", "plugs-s2", "plugs-s3", "plugs-s4"])
 def test_shipped_workflows_load_and_plan(store, name):
     wf = load_workflow(WORKFLOWS / f"{name}.yaml")
     for k in range(1, wf.num_stages + 1):
         plan_stage(apply_budget(wf, "0.01"), k, store)
-    if name != "quickstart":
+    if not name.startswith("quickstart"):
         assert wf.horizon == 16 and wf.budgets.env_steps == 500_000 and wf.budgets.num_envs == 64
         assert wf.budgets.retained_episodes == (100 if name == "nist" else 50)
         assert wf.learner["algo"] == "fastsac"

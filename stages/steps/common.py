@@ -45,7 +45,11 @@ def load_base_policy(path: Path, seed: int):
     import sys
 
     from accrue.policy import BasePolicy
+    from accrue.scripted_reference import ScriptedReference
 
+    scripted = Path(path) / "scripted_reference.json"
+    if scripted.is_file():    # the scripted stand-in (accrue.scripted_reference), not a lerobot checkpoint
+        return ScriptedReference(read_json(scripted)["known_bias"])
     with contextlib.redirect_stdout(sys.stderr):    # lerobot prints while loading; stdout may be --json
         return BasePolicy.load(path, device="cpu", seed=seed)
 

@@ -14,6 +14,9 @@ from stages.runner_types import StepDef
 from stages.steps.common import copy_tree, write_json
 
 
+SCRIPTED_FILE = "scripted_reference.json"
+
+
 def demo_roles(stage: int) -> tuple[str, ...]:
     return tuple(f"demos-{i}" for i in range(1, stage + 1))
 
@@ -21,9 +24,19 @@ def demo_roles(stage: int) -> tuple[str, ...]:
 def run(ctx: StepContext) -> None:
     from accrue.policy import FinetuneSettings, finetune
 
+    from accrue.scripted_reference import parse_spec
+
     c = ctx.config
     out = ctx.new_output("base-policy", "base-policy")
     init = ctx.input_path("init") if ctx.has_input("init") else c["init"]
+    if not ctx.has_input("init") and parse_spec(c["init"]) is not None:   # stand-in: nothing to train
+        write_json(out / SCRIPTED_FILE, {"known_bias": parse_spec(c["init"])})
+        write_json(out / "accrue_base.json", {"stage": c["stage"], "finetuned": False, "scripted": True})
+        return
+    if ctx.has_input("init") and (init / SCRIPTED_FILE).is_file():
+        copy_tree(init, out)
+        write_json(out / "accrue_base.json", {"stage": c["stage"], "finetuned": False, "scripted": True})
+        return
     if not c["finetune"]:
         if not ctx.has_input("init"):
             raise StageError("base_policy.finetune is false, so base_policy.init must name a checkpoint "
