@@ -15,7 +15,9 @@ Exact resume. A checkpoint is taken only at fixed env-step points (never on a ti
 starts a fresh episode right after it: the in-progress episodes end there as time-limit truncations
 (they still bootstrap). The env's seeded per-episode generators then make the continuation a function
 of (learner state, buffer, episode counters) alone, so a run resumed from a checkpoint produces
-bit-identical artifacts to one that never stopped (CPU, fixed torch threads).
+bit-identical artifacts to one that never stopped (CPU, fixed torch threads). Because each checkpoint
+cuts the episodes in progress, checkpoints are kept at least `min_checkpoint_gap` env steps apart (the
+train step uses two full episodes of every env), so that most episodes still run to their end.
 """
 from __future__ import annotations
 
@@ -178,13 +180,14 @@ class LoopSettings:
     env_steps: int                   # RL budget of the stage (control steps, all envs together)
     eval_every: int                  # E: evaluation grid spacing in env steps
     checkpoint_every: int            # env steps between checkpoints (0 = at every evaluation point)
+    min_checkpoint_gap: int = 0      # never closer: every checkpoint restarts the envs' episodes
 
     def grid(self) -> list[int]:
         points = list(range(0, self.env_steps, self.eval_every)) + [self.env_steps]
         return sorted(set(points))
 
     def checkpoint_points(self) -> list[int]:
-        every = self.checkpoint_every or self.eval_every
+        every = max(self.checkpoint_every or self.eval_every, self.min_checkpoint_gap, 1)
         return [p for p in range(every, self.env_steps, every)]
 
 

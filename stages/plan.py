@@ -147,8 +147,9 @@ def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
 
 
 def apply_budget(wf: Workflow, budget: str | None) -> Workflow:
-    """`--budget 0.01` scales env_steps, eval_every and checkpoint_every by 0.01; `--budget 5000` sets
-    env_steps to 5000 and scales the others alike. The evaluation grid keeps its number of points."""
+    """`--budget 0.01` scales env_steps, eval_every, checkpoint_every and the base policy's fine-tuning
+    steps by 0.01; `--budget 5000` sets env_steps to 5000 and scales the others alike (fine-tuning never
+    grows). The evaluation grid keeps its number of points."""
     if budget is None:
         return wf
     try:
@@ -165,4 +166,7 @@ def apply_budget(wf: Workflow, budget: str | None) -> Workflow:
     eval_every = min(env_steps, max(1, round(b.eval_every * scale)))
     ckpt = 0 if b.checkpoint_every == 0 else max(1, round(b.checkpoint_every * scale))
     budgets = b.model_copy(update={"env_steps": env_steps, "eval_every": eval_every, "checkpoint_every": ckpt})
-    return wf.model_copy(update={"budgets": budgets})
+    # the base policy's fine-tuning shrinks with the rest, so a GPU workflow can smoke-run on CPU
+    base = wf.base_policy.model_copy(update={"finetune_steps": max(1, round(wf.base_policy.finetune_steps
+                                                                            * min(scale, 1.0)))})
+    return wf.model_copy(update={"budgets": budgets, "base_policy": base})

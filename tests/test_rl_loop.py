@@ -54,6 +54,7 @@ def test_grid_and_checkpoint_points():
     assert s.grid() == [0, 300, 600, 900, 1000]
     assert s.checkpoint_points() == [300, 600, 900]
     assert rl_loop.LoopSettings([TASK], 1000, 500, 200).checkpoint_points() == [200, 400, 600, 800]
+    assert rl_loop.LoopSettings([TASK], 1000, 500, 200, min_checkpoint_gap=300).checkpoint_points() == [300, 600, 900]
 
 
 def test_env_seeds_differ_by_purpose_and_eval_seed_ignores_stage():

@@ -91,6 +91,7 @@ def test_budget_scales_steps_and_grid():
     wf = workflow()
     small = apply_budget(wf, "0.1")
     assert (small.budgets.env_steps, small.budgets.eval_every, small.budgets.checkpoint_every) == (100, 25, 10)
+    assert small.base_policy.finetune_steps == 20 and wf.base_policy.finetune_steps == 200
     fixed = apply_budget(wf, "500")
     assert (fixed.budgets.env_steps, fixed.budgets.eval_every) == (500, 125)
     assert apply_budget(wf, None) is wf

@@ -97,7 +97,11 @@ def run(ctx: StepContext) -> None:
     evaluator = rl_loop.Evaluator(
         lambda t, n: make_env(t, n, rl_loop.env_seed(seed, k, "eval", tasks.index(t)), c["obs_mode"]),
         references, features, c["eval_episodes"], c["num_envs"], horizon, cfg.gamma)
-    loop = rl_loop.LoopSettings(tasks, c["env_steps"], c["eval_every"], c["checkpoint_every"])
+    from accrue.sim import get_task
+
+    episode_span = c["num_envs"] * get_task(task).max_steps    # env steps for every env to run one episode
+    loop = rl_loop.LoopSettings(tasks, c["env_steps"], c["eval_every"], c["checkpoint_every"],
+                                min_checkpoint_gap=2 * episode_span)
 
     staging = ctx.scratch_dir("checkpoint")
 
@@ -117,7 +121,7 @@ def run(ctx: StepContext) -> None:
                 f"episodes {st.episodes} (success {st.successes / max(st.episodes, 1):.2f})")
         if "eval" in info:
             line += "  eval " + " ".join(f"{t}={r:.2f}" for t, r in info["eval"].items())
-        ctx.console.print(line)
+        ctx.console.print(line, soft_wrap=True)
 
     state = rl_loop.train_loop(learner, collector, evaluator, loop, prior=prior, teacher=teacher,
                                state=state, frozen_acts=frozen, on_checkpoint=save_checkpoint, on_progress=show)
@@ -140,7 +144,7 @@ def run(ctx: StepContext) -> None:
         "updates": state.updates, "train_episodes": state.episodes, "train_successes": state.successes})
 
 
-STEP = StepDef(name="train", code_version="train-1", run=run, inputs=("base-policy", "replay"),
+STEP = StepDef(name="train", code_version="train-2", run=run, inputs=("base-policy", "replay"),
                optional_inputs=("handoff", "teacher"),
                outputs={"checkpoint": "checkpoint", "replay": "replay", "curve": "eval"},
                description="off-policy RL on chunks with an evaluation grid and resumable checkpoints")
