@@ -20,12 +20,14 @@ from accrue.sim.demos import write_demos
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--tasks", default="nist/rect_peg,nist/round_peg,nist/gear")
-    parser.add_argument("--demos", type=int, default=15, help="scripted demos per task")
-    parser.add_argument("--steps", type=int, default=1200)
+    parser.add_argument("--demos", type=int, default=40, help="scripted demos per task (15 left the policy at <0.1)")
+    parser.add_argument("--steps", type=int, default=2000)
     parser.add_argument("--batch-size", type=int, default=32)
     parser.add_argument("--lr", type=float, default=5e-4)
     parser.add_argument("--retention", type=float, default=1.0)
-    parser.add_argument("--horizon", type=int, default=8)
+    parser.add_argument("--horizon", type=int, default=4, help="H: actions executed per chunk (quickstart: 4)")
+    parser.add_argument("--chunk-size", type=int, default=None, help="ACT chunk size (default: H, as the stages do)")
+    parser.add_argument("--num-workers", type=int, default=0)
     parser.add_argument("--episodes", type=int, default=50)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("runs/base_policy_table"))
@@ -33,7 +35,8 @@ def main() -> None:
 
     tasks = [t.strip() for t in args.tasks.split(",") if t.strip()]
     settings = FinetuneSettings(steps=args.steps, batch_size=args.batch_size, lr=args.lr,
-                                seed=args.seed, retention=args.retention)
+                                seed=args.seed, retention=args.retention,
+                                chunk_size=args.chunk_size or args.horizon, num_workers=args.num_workers)
     args.out.mkdir(parents=True, exist_ok=True)
     demo_dirs: list[Path] = []
     init: Path | str = EMBEDDED_DEFAULT

@@ -29,6 +29,7 @@ class FinetuneSettings:
     embedding_dim: int = DEFAULT_EMBEDDING_DIM  # from-scratch only; a checkpoint keeps its own
     device: str = "cpu"
     torch_threads: int = 1          # small models train no slower on one thread, and a busy CPU stays usable
+    num_workers: int = 0            # lerobot-train loader processes; 1 measured no faster on a busy 2-core CPU
     keep_training_set: bool = False  # keep the merged dataset under out_dir/_work for inspection
 
     def check(self) -> None:
@@ -118,7 +119,7 @@ def finetune(
         f"--steps={settings.steps}",
         f"--batch_size={settings.batch_size}",
         f"--seed={settings.seed}",
-        "--num_workers=0",
+        f"--num_workers={settings.num_workers}",
         "--eval_freq=0",
         f"--save_freq={settings.steps}",
         f"--log_freq={max(1, settings.steps // 50)}",
