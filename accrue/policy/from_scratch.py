@@ -3,7 +3,9 @@
 `embedded-act` is accrue's built-in base policy: a small state-only ACT (no image backbone, no
 pretrained weights) conditioned on the task through the hashed instruction embedding. It is sized
 to fine-tune on two CPU cores in minutes and to leave head-room for RL, as the paper's base
-policies do (success roughly 0.35-0.76 before RL).
+policies do (paper: success roughly 0.35-0.76 before RL). Measured with scripts/base_policy_table.py
+(40 demos/task, 2000 steps, lr 5e-4, H = chunk = 4): 0.08-0.28 on the NIST tasks; 15 demos and
+dim_model 128 gave 0.00-0.08.
 """
 from __future__ import annotations
 
