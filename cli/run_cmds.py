@@ -13,6 +13,7 @@ from typing import Annotated, Optional
 
 import typer
 
+from cli.stage_cmds import run_mode
 from cli.store_cmds import JsonOpt, StoreOpt, console, open_store, print_json
 
 WorkflowArg = Annotated[Path, typer.Argument(metavar="WORKFLOW", help="Workflow YAML file.", show_default=False)]
@@ -29,19 +30,16 @@ def run(workflow: WorkflowArg,
         wait: Annotated[bool, typer.Option("--wait", help="If another process runs the same step, wait for it.")] = False,
         store: StoreOpt = None, as_json: JsonOpt = False) -> None:
     """Run every stage of WORKFLOW (finished steps are skipped; interrupted ones need --continue or --rerun)."""
-    from stages.errors import StageError
     from stages.plan import apply_budget, plan_stage
     from stages.runner import Runner
     from stages.workflow import load_workflow
 
-    if cont and rerun:
-        raise StageError("--continue and --rerun exclude each other: continue resumes, rerun starts over")
+    mode = run_mode(cont, rerun)
     wf = apply_budget(load_workflow(workflow), budget)
     first, last = parse_stages(stages, wf.num_stages)
     st = open_store(store)
     out = console()
     runner = Runner(st, console=out if not as_json else None, wait=wait)
-    mode = "continue" if cont else "rerun" if rerun else "normal"
     started, summary = time.monotonic(), []
     with contextlib.redirect_stdout(sys.stderr) if as_json else contextlib.nullcontext():
         for k in range(first, last + 1):   # with --json, stdout carries the JSON summary only

@@ -17,6 +17,15 @@ stage_app = typer.Typer(help="Run and inspect the steps of one stage of a workfl
 WorkflowArg = Annotated[Path, typer.Argument(metavar="WORKFLOW", help="Workflow YAML file.", show_default=False)]
 
 
+def run_mode(cont: bool, rerun: bool) -> str:
+    """The runner mode the --continue/--rerun flags ask for (they exclude each other)."""
+    from stages.errors import StageError
+
+    if cont and rerun:
+        raise StageError("--continue and --rerun exclude each other: continue resumes, rerun starts over")
+    return "continue" if cont else "rerun" if rerun else "normal"
+
+
 def load_plan_function():
     """stages.plan.plan_stage, or a one-line StageError if the step bodies are not installed."""
     import importlib
@@ -45,19 +54,17 @@ def run(workflow: WorkflowArg,
         wait: Annotated[bool, typer.Option("--wait", help="If another process runs the same step, wait for it.")] = False,
         store: StoreOpt = None, as_json: JsonOpt = False) -> None:
     """Run stage K of WORKFLOW: finished steps are no-ops, interrupted ones need --continue or --rerun."""
-    from stages.errors import StageError
     from stages.runner import Runner
     from stages.workflow import load_workflow
 
-    if cont and rerun:
-        raise StageError("--continue and --rerun exclude each other: continue resumes, rerun starts over")
+    mode = run_mode(cont, rerun)
     wf = load_workflow(workflow)
     wf.check_stage(stage)
     st = open_store(store)
     plan_stage = load_plan_function()
     plan = plan_stage(wf, stage, st)
     runner = Runner(st, console=console() if not as_json else None, wait=wait)
-    results = runner.run_plan(plan, only_step=step, mode="continue" if cont else "rerun" if rerun else "normal")
+    results = runner.run_plan(plan, only_step=step, mode=mode)
     if as_json:
         print_json([{"step": r.step, "cached": r.cached, "record": r.record_id, "attempt": r.attempt,
                      "outputs": r.outputs} for r in results])
