@@ -74,6 +74,10 @@ def demos_cmd(
     quality: Annotated[float, typer.Option("--quality", min=0.0, max=1.0, help="Expert quality (1 = best).")] = 1.0,
     images: Annotated[bool, typer.Option("--images", help="Also record the wrist camera (video).")] = False,
     keep_failures: Annotated[bool, typer.Option("--keep-failures", help="Keep failed expert episodes too.")] = False,
+    search: Annotated[bool, typer.Option("--search/--no-search",
+                      help="--no-search: an expert that never searches (acts on the current observation only).")] = True,
+    bias_known: Annotated[float, typer.Option("--bias-known", min=0.0, max=1.0,
+                          help="Fraction of the fixture's estimate bias the expert corrects.")] = 1.0,
     num_envs: Annotated[Optional[int], typer.Option("--num-envs", min=1, help="Parallel envs (default min(N, 8)).")] = None,
     max_attempts: Annotated[Optional[int], typer.Option("--max-attempts", min=1,
                             help="Most expert episodes to run (default max(3N, N+8)).")] = None,
@@ -84,7 +88,8 @@ def demos_cmd(
 
     summary = write_demos(task, episodes, out, seed=seed, quality=quality,
                           obs_mode="state+image" if images else "state", only_successful=not keep_failures,
-                          progress=not quiet, num_envs=num_envs, max_attempts=max_attempts)
+                          progress=not quiet, num_envs=num_envs, max_attempts=max_attempts,
+                          search=search, bias_known=bias_known)
     con = _console()
     con.print(f"wrote {summary.episodes} episodes ({summary.frames} frames) of {summary.task_id} to {summary.root}")
     con.print(f"expert success rate: {summary.expert_success_rate:.0%} "

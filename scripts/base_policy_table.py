@@ -17,6 +17,23 @@ from accrue.policy.rollout import evaluate_success
 from accrue.sim.demos import write_demos
 
 
+def demonstrator_success(task_id: str, episodes: int, search: bool, bias_known: float, seed: int = 10_000) -> float:
+    """The scripted demonstrator's own success on the evaluation episodes (acting every control step)."""
+    import numpy as np
+
+    from accrue.sim import make_expert, make_vec_env
+
+    env = make_vec_env(task_id, num_envs=episodes, seed=seed)
+    expert = make_expert(task_id, quality=1.0, seed=seed, search=search, bias_known=bias_known)
+    obs, done, won = env.reset(), np.zeros(episodes, bool), np.zeros(episodes, bool)
+    while not done.all():
+        result = env.step(expert.act(obs["state"]))
+        won |= result.success & ~done
+        done |= result.done
+        obs = result.obs
+    return float(won.mean())
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--tasks", default="nist/rect_peg,nist/round_peg,nist/gear")
@@ -25,6 +42,10 @@ def main() -> None:
     parser.add_argument("--batch-size", type=int, default=32)
     parser.add_argument("--lr", type=float, default=5e-4)
     parser.add_argument("--retention", type=float, default=1.0)
+    parser.add_argument("--no-search", action="store_true", help="demos from the expert that never searches")
+    parser.add_argument("--bias-known", type=float, default=1.0, help="fraction of the fixture bias the expert knows")
+    parser.add_argument("--expert-episodes", action="store_true",
+                        help="also measure the demonstrator itself over --episodes episodes per task")
     parser.add_argument("--horizon", type=int, default=4, help="H: actions executed per chunk (quickstart: 4)")
     parser.add_argument("--chunk-size", type=int, default=None, help="ACT chunk size (default: H, as the stages do)")
     parser.add_argument("--num-workers", type=int, default=0)
@@ -45,7 +66,8 @@ def main() -> None:
     for stage, task_id in enumerate(tasks, start=1):
         demo_dir = args.out / "demos" / task_id.replace("/", "_")
         if not (demo_dir / "meta" / "info.json").is_file():
-            write_demos(task_id, args.demos, demo_dir, seed=args.seed + stage, progress=False)
+            write_demos(task_id, args.demos, demo_dir, seed=args.seed + stage, progress=False,
+                        search=not args.no_search, bias_known=args.bias_known)
         demo_dirs.append(demo_dir)
         ckpt = args.out / f"stage{stage}"
         start = time.perf_counter()
@@ -56,6 +78,9 @@ def main() -> None:
         policy = BasePolicy.load(ckpt, seed=args.seed)
         results = [evaluate_success(policy, t, episodes=args.episodes, horizon=args.horizon) for t in tasks[:stage]]
         cells = "  ".join(f"{r.task_id}={r.rate:.2f}" for r in results)
+        if args.expert_episodes:
+            rate = demonstrator_success(task_id, args.episodes, not args.no_search, args.bias_known)
+            cells += f"  (demonstrator on {task_id}: {rate:.2f})"
         print(f"{stage:>5} {task_id:<18} {used:>5} {record['training_set']['total_frames']:>6} "
               f"{wall:>10.1f} {args.steps / wall:>7.1f}  {cells}", flush=True)
         rows.append({"stage": stage, "task": task_id, "demos_used": used, "finetune_wall_s": wall,

@@ -5,7 +5,7 @@
 
 Stage k runs, in order (paper Algorithm 1; `record-demos` only when the workflow gives no demos of task k):
 
-    record-demos   expert demos D^k of task k                          config: task, seed, quality
+    record-demos   expert demos D^k of task k                          config: task, seed, quality, expert kind
     finetune-base  π_base^{k-1} (or the workflow's init) + D^1..D^k -> π_base^k
     cache-teacher  handoff k-1 -> Eq. 3 targets (a "skipped" record at stage 1 / non-distilling methods)
     warmup         π_base^k on task k -> first shard of B^k
@@ -103,8 +103,12 @@ def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
         else:
             demos[f"demos-{i}"] = output_ref(wf, i, "record-demos", "demos")
     if task not in bp.demos and not scripted:
-        add("record-demos", {"task": task, "episodes": bp.demos_per_task, "seed": wf.seed,
-                             "quality": bp.demo_quality, "obs_mode": wf.obs_mode, "num_envs": DEMO_ENVS}, {})
+        demo_config = {"task": task, "episodes": bp.demos_per_task, "seed": wf.seed,
+                       "quality": bp.demo_quality, "obs_mode": wf.obs_mode, "num_envs": DEMO_ENVS}
+        # the demonstrator's kind enters the cache key only when it is not the default searching expert
+        if not bp.demo_search or bp.demo_bias_known != 1.0:
+            demo_config.update(search=bp.demo_search, bias_known=bp.demo_bias_known)
+        add("record-demos", demo_config, {})
 
     init = _init_source(wf, store) if k == 1 else output_ref(wf, k - 1, "finetune-base", "base-policy")
     ft_inputs = dict(demos, **({"init": init} if init is not None else {}))

@@ -33,6 +33,8 @@ class BasePolicySpec(_Strict):
     demos_per_task: int = Field(10, gt=0)
     demos: dict[str, str] = {}              # task id -> artifact id/ref of recorded demos (else the expert's)
     demo_quality: float = Field(1.0, ge=0, le=1)    # scripted expert's quality when it records demos
+    demo_search: bool = True                        # False: the demonstrator never searches (Markovian demos)
+    demo_bias_known: float = Field(1.0, ge=0, le=1)  # fraction of each fixture's estimate bias it corrects
     demo_retention: float = Field(1.0, gt=0, le=1)  # fraction of earlier tasks' demos kept (paper Table VI)
 
 

@@ -90,7 +90,7 @@ def fake_sim(p_success: float = 1.0, image_hw: tuple[int, int] = (8, 10)) -> Sim
 
     expert = SimpleNamespace(act=lambda state: np.full((len(state), 6), 2.0, np.float32))  # clipped by writer
     return SimpleNamespace(get_task=get_task, make_vec_env=make_vec_env, list_tasks=lambda: ["fake/peg"],
-                           make_expert=lambda task_id, quality, seed: expert, STATE_NAMES=STATE_NAMES,
+                           make_expert=lambda task_id, quality, seed, **kind: expert, STATE_NAMES=STATE_NAMES,
                            STATE_DIM=len(STATE_NAMES), ACTION_DIM=6, envs=envs)
 
 
@@ -232,7 +232,7 @@ def test_interrupted_run_leaves_nothing_behind(tmp_path: Path, monkeypatch: pyte
             raise KeyboardInterrupt
         return np.zeros((len(state), 6), np.float32)
 
-    sim.make_expert = lambda task_id, quality, seed: SimpleNamespace(act=act)
+    sim.make_expert = lambda task_id, quality, seed, **kind: SimpleNamespace(act=act)
     monkeypatch.setattr(demos, "_sim_api", lambda: sim)
     with pytest.raises(KeyboardInterrupt):
         demos.write_demos("fake/peg", 5, tmp_path / "d", progress=False, num_envs=1)

@@ -7,9 +7,9 @@ from accrue.sim import list_tasks, make_expert, make_vec_env
 from accrue.sim.tasks import get_task
 
 
-def success_rate(task_id, num_envs, seed=0, quality=1.0, correction=None):
+def success_rate(task_id, num_envs, seed=0, quality=1.0, correction=None, **expert_kw):
     env = make_vec_env(task_id, num_envs=num_envs, seed=seed)
-    expert = make_expert(task_id, quality, seed=seed, correction=correction)
+    expert = make_expert(task_id, quality, seed=seed, correction=correction, **expert_kw)
     obs, won, done = env.reset(), np.zeros(num_envs, bool), np.zeros(num_envs, bool)
     while not done.all():
         res = env.step(expert.act(obs["state"]))
@@ -43,3 +43,34 @@ def test_correction_tuned_for_one_task_hurts_another():
 @pytest.mark.parametrize("task_id", list_tasks())
 def test_expert_reported_rate(task_id):
     assert success_rate(task_id, 32, seed=1) >= 0.85
+
+
+def test_non_searching_expert_acts_on_the_current_observation_only():
+    # search=False: the same observation gives the same action whatever came before (imitable from
+    # single observations); the searching expert's action depends on how long it has been stuck
+    env = make_vec_env("nist/round_peg", num_envs=4, seed=3)
+    obs = env.reset()
+    markov, searching = make_expert("nist/round_peg", search=False), make_expert("nist/round_peg")
+    states = [obs["state"]]
+    for _ in range(40):
+        res = env.step(markov.act(obs["state"]))
+        obs = res.obs
+        states.append(obs["state"])
+    later = states[-1]
+    fresh = make_expert("nist/round_peg", search=False)
+    fresh.act(states[0])           # give it an episode start, then ask about the late observation
+    np.testing.assert_array_equal(markov.act(later), fresh.act(later))
+    for s in states:
+        searching.act(s)
+    fresh_searching = make_expert("nist/round_peg")
+    fresh_searching.act(states[0])
+    assert not np.array_equal(searching.act(later), fresh_searching.act(later))
+
+
+def test_non_searching_expert_is_imperfect_and_bias_knowledge_matters():
+    full = success_rate("nist/rect_peg", 24, seed=11, search=False, bias_known=1.0)
+    part = success_rate("nist/rect_peg", 24, seed=11, search=False, bias_known=0.0)
+    searching = success_rate("nist/rect_peg", 24, seed=11)
+    assert 0.3 <= full <= searching - 0.2       # leaves head-room the searching expert shows exists
+    assert part <= full - 0.3                   # an uncorrected fixture bias costs most episodes
+

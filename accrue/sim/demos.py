@@ -81,6 +81,8 @@ class DemoSummary:
     seed: int
     quality: float
     obs_mode: str
+    search: bool = True          # the expert searches when stuck (False: acts on the current observation only)
+    bias_known: float = 1.0      # fraction of the fixture's estimate bias the expert corrects
 
     @property
     def expert_success_rate(self) -> float:
@@ -245,6 +247,8 @@ def write_demos(
     num_envs: int | None = None,
     max_attempts: int | None = None,
     use_video: bool = True,
+    search: bool = True,
+    bias_known: float = 1.0,
 ) -> DemoSummary:
     """Run the scripted expert of `task_id` in the vectorised env; write `episodes` episodes to `out_dir`.
 
@@ -252,7 +256,8 @@ def write_demos(
     if it is reached first, the episodes written so far still form a valid dataset and the
     summary's `complete` is False. `out_dir` must not exist or be empty. The dataset is built
     under a temporary sibling name and renamed to `out_dir` when finished, so an interrupted
-    run leaves nothing under `out_dir`.
+    run leaves nothing under `out_dir`. `search` and `bias_known` choose the demonstrator
+    (`accrue.sim.expert.ScriptedExpert`).
     """
     if episodes < 1:
         raise AccrueError(f"episodes must be at least 1, got {episodes}")
@@ -266,7 +271,7 @@ def write_demos(
     n = max(1, min(num_envs or 8, episodes, max_attempts))
 
     env = sim.make_vec_env(task_id, num_envs=n, seed=seed, obs_mode=obs_mode)
-    expert = sim.make_expert(task_id, quality=quality, seed=seed)
+    expert = sim.make_expert(task_id, quality=quality, seed=seed, search=search, bias_known=bias_known)
     obs = env.reset()
     image_shape = tuple(np.asarray(obs["image"]).shape[1:]) if obs_mode == "state+image" else None
     features = demo_features(list(sim.STATE_NAMES), image_shape, use_video)
@@ -310,7 +315,8 @@ def write_demos(
                               "nothing written")
         summary = DemoSummary(root=out_dir, task_id=task_id, instruction=spec.instruction, requested=episodes,
                               episodes=written, frames=total_frames, attempts=attempts, successes=successes,
-                              seed=seed, quality=float(quality), obs_mode=obs_mode)
+                              seed=seed, quality=float(quality), obs_mode=obs_mode, search=bool(search),
+                              bias_known=float(bias_known))
         _write_json_atomic(staging / ACCRUE_META, _accrue_meta(summary, only_successful, list(sim.STATE_NAMES)))
         _publish(staging, out_dir)
     except BaseException:

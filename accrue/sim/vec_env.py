@@ -15,8 +15,8 @@ import numpy as np
 
 from accrue.errors import AccrueError
 from accrue.sim.model import KP_POS, KP_ROT, build_model, damping_for, socket_geom_ids
-from accrue.sim.observation import (ACTION_DIM, FORCE_SCALE, POS_SCALE, STATE_DIM, TILT_SCALE, TORQUE_SCALE,
-                                    VEL_SCALE, rotate_xy)
+from accrue.sim.observation import (ACTION_DIM, FORCE_SCALE, POS_SCALE, REL_POS_SCALE, STATE_DIM, TILT_SCALE,
+                                    TORQUE_SCALE, VEL_SCALE, rotate_xy)
 from accrue.sim.tasks import MM, DEG, TaskSpec, get_task
 
 TARGET_LEAD_POS = 4 * MM  # the position target never leads the plug by more (bounds the push)
@@ -210,6 +210,8 @@ class VecAssemblyEnv:
         st[:, 19:22] = self.estimate[:, 0:3] * POS_SCALE
         st[:, 22], st[:, 23] = np.sin(self.estimate[:, 3]), np.cos(self.estimate[:, 3])
         st[:, 24] = np.minimum(self.t / self.task.max_steps, 1.0)
+        st[:, 25:28] = (st[:, 19:22] - st[:, 0:3]) * (REL_POS_SCALE / POS_SCALE)
+        st[:, 28] = (np.mod(self.estimate[:, 3] - yaw + np.pi, 2 * np.pi) - np.pi) * TILT_SCALE
         obs = {"state": st.astype(np.float32)}
         if self.obs_mode == "state+image":
             obs["image"] = self.render()
