@@ -26,7 +26,7 @@ def _console(stderr: bool = False):
 def finetune_cmd(
     demos: Annotated[list[Path], typer.Option("--demos", help="A task's LeRobotDataset; repeat in task order, current task last.")],
     out: Annotated[Path, typer.Option("--out", help="Output checkpoint directory (must not exist or be empty).")],
-    init: Annotated[str, typer.Option("--init", help="Checkpoint dir to continue from, or embedded-act / act / diffusion.")] = "embedded-act",
+    init: Annotated[str, typer.Option("--init", help="Checkpoint dir to continue from, or embedded-mlp / embedded-act / act / diffusion.")] = "embedded-mlp",
     steps: Annotated[int, typer.Option("--steps")] = 2000,
     batch_size: Annotated[int, typer.Option("--batch-size")] = 32,
     lr: Annotated[float, typer.Option("--lr")] = 1e-4,

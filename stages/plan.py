@@ -22,12 +22,13 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+from accrue.policy.from_scratch import SCRATCH_NAMES
 from stages.errors import StageError
 from stages.runner import step_ref
 from stages.runner_types import FromRef, FromStep, StagePlan, StepInvocation
 from stages.workflow import Workflow
 
-SCRATCH_POLICIES = ("embedded-act", "act", "diffusion")
+SCRATCH_POLICIES = SCRATCH_NAMES
 DEMO_ENVS = 8
 
 

@@ -25,7 +25,7 @@ class _Strict(BaseModel):
 
 class BasePolicySpec(_Strict):
     """Where π_base starts and how it is fine-tuned on the cumulative demos D^1..D^k each stage."""
-    init: str = "embedded-act"              # "embedded-act", a lerobot checkpoint dir, or an artifact id/ref
+    init: str = "embedded-mlp"              # "embedded-mlp", "embedded-act", a lerobot checkpoint dir, or an artifact id/ref
     finetune: bool = True
     finetune_steps: int = Field(200, gt=0)
     batch_size: int = Field(16, gt=0)

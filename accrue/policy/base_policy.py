@@ -17,6 +17,9 @@ from accrue.policy.checkpoint import (
 from accrue.policy.demo_sources import STATE_KEY
 from accrue.policy.instruction_embedding import ENV_STATE_KEY, embed_instructions
 
+# policies whose predict_action_chunk returns the whole chunk of one observation, with no queue
+ONE_PASS_CHUNK_TYPES = ("act", "accrue_chunk_mlp")
+
 
 def _load_lerobot_parts(checkpoint_dir: Path, policy_type: str, device: str):
     """(policy, preprocessor, postprocessor); loading errors become one-line AccrueErrors."""
@@ -77,7 +80,7 @@ class BasePolicy:
     @property
     def max_horizon(self) -> int:
         """The longest chunk one call can return without re-planning on a stale observation."""
-        if self.policy_type == "act":
+        if self.policy_type in ONE_PASS_CHUNK_TYPES:
             return int(self.config.chunk_size)
         return int(self.config.n_action_steps)
 
@@ -112,7 +115,7 @@ class BasePolicy:
     def _normalised_chunk(self, batch: dict, horizon: int):
         import torch
 
-        if self.policy_type == "act":  # one forward pass; no internal queue is read or written
+        if self.policy_type in ONE_PASS_CHUNK_TYPES:  # one forward pass; no internal queue is read or written
             return self.policy.predict_action_chunk(batch)[:, :horizon]
         # Queue-based policies (Diffusion, VLAs): start from empty queues so the chunk depends only
         # on this observation, then pop the first `horizon` actions of the one chunk it plans.

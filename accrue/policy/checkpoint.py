@@ -41,6 +41,7 @@ def read_checkpoint_config(checkpoint_dir: Path) -> dict:
 
 def check_policy_type_known(policy_type: str, checkpoint_dir: Path) -> None:
     import lerobot.policies.factory  # noqa: F401 - registers every policy config type
+    import accrue.policy.chunk_mlp  # noqa: F401 - and accrue's own (the embedded base policy)
     from lerobot.configs.policies import PreTrainedConfig
 
     known = PreTrainedConfig.get_known_choices()

@@ -76,7 +76,7 @@ def finetune(
 ) -> Path:
     """Train on D^1..D^k (the last dataset is the current task) and return out_dir, a lerobot checkpoint.
 
-    init: a checkpoint directory to continue from, or a from-scratch name ("embedded-act", "act",
+    init: a checkpoint directory to continue from, or a from-scratch name ("embedded-mlp", "embedded-act", "act",
     "diffusion"). out_dir must not exist or be empty. The log and work files stay in out_dir/_work
     when training fails.
     """
@@ -126,7 +126,8 @@ def finetune(
         "--wandb.enable=false",
     ]
     log_path = work / "lerobot-train.log"
-    run_lerobot_train(args, log_path, settings.steps, progress, threads=settings.torch_threads)
+    run_lerobot_train(args, log_path, settings.steps, progress, threads=settings.torch_threads,
+                      module="accrue.policy.lerobot_train_entry")
 
     final = train_dir / "checkpoints" / "last" / "pretrained_model"
     if not final.is_dir():
