@@ -2,8 +2,11 @@
 
 For each task k of the sequence: write scripted demos for task k, fine-tune on D^1..D^k (starting
 from the previous stage's checkpoint), and measure the base policy's success on every task so far.
+The defaults are the quickstart's (workflows/quickstart.yaml): 20 demonstrations per task from the
+non-searching demonstrator that corrects 75% of its fixture's bias, 800 steps of 64, lr 1e-3.
 
-    .venv/bin/python scripts/base_policy_table.py --tasks nist/rect_peg,nist/round_peg,nist/gear
+    .venv/bin/python scripts/base_policy_table.py --expert-episodes
+    .venv/bin/python scripts/base_policy_table.py --init embedded-act --lr 5e-4 --batch-size 32
 """
 from __future__ import annotations
 
@@ -37,18 +40,21 @@ def demonstrator_success(task_id: str, episodes: int, search: bool, bias_known: 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--tasks", default="nist/rect_peg,nist/round_peg,nist/gear")
-    parser.add_argument("--demos", type=int, default=40, help="scripted demos per task (15 left the policy at <0.1)")
-    parser.add_argument("--steps", type=int, default=2000)
-    parser.add_argument("--batch-size", type=int, default=32)
-    parser.add_argument("--lr", type=float, default=5e-4)
+    parser.add_argument("--demos", type=int, default=20, help="scripted demos per task")
+    parser.add_argument("--steps", type=int, default=800)
+    parser.add_argument("--batch-size", type=int, default=64)
+    parser.add_argument("--lr", type=float, default=1e-3)
+    parser.add_argument("--init", default=EMBEDDED_DEFAULT, help="from-scratch policy name (embedded-mlp, embedded-act)")
     parser.add_argument("--retention", type=float, default=1.0)
-    parser.add_argument("--no-search", action="store_true", help="demos from the expert that never searches")
-    parser.add_argument("--bias-known", type=float, default=1.0, help="fraction of the fixture bias the expert knows")
+    parser.add_argument("--search", action="store_true",
+                        help="demos from the searching expert (default: the quickstart's non-searching one)")
+    parser.add_argument("--bias-known", type=float, default=0.75,
+                        help="fraction of the fixture bias the demonstrator corrects (quickstart: 0.75)")
     parser.add_argument("--expert-episodes", action="store_true",
                         help="also measure the demonstrator itself over --episodes episodes per task")
     parser.add_argument("--horizon", type=int, default=4, help="H: actions executed per chunk (quickstart: 4)")
     parser.add_argument("--chunk-size", type=int, default=None, help="ACT chunk size (default: H, as the stages do)")
-    parser.add_argument("--num-workers", type=int, default=0)
+    parser.add_argument("--num-workers", type=int, default=2)
     parser.add_argument("--episodes", type=int, default=50)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=Path("runs/base_policy_table"))
@@ -60,14 +66,14 @@ def main() -> None:
                                 chunk_size=args.chunk_size or args.horizon, num_workers=args.num_workers)
     args.out.mkdir(parents=True, exist_ok=True)
     demo_dirs: list[Path] = []
-    init: Path | str = EMBEDDED_DEFAULT
+    init: Path | str = args.init
     rows = []
     print(f"{'stage':>5} {'task':<18} {'demos':>5} {'frames':>6} {'finetune_s':>10} {'steps/s':>7}  success per task so far")
     for stage, task_id in enumerate(tasks, start=1):
         demo_dir = args.out / "demos" / task_id.replace("/", "_")
         if not (demo_dir / "meta" / "info.json").is_file():
             write_demos(task_id, args.demos, demo_dir, seed=args.seed + stage, progress=False,
-                        search=not args.no_search, bias_known=args.bias_known)
+                        search=args.search, bias_known=args.bias_known)
         demo_dirs.append(demo_dir)
         ckpt = args.out / f"stage{stage}"
         start = time.perf_counter()
@@ -79,7 +85,7 @@ def main() -> None:
         results = [evaluate_success(policy, t, episodes=args.episodes, horizon=args.horizon) for t in tasks[:stage]]
         cells = "  ".join(f"{r.task_id}={r.rate:.2f}" for r in results)
         if args.expert_episodes:
-            rate = demonstrator_success(task_id, args.episodes, not args.no_search, args.bias_known)
+            rate = demonstrator_success(task_id, args.episodes, args.search, args.bias_known)
             cells += f"  (demonstrator on {task_id}: {rate:.2f})"
         print(f"{stage:>5} {task_id:<18} {used:>5} {record['training_set']['total_frames']:>6} "
               f"{wall:>10.1f} {args.steps / wall:>7.1f}  {cells}", flush=True)

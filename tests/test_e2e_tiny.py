@@ -28,7 +28,7 @@ learner: {{actor_hidden: [32, 32], critic_hidden: [32, 32], projector_dim: 16, b
 budgets: {{env_steps: {env_steps}, eval_every: {eval_every}, eval_episodes: 2, num_envs: 2, warmup_episodes: 2,
           retained_episodes: {retained}, checkpoint_every: {ckpt}, log_episodes: 1}}
 """
-FINETUNE = "{init: embedded-act, finetune_steps: 2, batch_size: 8, demos_per_task: 2}"
+FINETUNE = "{init: embedded-mlp, finetune_steps: 2, batch_size: 8, demos_per_task: 2}"
 
 
 def write_workflow(path: Path, name="tiny", seed=3, base_policy=FINETUNE, env_steps=160, eval_every=80,
