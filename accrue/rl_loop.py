@@ -123,7 +123,8 @@ class Evaluator:
     task (the same episodes at every call: each env's episode counter is rewound first)."""
 
     def __init__(self, make_env: Callable[[str, int], object], references: dict[str, ReferenceFn],
-                 features: FeatureFn, episodes: int, num_envs: int, horizon: int, gamma: float):
+                 features: FeatureFn | dict[str, FeatureFn], episodes: int, num_envs: int, horizon: int,
+                 gamma: float):
         self.make_env, self.references, self.features = make_env, references, features
         self.episodes, self.num_envs, self.horizon, self.gamma = episodes, min(num_envs, episodes), horizon, gamma
         self._envs: dict[str, object] = {}
@@ -138,6 +139,7 @@ class Evaluator:
     def success_rate(self, task_id: str, act: ActFn | None = None) -> float:
         """act=None evaluates π_base alone; otherwise act(s, ã, fresh) is the deterministic actor π̄_θ."""
         env, reference = self._env(task_id), self.references[task_id]
+        features = self.features[task_id] if isinstance(self.features, dict) else self.features
         act = act or execute_reference
         obs = env.reset()
         started, finished, successes = env.num_envs, 0, 0
@@ -147,7 +149,7 @@ class Evaluator:
             rows = np.flatnonzero(live)
             part = subset(obs, rows)
             a = np.zeros((env.num_envs, self.horizon, 6), dtype=np.float32)
-            a[rows] = act(self.features(part), reference(part), fresh[rows])
+            a[rows] = act(features(part), reference(part), fresh[rows])
             res = env.step_chunk(a, self.gamma)
             done = (res.terminated | res.truncated) & live
             finished += int(done.sum())

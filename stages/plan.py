@@ -127,6 +127,8 @@ def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
         {"handoff": previous_handoff} if distills else {})
 
     env = {"horizon": wf.horizon, "obs_mode": wf.obs_mode, "encoder": wf.encoder, "num_envs": b.num_envs}
+    if wf.task_features:      # in the cache key only when used, so workflows without it keep their keys
+        env["task_features"] = wf.task_features
     add("warmup", {"stage": k, "task": task, "seed": wf.seed, "episodes": b.warmup_episodes, "gamma": gamma, **env},
         {"base-policy": FromStep("finetune-base", "base-policy")})
 

@@ -65,6 +65,9 @@ class Workflow(_Strict):
     horizon: int = Field(8, gt=0)               # action chunk length H
     obs_mode: Literal["state", "state+image"] = "state"
     encoder: str = "none"                       # "none" or "dinov2-small:/path/weights.safetensors"
+    # size of a frozen embedding of the task's instruction appended to the learner's s (0 = none): in
+    # state-only runs nothing else tells the actor which part is in the gripper (a camera would)
+    task_features: int = Field(0, ge=0, le=256)
     base_policy: BasePolicySpec = BasePolicySpec()
     learner: dict[str, Any] = {}                # LearnerConfig fields (accrue.learner.config)
     budgets: Budgets

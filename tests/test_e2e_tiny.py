@@ -23,6 +23,7 @@ tasks: [nist/rect_peg, nist/gear]
 method: accrue
 seed: {seed}
 horizon: 4
+task_features: 8
 base_policy: {base_policy}
 learner: {{actor_hidden: [32, 32], critic_hidden: [32, 32], projector_dim: 16, batch_size: 32, num_atoms: 11, utd: 1}}
 budgets: {{env_steps: {env_steps}, eval_every: {eval_every}, eval_episodes: 2, num_envs: 2, warmup_episodes: 2,

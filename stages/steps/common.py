@@ -82,13 +82,29 @@ def features_fn(encoder_spec: str):
     return features
 
 
-def state_dim(encoder_spec: str, obs_mode: str, task_id: str) -> int:
-    """Size of s, found by encoding one observation (cheap, and never out of step with features_fn)."""
-    env = make_env(task_id, 1, 0, obs_mode)
-    try:
-        return int(features_fn(encoder_spec)(env.reset()).shape[1])
-    finally:
-        env.close()
+def task_features_fn(features, task_id: str, dim: int):
+    """s = (E(I), q, e(ℓ)): `features` with the frozen hashed embedding of the task's instruction appended
+    (the same text embedding the base policy is conditioned on), or `features` itself when dim is 0."""
+    if dim <= 0:
+        return features
+    import numpy as np
+
+    from accrue.policy.instruction_embedding import embed_instructions
+    from accrue.sim import get_task
+
+    code = embed_instructions([get_task(task_id).instruction], dim)[0].astype(np.float32)
+
+    def with_task(obs: dict) -> np.ndarray:
+        s = features(obs)
+        return np.concatenate([s, np.broadcast_to(code, (len(s), dim))], axis=1)
+
+    return with_task
+
+
+def per_task_features(config: dict, task_ids: list[str]) -> dict:
+    """task id -> its s(obs), sharing one frozen encoder."""
+    base = features_fn(config["encoder"])
+    return {t: task_features_fn(base, t, config.get("task_features", 0)) for t in task_ids}
 
 
 def make_env(task_id: str, num_envs: int, seed: int, obs_mode: str):

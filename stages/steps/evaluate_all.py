@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from stages.runner_context import StepContext
 from stages.runner_types import StepDef
-from stages.steps.common import deterministic, features_fn, load_base_policy, make_env, reference_fn, write_json
+from stages.steps.common import (deterministic, load_base_policy, make_env, per_task_features, reference_fn,
+                                 write_json)
 
 
 def run(ctx: StepContext) -> None:
@@ -18,7 +19,7 @@ def run(ctx: StepContext) -> None:
     deterministic(seed)
     policy = load_base_policy(ctx.input_path("base-policy"), seed)
     references = {t: reference_fn(policy, t, horizon) for t in tasks}
-    features = features_fn(c["encoder"])
+    features = per_task_features(c, tasks)
     checkpoint = ctx.input_path("checkpoint")
     current = load_learner(checkpoint / "learner", device="cpu")
     # Isolated keeps one learner per task: task i is evaluated with checkpoint i
@@ -47,7 +48,7 @@ def run(ctx: StepContext) -> None:
         env = make_env(t, c["record_episodes"], rl_loop.env_seed(seed, k, "eval", i), c["obs_mode"])
         recorder = EpisodeRecorder(logs / t.replace("/", "__"), control_hz=get_task(t).control_hz,
                                    state_names=list(STATE_NAMES))
-        rl_loop.record_episodes(env, references[t], features, rl_loop.actor_act(learners[t]), recorder, horizon,
+        rl_loop.record_episodes(env, references[t], features[t], rl_loop.actor_act(learners[t]), recorder, horizon,
                                 {"task_id": t, "stage": k, "seed": seed, "policy": "base+actor"})
         env.close()
     ctx.log_event("evaluation", stage=k, success=success, base_success=base_success)

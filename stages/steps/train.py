@@ -15,7 +15,7 @@ from stages.errors import StageError
 from stages.runner_context import StepContext
 from stages.runner_types import StepDef
 from stages.steps.cache_teacher import load_targets
-from stages.steps.common import (copy_tree, deterministic, features_fn, load_base_policy, make_env, read_json,
+from stages.steps.common import (copy_tree, deterministic, load_base_policy, make_env, per_task_features, read_json,
                                  reference_fn, write_json)
 
 LOOP_FILE = "loop.json"
@@ -63,7 +63,7 @@ def run(ctx: StepContext) -> None:
     # π_base^k, held fixed during the stage, proposes ã for every task (fresh references, Sec. IV-C)
     policy = load_base_policy(ctx.input_path("base-policy"), seed)
     references = {t: reference_fn(policy, t, horizon) for t in tasks}
-    features = features_fn(c["encoder"])
+    features = per_task_features(c, tasks)
 
     # what the stage inherits: (θ^{k-1}, ψ^{k-1}, B^{<k}) and the cached Eq. 3 targets
     handoff = ctx.input_path("handoff") if ctx.has_input("handoff") else None
@@ -88,7 +88,7 @@ def run(ctx: StepContext) -> None:
         ctx.console.print(f"train: resumed at env step {state.env_steps} ({state.updates} updates)")
 
     env = make_env(task, c["num_envs"], rl_loop.env_seed(seed, k, "train"), c["obs_mode"])
-    collector = rl_loop.ChunkCollector(env, references[task], features, buffer, task_index=k - 1,
+    collector = rl_loop.ChunkCollector(env, references[task], features[task], buffer, task_index=k - 1,
                                        gamma=cfg.gamma, next_episode=state.next_episode)
     if resume is None:
         collector.restart()

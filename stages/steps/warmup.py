@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from stages.runner_context import StepContext
 from stages.runner_types import StepDef
-from stages.steps.common import (deterministic, features_fn, load_base_policy, make_env, reference_fn,
+from stages.steps.common import (deterministic, load_base_policy, make_env, per_task_features, reference_fn,
                                  write_json)
 
 
@@ -15,7 +15,7 @@ def run(ctx: StepContext) -> None:
     deterministic(c["seed"])
     policy = load_base_policy(ctx.input_path("base-policy"), c["seed"])
     env = make_env(c["task"], c["num_envs"], rl_loop.env_seed(c["seed"], c["stage"], "warmup"), c["obs_mode"])
-    features = features_fn(c["encoder"])
+    features = per_task_features(c, [c["task"]])[c["task"]]
     obs_dim = features(env.reset()).shape[1]
     buffer = ReplayBuffer(obs_dim, c["horizon"])
     collector = rl_loop.ChunkCollector(env, reference_fn(policy, c["task"], c["horizon"]), features, buffer,
