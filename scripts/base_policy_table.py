@@ -73,7 +73,7 @@ def main() -> None:
         demo_dir = args.out / "demos" / task_id.replace("/", "_")
         if not (demo_dir / "meta" / "info.json").is_file():
             write_demos(task_id, args.demos, demo_dir, seed=args.seed + stage, progress=False,
-                        search=args.search, bias_known=args.bias_known)
+                        search=args.search, bias_known=args.bias_known, max_attempts=10 * args.demos)
         demo_dirs.append(demo_dir)
         ckpt = args.out / f"stage{stage}"
         start = time.perf_counter()
