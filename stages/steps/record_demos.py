@@ -23,5 +23,6 @@ def run(ctx: StepContext) -> None:
     ctx.log_event("demos-recorded", task=c["task"], episodes=summary.episodes, attempts=summary.attempts)
 
 
-STEP = StepDef(name="record-demos", code_version="record-demos-1", run=run, outputs={"demos": "demos"},
+# code version 2: the state gained the socket-relative columns (25 -> 29), so older demos are not reused
+STEP = StepDef(name="record-demos", code_version="record-demos-2", run=run, outputs={"demos": "demos"},
                description="scripted-expert demonstrations of the stage's task")
