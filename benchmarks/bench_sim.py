@@ -70,20 +70,10 @@ def raw_rate(env, episodes) -> tuple[float, float]:
 
 
 def success_table(episodes: int, seed: int = 1):
-    from accrue.sim import list_tasks, make_expert, make_vec_env
+    from accrue.sim import expert_success_rate, list_tasks
 
-    rows = []
-    for tid in list_tasks():
-        rates = []
-        for quality in (1.0, 0.5):
-            env, expert = make_vec_env(tid, num_envs=episodes, seed=seed), make_expert(tid, quality, seed=seed)
-            obs, won, done, length = env.reset(), np.zeros(episodes, bool), np.zeros(episodes, bool), 0
-            while not done.all():
-                res = env.step(expert.act(obs["state"]))
-                obs, won, done = res.obs, won | res.success, done | res.done
-            rates.append(won.mean())
-        rows.append((tid, *rates))
-    return rows
+    return [(tid, *(expert_success_rate(tid, episodes, seed=seed, quality=q) for q in (1.0, 0.5)))
+            for tid in list_tasks()]
 
 
 def main() -> None:

@@ -17,24 +17,8 @@ from pathlib import Path
 
 from accrue.policy import EMBEDDED_DEFAULT, BasePolicy, FinetuneSettings, finetune
 from accrue.policy.rollout import evaluate_success
+from accrue.sim import expert_success_rate
 from accrue.sim.demos import write_demos
-
-
-def demonstrator_success(task_id: str, episodes: int, search: bool, bias_known: float, seed: int = 10_000) -> float:
-    """The scripted demonstrator's own success on the evaluation episodes (acting every control step)."""
-    import numpy as np
-
-    from accrue.sim import make_expert, make_vec_env
-
-    env = make_vec_env(task_id, num_envs=episodes, seed=seed)
-    expert = make_expert(task_id, quality=1.0, seed=seed, search=search, bias_known=bias_known)
-    obs, done, won = env.reset(), np.zeros(episodes, bool), np.zeros(episodes, bool)
-    while not done.all():
-        result = env.step(expert.act(obs["state"]))
-        won |= result.success & ~done
-        done |= result.done
-        obs = result.obs
-    return float(won.mean())
 
 
 def main() -> None:
@@ -85,7 +69,9 @@ def main() -> None:
         results = [evaluate_success(policy, t, episodes=args.episodes, horizon=args.horizon) for t in tasks[:stage]]
         cells = "  ".join(f"{r.task_id}={r.rate:.2f}" for r in results)
         if args.expert_episodes:
-            rate = demonstrator_success(task_id, args.episodes, args.search, args.bias_known)
+            # the demonstrator itself, acting every control step, on the same evaluation episodes
+            rate = expert_success_rate(task_id, args.episodes, seed=10_000, search=args.search,
+                                       bias_known=args.bias_known)
             cells += f"  (demonstrator on {task_id}: {rate:.2f})"
         print(f"{stage:>5} {task_id:<18} {used:>5} {record['training_set']['total_frames']:>6} "
               f"{wall:>10.1f} {args.steps / wall:>7.1f}  {cells}", flush=True)

@@ -28,7 +28,6 @@ from stages.runner import step_ref
 from stages.runner_types import FromRef, FromStep, StagePlan, StepInvocation
 from stages.workflow import Workflow
 
-SCRATCH_POLICIES = SCRATCH_NAMES
 DEMO_ENVS = 8
 
 
@@ -64,7 +63,7 @@ def _init_source(wf: Workflow, store) -> str | None:
     from accrue.scripted_reference import parse_spec
 
     init = wf.base_policy.init
-    if init in SCRATCH_POLICIES or parse_spec(init) is not None:
+    if init in SCRATCH_NAMES or parse_spec(init) is not None:
         return None
     path = Path(init).expanduser()
     if path.is_dir():   # a checkpoint directory on disk is brought into the store (idempotent)

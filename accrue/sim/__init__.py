@@ -24,6 +24,12 @@ def make_expert(task_id, quality=1.0, seed=0, **kw):
     return _make(task_id, quality=quality, seed=seed, **kw)
 
 
+def expert_success_rate(task_id, episodes, seed=0, quality=1.0, **kw):
+    from accrue.sim.expert import expert_success_rate as _rate
+
+    return _rate(task_id, episodes, seed=seed, quality=quality, **kw)
+
+
 def register_usd_task(*args, **kw):
     from accrue.sim.usd_tasks import register_usd_task as _register
 
@@ -38,5 +44,5 @@ def load_task_yaml(path):
 
 __all__ = [
     "ACTION_DIM", "ACTION_NAMES", "STATE_DIM", "STATE_NAMES", "TaskSpec", "get_task", "list_tasks",
-    "make_vec_env", "make_expert", "register_usd_task", "load_task_yaml",
+    "make_vec_env", "make_expert", "expert_success_rate", "register_usd_task", "load_task_yaml",
 ]

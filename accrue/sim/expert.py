@@ -103,6 +103,23 @@ class ScriptedExpert:
         return np.clip(act, -1.0, 1.0).astype(np.float32)
 
 
+def expert_success_rate(task_id: str, episodes: int, seed: int = 0, quality: float = 1.0, **expert_kw) -> float:
+    """Success of the scripted expert over `episodes` parallel episodes (one per env), acting every control
+    step; expert_kw go to make_expert (correction, search, bias_known)."""
+    from accrue.sim.vec_env import make_vec_env
+
+    env = make_vec_env(task_id, num_envs=episodes, seed=seed)
+    expert = make_expert(task_id, quality, seed=seed, **expert_kw)
+    obs, won, done = env.reset(), np.zeros(episodes, bool), np.zeros(episodes, bool)
+    while not done.all():
+        res = env.step(expert.act(obs["state"]))
+        won |= res.success & ~done
+        done |= res.done
+        obs = res.obs
+    env.close()
+    return float(won.mean())
+
+
 def make_expert(task_id: str | TaskSpec, quality: float = 1.0, seed: int = 0, correction=None,
                 search: bool = True, bias_known: float = 1.0) -> ScriptedExpert:
     task = get_task(task_id) if isinstance(task_id, str) else task_id

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from lerobot.configs.policies import PreTrainedConfig
-from lerobot.configs.types import FeatureType, NormalizationMode
+from lerobot.configs.types import NormalizationMode
 from lerobot.optim.optimizers import AdamWConfig
 
 POLICY_TYPE = "accrue_chunk_mlp"
@@ -78,5 +78,3 @@ class ChunkMLPConfig(PreTrainedConfig):
     def action_dim(self) -> int:
         return self.action_feature.shape[0]
 
-
-__all__ = ["POLICY_TYPE", "ChunkMLPConfig", "FeatureType"]

@@ -19,7 +19,6 @@ class ChunkMLPPolicy(PreTrainedPolicy):
     def __init__(self, config: ChunkMLPConfig, **kwargs):
         super().__init__(config)
         config.validate_features()
-        self.config = config
         layers: list[nn.Module] = []
         width = config.input_dim
         for hidden in config.hidden_dims:
@@ -43,7 +42,7 @@ class ChunkMLPPolicy(PreTrainedPolicy):
 
     @torch.no_grad()
     def predict_action_chunk(self, batch: dict[str, Tensor], **kwargs) -> Tensor:
-        """(B, chunk_size, action_dim) normalised actions for one observation per row."""
+        """(B, chunk_size, action_dim) actions (in the processors' action space) for one observation per row."""
         self.eval()
         return self._chunk(batch)
 
