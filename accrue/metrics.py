@@ -10,8 +10,14 @@ Input: c[i][j][e] = success rate of task j evaluated at grid point e of stage i 
     FWT, AUC  averaged over all K stages; NBT over the first K−1
     ACC_final = 1/K Σ_k c_{K,k}            F_final = 1/(K−1) Σ_{k<K} (c_{k,k} − c_{K,k})
 With K = 1, NBT and F_final are undefined and reported as None.
-Confidence intervals: percentile bootstrap over seeds, 4000 resamples, 95%, numpy seed 0 (the Continual
-World procedure, at 95% rather than 90%).
+Confidence intervals: percentile bootstrap of the mean over runs (seeds, or orderings x seeds), 4000
+resamples, 95%, numpy seed 0 (the Continual World procedure, at 95% rather than 90%); identical values
+give a degenerate interval [v, v].
+
+Runs over task orderings (paper Tables I/II: four orderings x four seeds): the metrics are defined per
+run on stage positions, so runs whose task lists differ (permutations or different sequences) are
+aggregated by their sequence-level numbers. `aggregate_runs` groups labelled runs by method: per method
+the mean and CI over all its runs, and per ordering the same over that ordering's seeds.
 """
 from __future__ import annotations
 
@@ -85,9 +91,11 @@ def continual_metrics(curves) -> dict:
 
 def bootstrap_ci(values, resamples: int = BOOTSTRAP_RESAMPLES, confidence: float = CONFIDENCE,
                  seed: int = 0) -> tuple[float, float]:
-    """Percentile bootstrap CI of the mean over seeds."""
+    """Percentile bootstrap CI of the mean over runs (seeded: the same values give the same interval)."""
     v = np.asarray(values, dtype=float)
-    if v.size == 1:
+    if v.size == 0:
+        raise AccrueError("bootstrap_ci: no values")
+    if np.all(v == v[0]):              # one run, or identical runs: nothing to resample
         return float(v[0]), float(v[0])
     rng = np.random.default_rng(seed)
     means = v[rng.integers(0, v.size, size=(resamples, v.size))].mean(1)
@@ -95,23 +103,81 @@ def bootstrap_ci(values, resamples: int = BOOTSTRAP_RESAMPLES, confidence: float
     return float(np.quantile(means, tail)), float(np.quantile(means, 1 - tail))
 
 
+def summarize_values(values) -> dict:
+    """Mean and bootstrap CI of the defined values; None (an undefined metric) is counted, never averaged.
+    {"mean", "ci_low", "ci_high", "n" (values used), "undefined" (None values)}; all None -> mean None."""
+    defined = [float(v) for v in values if v is not None]
+    undefined = len(values) - len(defined)
+    if not defined:
+        return {"mean": None, "ci_low": None, "ci_high": None, "n": 0, "undefined": undefined}
+    lo, hi = bootstrap_ci(defined)
+    # identical values: report the value itself (a float mean may differ from it in the last bit)
+    mean = defined[0] if lo == hi == defined[0] else float(np.mean(defined))
+    return {"mean": mean, "ci_low": lo, "ci_high": hi, "n": len(defined), "undefined": undefined}
+
+
 def aggregate(runs: list) -> dict:
     """Metrics of each run (seed), and per metric the mean and the bootstrap CI over runs."""
     per_run = [continual_metrics(r) for r in runs]
-    summary = {}
-    for name in METRICS:
-        vals = [m[name] for m in per_run if m[name] is not None]
-        if not vals:
-            summary[name] = {"mean": None, "ci_low": None, "ci_high": None, "n": 0}
-            continue
-        lo, hi = bootstrap_ci(vals)
-        summary[name] = {"mean": float(np.mean(vals)), "ci_low": lo, "ci_high": hi, "n": len(vals)}
+    summary = {name: summarize_values([m[name] for m in per_run]) for name in METRICS}
     return {"metrics": summary, "runs": per_run, "confidence": CONFIDENCE, "resamples": BOOTSTRAP_RESAMPLES}
 
 
-def load_metrics_file(path: str | Path) -> tuple[list[str], list, list]:
-    """Parse FILE.json: one run {"tasks", "grid", "curves"} or a list of them (one per seed).
-    Returns (task names, grid, [curves of each run]); every problem is a one-line AccrueError."""
+def ordering_label(tasks: list[str]) -> str:
+    """The name of an unnamed ordering: its task ids in order."""
+    return " → ".join(tasks)
+
+
+def run_record(curves, *, method: str, tasks: list[str], ordering: str | None = None,
+               seed: int | None = None) -> dict:
+    """One labelled run: its method, ordering (a name, else the task sequence), seed, tasks, and the
+    Sec. V-A metrics of its curves ("metrics", plus "per_stage", "c", "best_checkpoint")."""
+    m = continual_metrics(curves)
+    if len(tasks) != len(m["c"]):
+        raise AccrueError(f"run of {method}: {len(m['c'])} stages of curves but {len(tasks)} tasks")
+    return {"method": method, "ordering": ordering or ordering_label(tasks), "seed": seed, "tasks": list(tasks),
+            "metrics": {name: m[name] for name in METRICS},
+            "per_stage": m["per_stage"], "c": m["c"], "best_checkpoint": m["best_checkpoint"]}
+
+
+def aggregate_runs(records: list[dict]) -> dict:
+    """Group labelled runs (run_record's dicts, or any dict with method, ordering, seed, tasks and
+    metrics) by method, then by ordering, keeping first-appearance order:
+
+        {"methods": [{"method", "runs", "metrics": {name: summarize_values(...)},
+                      "orderings": [{"ordering", "tasks", "seeds", "runs", "metrics": {...}}]}],
+         "confidence", "resamples", "bootstrap_seed"}
+
+    A method's metrics are the mean and CI over all its runs (orderings x seeds, each run weighted
+    alike, as in the paper's tables); an ordering's are over that ordering's runs."""
+    methods: dict[str, dict[str, list[dict]]] = {}
+    tasks_of: dict[str, list[str]] = {}
+    for r in records:
+        known = tasks_of.setdefault(r["ordering"], list(r["tasks"]))
+        if known != list(r["tasks"]):
+            raise AccrueError(f"ordering {r['ordering']!r} names two task sequences: {ordering_label(known)} "
+                              f"and {ordering_label(r['tasks'])}")
+        methods.setdefault(r["method"], {}).setdefault(r["ordering"], []).append(r)
+    out = []
+    for method, orderings in methods.items():
+        runs = [r for group in orderings.values() for r in group]
+        out.append({
+            "method": method,
+            "runs": len(runs),
+            "metrics": {name: summarize_values([r["metrics"][name] for r in runs]) for name in METRICS},
+            "orderings": [{"ordering": name, "tasks": list(group[0]["tasks"]), "seeds": [r["seed"] for r in group],
+                           "runs": len(group),
+                           "metrics": {m: summarize_values([r["metrics"][m] for r in group]) for m in METRICS}}
+                          for name, group in orderings.items()],
+        })
+    return {"methods": out, "confidence": CONFIDENCE, "resamples": BOOTSTRAP_RESAMPLES, "bootstrap_seed": 0}
+
+
+def load_metrics_file(path: str | Path) -> list[dict]:
+    """Parse FILE.json: one run {"tasks", "grid", "curves"} or a list of them, each optionally labelled
+    with "method", "ordering" and "seed". Runs may have different task lists (orderings). Returns one
+    dict per run: {"method" (default "all"), "ordering" (default: the task sequence), "seed" (default:
+    the run's index), "tasks", "grid", "curves"}; every problem is a one-line AccrueError."""
     path = Path(path)
     try:
         data = json.loads(path.read_text())
@@ -124,8 +190,7 @@ def load_metrics_file(path: str | Path) -> tuple[list[str], list, list]:
     runs = data if isinstance(data, list) else [data]
     if not runs:
         raise AccrueError(f"{path}: empty list of runs")
-    tasks = grid = None
-    curves = []
+    out = []
     for r, run in enumerate(runs):
         where = f"{path}: run {r}" if isinstance(data, list) else f"{path}"
         if not isinstance(run, dict):
@@ -147,9 +212,12 @@ def load_metrics_file(path: str | Path) -> tuple[list[str], list, list]:
         if len(run["curves"][0][0]) != len(run["grid"]):
             raise AccrueError(f"{where}: curves have {len(run['curves'][0][0])} points but 'grid' has "
                               f"{len(run['grid'])}")
-        if tasks is None:
-            tasks, grid = run["tasks"], run["grid"]
-        elif run["tasks"] != tasks:
-            raise AccrueError(f"{where}: task list differs from run 0")
-        curves.append(run["curves"])
-    return tasks, grid, curves
+        for key in ("method", "ordering"):
+            if key in run and (not isinstance(run[key], str) or not run[key]):
+                raise AccrueError(f"{where}: '{key}' must be a non-empty name")
+        seed = run.get("seed", r)
+        if isinstance(seed, bool) or not isinstance(seed, int):
+            raise AccrueError(f"{where}: 'seed' must be an integer")
+        out.append({"method": run.get("method", "all"), "ordering": run.get("ordering") or ordering_label(run["tasks"]),
+                    "seed": seed, "tasks": run["tasks"], "grid": run["grid"], "curves": run["curves"]})
+    return out

@@ -86,7 +86,9 @@ def test_cli_json_and_table(tmp_path):
     res = CliRunner().invoke(app(), ["metrics", str(f), "--json"])
     assert res.exit_code == 0, res.output
     out = json.loads(res.output)
-    assert out["metrics"]["NBT"]["mean"] == pytest.approx(0.25) and out["metrics"]["NBT"]["n"] == 2
+    [group] = out["methods"]
+    assert group["metrics"]["NBT"]["mean"] == pytest.approx(0.25) and group["metrics"]["NBT"]["n"] == 2
+    assert group["metrics"]["NBT"]["ci_low"] == group["metrics"]["NBT"]["ci_high"] == 0.25   # identical runs
     f.write_text(json.dumps(RUN))
     res = CliRunner().invoke(app(), ["metrics", str(f)])
     assert res.exit_code == 0 and "NBT" in res.output and "0.250" in res.output and "gear" in res.output
