@@ -124,7 +124,9 @@ def verify_artifact(store: Store, artifact_id: str, full: bool = True, quarantin
     With quarantine, a corrupt object is moved aside first, so that the next writer of the same
     bytes re-creates it instead of deduplicating against the damaged copy."""
     manifest = read_artifact(store, artifact_id)  # manifests are always re-hashed
-    for oid, size, rel in content_objects(store, manifest):
+    objects = content_objects(store, manifest)
+    store.fetch_missing(*(oid for oid, _, _ in objects))  # a partial clone fetches them now
+    for oid, size, rel in objects:
         actual = store.object_size(oid)
         if actual is None:
             raise StoreError(f"artifact {artifact_id[:12]}: object {oid[:12]} ({rel}) is missing")
@@ -157,7 +159,9 @@ def materialize(store: Store, artifact_id: str, dest: Path, quarantine: bool = F
         verify_artifact(store, artifact_id, full=True, quarantine=quarantine)
         return store.object_path(manifest["content"])
     dest.mkdir(parents=True, exist_ok=False)
-    for oid, size, rel in content_objects(store, manifest):
+    objects = content_objects(store, manifest)
+    store.fetch_missing(*(oid for oid, _, _ in objects))  # a partial clone fetches them now
+    for oid, size, rel in objects:
         target = dest / rel
         target.parent.mkdir(parents=True, exist_ok=True)
         try:

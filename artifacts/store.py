@@ -9,6 +9,7 @@ Layout under the store root (default `.accrue/`, or $ACCRUE_STORE):
     locks/                     kernel file locks (released by the OS if the holder dies)
     tmp/                       staging area on the same filesystem as objects/
     quarantine/                objects that failed verification, moved aside, never deleted
+    remotes/<name>/            what this store knows of remote <name> (see artifacts/remotes)
 """
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ import json
 import os
 import stat
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, Callable, Iterator
 
 from artifacts.atomic import fsync_dir, link_into_place, temp_name, write_new_fsynced, write_replace
 from artifacts.errors import StoreError
@@ -46,6 +47,7 @@ class Store:
         self.locks_dir = self.root / "locks"
         self.tmp_dir = self.root / "tmp"
         self.quarantine_dir = self.root / "quarantine"
+        self._promised: set[str] | None = None  # see is_promised
 
     # ----------------------------------------------------------------- open / init
     @classmethod
@@ -175,7 +177,9 @@ class Store:
         try:
             data = path.read_bytes()
         except FileNotFoundError:
-            raise StoreError(f"object {oid[:12]} is missing from the store") from None
+            if not self.fetch_missing(oid):
+                raise StoreError(f"object {oid[:12]} is missing from the store") from None
+            data = path.read_bytes()
         if verify and hash_bytes(data) != oid:
             raise StoreError(f"object {oid[:12]} is corrupt (its bytes no longer match its id); "
                              "run `accrue verify --full`")
@@ -195,6 +199,40 @@ class Store:
             return self.object_path(oid).stat().st_size
         except FileNotFoundError:
             return None
+
+    # ----------------------------------------------------------------- config, partial clones
+    def read_config(self) -> dict:
+        return json.loads((self.root / "config").read_bytes())
+
+    def update_config(self, change: Callable[[dict], None]) -> dict:
+        """Read-modify-write the config under a lock; keys this code does not know are kept."""
+        from artifacts.locks import store_lock
+
+        with store_lock(self.locks_dir, "config"):
+            cfg = self.read_config()
+            change(cfg)
+            write_replace(self.root / "config", canonical_json(cfg) + b"\n")
+        return cfg
+
+    def fetch_missing(self, *oids: str) -> bool:
+        """True when every object is here. A partial clone (`accrue pull --only`) left some objects
+        on its promisor remote: those are fetched and verified now; otherwise nothing happens."""
+        missing = [o for o in oids if not self.has_object(o)]
+        if not missing:
+            return True
+        if not any(r.get("promisor") for r in self.read_config().get("remotes", {}).values()):
+            return False
+        from artifacts.remotes.lazy import fetch_promised
+
+        return fetch_promised(self, missing)
+
+    def is_promised(self, oid: str) -> bool:
+        """Whether a partial pull deliberately left this object on a remote (verify excuses it)."""
+        if self._promised is None:
+            from artifacts.remotes.lazy import load_promised
+
+            self._promised = load_promised(self)
+        return oid in self._promised
 
     def quarantine(self, oid: str) -> Path:
         """Move a corrupt object aside (never delete it): readers then see it as missing."""

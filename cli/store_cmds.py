@@ -225,12 +225,17 @@ def refs(prefix: Annotated[str, typer.Argument(help="Only refs starting with thi
 
 
 def verify(full: Annotated[bool, typer.Option("--full", help="Re-hash every object (slow), quarantine corrupt ones.")] = False,
+           remote: Annotated[Optional[str], typer.Option("--remote", metavar="NAME", help="Check that remote NAME holds every object its refs reach (with --full: re-hash them).")] = None,
            store: StoreOpt = None, as_json: JsonOpt = False) -> None:
     """Check the store; exit 1 if anything is wrong."""
     from rich.progress import BarColumn, DownloadColumn, Progress, TransferSpeedColumn
 
     from artifacts.verify import verify_store
 
+    if remote is not None:
+        from cli.remote_cmds import verify_remote_command
+
+        return verify_remote_command(remote, full, store, as_json)
     st = open_store(store)
     if full and not as_json:
         total = sum(st.object_size(o) or 0 for o in st.iter_object_ids())

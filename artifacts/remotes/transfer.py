@@ -1,0 +1,93 @@
+"""Parallel transfers with progress, and verified downloads: a remote object is hashed while it
+arrives, and only bytes that hash to its id are ever linked into the store."""
+from __future__ import annotations
+
+import os
+from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
+from typing import Callable, Iterable, TypeVar
+
+from artifacts.atomic import temp_name
+from artifacts.errors import StoreError
+from artifacts.hashing import hash_bytes
+from artifacts.remotes.backends import Backend, object_key
+from artifacts.store import Store
+
+T = TypeVar("T")
+R = TypeVar("R")
+ATTEMPTS = 3  # a corrupt or truncated download is retried this many times in all, then refused
+
+
+def default_jobs() -> int:
+    return max(1, int(os.environ.get("ACCRUE_REMOTE_JOBS", "16")))
+
+
+class Meter:
+    """Progress of one transfer phase; the CLI draws it with rich, the API default is silent."""
+
+    def start(self, what: str, objects: int, nbytes: int) -> None:
+        pass
+
+    def advance(self, nbytes: int) -> None:
+        pass
+
+    def stop(self) -> None:
+        pass
+
+
+def parallel(fn: Callable[[T], R], items: Iterable[T], jobs: int) -> list[R]:
+    """fn over items on `jobs` threads (obstore and file I/O release the GIL). The first failure
+    cancels what has not started and is raised once the running ones end."""
+    items = list(items)
+    if len(items) <= 1 or jobs <= 1:
+        return [fn(i) for i in items]
+    with ThreadPoolExecutor(max_workers=min(jobs, len(items)), thread_name_prefix="accrue-remote") as pool:
+        futures = [pool.submit(fn, i) for i in items]
+        done, pending = wait(futures, return_when=FIRST_EXCEPTION)
+        for f in pending:
+            f.cancel()
+        for f in futures:
+            if f.done() and not f.cancelled() and f.exception() is not None:
+                raise f.exception()
+        return [f.result() for f in futures]
+
+
+def _corrupt(backend: Backend, oid: str, why: str) -> StoreError:
+    return StoreError(f"{backend.describe()}: object {oid[:12]} arrived {why} {ATTEMPTS} times; "
+                      "refused, nothing of it was stored (the remote copy is damaged: re-push it from a "
+                      "store that has it)")
+
+
+def download_object(store: Store, backend: Backend, oid: str, size: int | None = None) -> int:
+    """Fetch one object into the store, verified. Returns its size."""
+    why = "corrupt"
+    for _ in range(ATTEMPTS):
+        tmp = temp_name(store.tmp_dir, "dl-")
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+        try:
+            try:
+                got, n = backend.download_to(object_key(oid), fd)
+                if got == oid and (size is None or n == size):
+                    os.fsync(fd)
+            finally:
+                os.close(fd)
+            if got == oid and (size is None or n == size):
+                store._publish_tmp(tmp, oid)
+                return n
+            why = "corrupt" if size is None or n == size else f"truncated ({n} of {size} bytes)"
+        finally:
+            tmp.unlink(missing_ok=True)
+    raise _corrupt(backend, oid, why)
+
+
+def download_manifest(backend: Backend, oid: str) -> bytes:
+    """A manifest's bytes, held in memory (published later, after what it names)."""
+    from artifacts.remotes.backends import MissingOnRemote, object_key as key_of
+
+    for _ in range(ATTEMPTS):
+        data = backend.get_bytes(key_of(oid))
+        if data is None:
+            raise MissingOnRemote(f"{backend.describe()}: lacks object {oid[:12]} that its refs reach; "
+                                  "run `accrue verify --remote` and re-push from a complete store")
+        if hash_bytes(data) == oid:
+            return data
+    raise _corrupt(backend, oid, "corrupt")

@@ -1,0 +1,211 @@
+"""Remote commands: `accrue remote add/list/remove`, `accrue push`, `accrue fetch`, `accrue pull`.
+
+Only typer/rich at module level; the store and obstore are imported inside each command.
+"""
+from __future__ import annotations
+
+from typing import Annotated, List, Optional
+
+import typer
+
+from cli.store_cmds import JsonOpt, StoreOpt, console, human_size, open_store, print_json
+
+remote_app = typer.Typer(help="Remotes this store pushes to and pulls from (S3 or a directory).",
+                         no_args_is_help=True)
+
+WordsArg = Annotated[Optional[List[str]], typer.Argument(
+    metavar="[NAME] [REF]...", help="Remote (optional when there is one, or one named origin), then refs "
+    "(a ref, or a prefix like workflow/quick; default: every ref).", show_default=False)]
+JobsOpt = Annotated[Optional[int], typer.Option("--jobs", "-j", min=1, help="Parallel transfers (default 16, or $ACCRUE_REMOTE_JOBS).",
+                                                show_default=False)]
+OnlyOpt = Annotated[Optional[List[str]], typer.Option(
+    "--only", metavar="KIND", help="Partial clone: bring every manifest and record, but the data of these "
+    "artifact kinds only (e.g. --only handoff); the rest is fetched when a step needs it.", show_default=False)]
+
+
+def _meter(quiet: bool):
+    """A rich progress bar with bytes, speed and objects, drawn on stderr (stdout stays clean)."""
+    from artifacts.remotes.transfer import Meter
+
+    if quiet:
+        return Meter()
+    from rich.console import Console
+    from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TransferSpeedColumn
+
+    class RichMeter(Meter):
+        def __init__(self) -> None:
+            import threading
+
+            self.bar, self.lock = None, threading.Lock()  # advanced from the transfer threads
+
+        def start(self, what: str, objects: int, nbytes: int) -> None:
+            if not objects:
+                return
+            self.bar = Progress(TextColumn(what), BarColumn(), DownloadColumn(), TransferSpeedColumn(),
+                                TextColumn("{task.fields[objects]} objects"),
+                                console=Console(stderr=True), transient=True)
+            self.bar.start()
+            self.task = self.bar.add_task("", total=nbytes or 1, objects=f"0/{objects}")
+            self.done, self.total = 0, objects
+
+        def advance(self, nbytes: int) -> None:
+            if self.bar is not None:
+                with self.lock:
+                    self.done += 1
+                    self.bar.update(self.task, advance=nbytes, objects=f"{self.done}/{self.total}")
+
+        def stop(self) -> None:
+            if self.bar is not None:
+                self.bar.stop()
+                self.bar = None
+
+    return RichMeter()
+
+
+def _pick(store_path, words: Optional[List[str]]):
+    from artifacts.remotes.config import pick_remote
+
+    st = open_store(store_path)
+    spec, refs = pick_remote(st, list(words or []))
+    return st, spec, refs
+
+
+def _kinds(only: Optional[List[str]]) -> Optional[set]:
+    if not only:
+        return None
+    from artifacts.manifests import check_kind
+
+    return {check_kind(k.strip()) for item in only for k in item.split(",") if k.strip()}
+
+
+def _fail_on(conflicts: list[str]) -> None:
+    if conflicts:
+        from artifacts.errors import StoreError
+
+        more = f" (and {len(conflicts) - 1} more conflicting ref(s))" if len(conflicts) > 1 else ""
+        raise StoreError(conflicts[0] + more)
+
+
+# ---------------------------------------------------------------------------- remote add/list/remove
+@remote_app.command("add")
+def remote_add(name: Annotated[str, typer.Argument(help="Short name, e.g. origin or nas.")],
+               url: Annotated[str, typer.Argument(help="s3://BUCKET/PREFIX, or a directory (NAS, USB disk).")],
+               store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+    """Add a remote. S3 endpoint, region and credentials come from the usual AWS_* variables or profile."""
+    from artifacts.remotes.config import add_remote
+
+    spec = add_remote(open_store(store), name, url)
+    if as_json:
+        print_json({"name": spec.name, "url": spec.url, "kind": spec.kind})
+    else:
+        typer.echo(f"remote {spec.name}: {spec.url} ({'S3' if spec.kind == 's3' else 'directory'})")
+
+
+@remote_app.command("list")
+def remote_list(store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+    """List this store's remotes."""
+    from artifacts.remotes.config import list_remotes
+
+    remotes = list_remotes(open_store(store))
+    if as_json:
+        print_json({n: {"url": s.url, "kind": s.kind, "promisor": s.promisor} for n, s in remotes.items()})
+        return
+    for name, spec in remotes.items():
+        typer.echo(f"{name}\t{spec.url}" + ("\t(partial clone: fetches lazily from here)" if spec.promisor else ""))
+
+
+@remote_app.command("remove")
+def remote_remove(name: Annotated[str, typer.Argument()],
+                  force: Annotated[bool, typer.Option("--force", help="Even if a partial clone still needs it.")] = False,
+                  store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+    """Forget a remote and its remote-tracking refs (nothing on the remote changes)."""
+    from artifacts.remotes.sync import forget_remote
+
+    dropped = forget_remote(open_store(store), name, force=force)
+    if as_json:
+        print_json({"removed": name, "tracking_refs_dropped": dropped})
+    else:
+        typer.echo(f"removed remote {name} ({dropped} remote-tracking refs dropped)")
+
+
+# ---------------------------------------------------------------------------- push / fetch / pull
+def push(words: WordsArg = None,
+         force: Annotated[bool, typer.Option("--force", help="Move remote refs even if someone else moved them.")] = False,
+         jobs: JobsOpt = None, store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+    """Upload what the refs reach and the remote lacks, then move the remote's refs (compare-and-swap)."""
+    from artifacts.remotes.sync import push as do_push
+
+    st, spec, refs = _pick(store, words)
+    report = do_push(st, spec.name, refs, force=force, jobs=jobs, meter=_meter(as_json))
+    if as_json:
+        print_json(report.as_dict())
+    else:
+        out = console()
+        for name, (old, new) in report.moved.items():
+            out.print(f"  {name}: {old[:12] if old else '(new)'} → {new[:12]}")
+        for name in report.behind:
+            out.print(f"  [yellow]{name}: the remote has moved on; `accrue pull {spec.name} {name}` to get it[/]")
+        out.print(f"push → {spec.name}: sent {report.objects_sent} objects ({human_size(report.bytes_sent)}), "
+                  f"moved {len(report.moved)} refs, {len(report.up_to_date)} up to date"
+                  + (f", {len(report.conflicts)} refused" if report.conflicts else ""))
+    _fail_on(report.conflicts)
+
+
+def _print_fetch(report, verb: str, as_json: bool) -> None:
+    if as_json:
+        print_json(report.as_dict())
+        return
+    out = console()
+    for name, (old, new) in report.moved.items():
+        out.print(f"  {name}: {old[:12] if old else '(new)'} → {new[:12]}")
+    tail = f"; {report.promised} objects left on the remote until needed" if report.promised else ""
+    moved = f", moved {len(report.moved)} local refs" if verb == "pull" else ""
+    out.print(f"{verb} ← {report.remote}: received {report.objects_received} objects "
+              f"({human_size(report.bytes_received)}) for {len(report.refs)} refs{moved}{tail}")
+
+
+def fetch(words: WordsArg = None, only: OnlyOpt = None, jobs: JobsOpt = None,
+          store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+    """Download what the remote's refs reach (verified) and update the remote-tracking refs only."""
+    from artifacts.remotes.sync import fetch as do_fetch
+
+    st, spec, refs = _pick(store, words)
+    report = do_fetch(st, spec.name, refs, only=_kinds(only), jobs=jobs, meter=_meter(as_json))
+    _print_fetch(report, "fetch", as_json)
+
+
+def pull(words: WordsArg = None, only: OnlyOpt = None,
+         force: Annotated[bool, typer.Option("--force", help="Take the remote's refs even over local changes.")] = False,
+         jobs: JobsOpt = None, store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+    """fetch, then move the local refs that have not changed since this store last saw the remote."""
+    from artifacts.remotes.sync import pull as do_pull
+
+    st, spec, refs = _pick(store, words)
+    report = do_pull(st, spec.name, refs, only=_kinds(only), force=force, jobs=jobs, meter=_meter(as_json))
+    _print_fetch(report, "pull", as_json)
+    _fail_on(report.conflicts)
+
+
+def verify_remote_command(name: str, full: bool, store, as_json: bool) -> None:
+    """`accrue verify --remote NAME` (called from cli.store_cmds.verify)."""
+    from artifacts.remotes.sync import verify_remote
+
+    report = verify_remote(open_store(store), name, full=full, meter=_meter(as_json))
+    if as_json:
+        print_json(report.as_dict())
+    else:
+        out = console()
+        for problem in report.problems:
+            out.print(f"[red]problem:[/] {problem}")
+        status = "[green]ok[/]" if report.ok else f"[red]{len(report.problems)} problem(s)[/]"
+        what = f", {human_size(report.bytes_hashed)} re-hashed" if full else ""
+        out.print(f"verify --remote {name}{' --full' if full else ''}: {status} — {report.reachable} objects "
+                  f"reachable from {report.refs} refs and logs are on the remote{what}")
+    if not report.ok:
+        raise SystemExit(1)
+
+
+def register(app: typer.Typer) -> None:
+    app.add_typer(remote_app, name="remote")
+    for fn in (push, fetch, pull):
+        app.command(name=fn.__name__)(fn)
