@@ -22,10 +22,15 @@ def write_new_fsynced(path: Path, data: bytes) -> None:
     """Create path (it must not exist) holding data, flushed to disk before returning."""
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
     try:
-        os.write(fd, data)
+        view = memoryview(data)
+        while view:  # a full disk may take part of a write before it refuses the rest
+            view = view[os.write(fd, view):]
         os.fsync(fd)
-    finally:
+    except BaseException:
         os.close(fd)
+        path.unlink(missing_ok=True)  # never leave a partial file behind (e.g. disk full)
+        raise
+    os.close(fd)
 
 
 def write_replace(path: Path, data: bytes, tmp_dir: Path | None = None) -> None:

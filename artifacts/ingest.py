@@ -6,8 +6,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from artifacts.auditlog import append_event
-from artifacts.manifests import check_kind, read_artifact, store_content, write_manifest
+from artifacts.auditlog import append_event, ensure_appendable
+from artifacts.manifests import check_kind, read_artifact, store_content, utf8_name, write_manifest
 from artifacts.refs import read_ref, set_ref
 from artifacts.store import Store
 
@@ -16,6 +16,8 @@ def add_path(store: Store, path: Path, kind: str, ref: str | None = None) -> tup
     """Returns (artifact id, newly created)."""
     check_kind(kind)
     path = Path(path)
+    source = utf8_name(str(path.absolute()), path)
+    ensure_appendable(store)  # a damaged log refuses the add before anything is copied
     content = store_content(store, path, how="copy")
     index_ref = f"ingested/{kind}/{content['content']}"
     existing = read_ref(store, index_ref)
@@ -23,8 +25,8 @@ def add_path(store: Store, path: Path, kind: str, ref: str | None = None) -> tup
         artifact_id, created = existing, False
     else:
         artifact_id = write_manifest(store, content, kind,
-                                     producer={"step": "add", "source": str(path.absolute())})
-        append_event(store, "artifact-written", artifact=artifact_id, kind=kind, source=str(path.absolute()))
+                                     producer={"step": "add", "source": source})
+        append_event(store, "artifact-written", artifact=artifact_id, kind=kind, source=source)
         set_ref(store, index_ref, artifact_id)
         created = True
     if ref:

@@ -13,7 +13,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Callable, Literal
 
-from artifacts.errors import StoreError
+from artifacts.errors import StoreError, os_error_text, path_text, quote
 from artifacts.hashing import copy_hashing, hash_file
 from artifacts.store import Store
 
@@ -29,7 +29,7 @@ def now_iso() -> str:
 
 def check_kind(kind: str) -> str:
     if not _KIND_RE.match(kind):
-        raise StoreError(f"bad artifact kind {kind!r}: use lowercase letters, digits and '-' "
+        raise StoreError(f"bad artifact kind {quote(kind)}: use lowercase letters, digits and '-' "
                          f"(e.g. {', '.join(KNOWN_KINDS)})")
     return kind
 
@@ -45,19 +45,41 @@ def put_tree(store: Store, directory: Path, how: Literal["copy", "adopt", "check
     store_file: Callable[[Path], tuple[str, int]] = {
         "copy": store.ingest_file, "adopt": store.adopt_file, "checked": store.copy_in_checked}[how]
     entries = []
-    for root, dirs, files in os.walk(directory):
+    for root, dirs, files in os.walk(directory, onerror=_walk_error):
         dirs.sort()
+        for name in dirs:  # os.walk lists a symlinked directory but does not enter it: refuse, as for files
+            if os.path.islink(os.path.join(root, name)):
+                raise StoreError(f"{_shown(Path(root) / name)}: a symlink; only regular files and directories "
+                                 "can be stored (copy the target in instead)")
         for name in sorted(files):
             path = Path(root) / name
             st = os.lstat(path)
             if not stat.S_ISREG(st.st_mode):
-                raise StoreError(f"{path}: only regular files can be stored (symlinks and devices are refused)")
+                raise StoreError(f"{_shown(path)}: only regular files can be stored (symlinks and devices are refused)")
+            rel = utf8_name(path.relative_to(directory).as_posix(), path)
             oid, size = store_file(path)
-            entries.append({"path": path.relative_to(directory).as_posix(), "id": oid, "size": size,
+            entries.append({"path": rel, "id": oid, "size": size,
                             "exec": bool(st.st_mode & stat.S_IXUSR)})
     entries.sort(key=lambda e: e["path"])
     tree_id = store.put_json({"type": "tree", "format": MANIFEST_FORMAT, "entries": entries})
     return {"tree": tree_id, "size": sum(e["size"] for e in entries), "files": len(entries)}
+
+
+def _walk_error(exc: OSError) -> None:
+    raise StoreError(f"cannot read {os_error_text(exc)}")
+
+
+def _shown(path: Path | str) -> str:
+    return path_text(path)  # undecodable bytes escaped, long paths shortened
+
+
+def utf8_name(name: str, path: Path | str) -> str:
+    """Names are recorded as UTF-8 JSON; a file name that is not UTF-8 is refused, not mangled."""
+    try:
+        name.encode("utf-8")
+    except UnicodeEncodeError:
+        raise StoreError(f"{_shown(path)}: file name is not valid UTF-8; rename it to store it") from None
+    return name
 
 
 def read_tree(store: Store, tree_id: str) -> list[dict]:
@@ -71,8 +93,11 @@ def read_tree(store: Store, tree_id: str) -> list[dict]:
 def store_content(store: Store, path: Path, how: Literal["copy", "adopt", "checked"] = "copy") -> dict:
     """Store a file or directory's bytes (objects only). Returns the manifest's content fields."""
     path = Path(path)
-    if path.is_symlink() or not (path.is_file() or path.is_dir()):
-        raise StoreError(f"{path}: no such file or directory")
+    if path.is_symlink():
+        raise StoreError(f"{_shown(path)}: a symlink; only regular files and directories can be stored")
+    if not (path.is_file() or path.is_dir()):
+        raise StoreError(f"{_shown(path)}: no such file or directory")
+    utf8_name(path.name, path)
     if path.is_dir():
         tree = put_tree(store, path, how)
         return {"layout": "dir", "content": tree["tree"], "size": tree["size"], "files": tree["files"]}

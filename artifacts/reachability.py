@@ -34,13 +34,9 @@ def roots(store: Store, problems: list[str] | None = None) -> list[tuple[str, st
 
 
 def _refs(store: Store, problems: list[str] | None) -> dict[str, str]:
-    try:
-        return list_refs(store)
-    except StoreError as exc:
-        if problems is None:
-            raise
-        problems.append(str(exc))
-        return {}
+    """Every readable ref; a damaged or foreign file under refs/ is a problem (gc then refuses:
+    whatever it named is unknown), and the other refs still count."""
+    return list_refs(store, problems=problems)
 
 
 def walk(store: Store) -> Reach:

@@ -3,14 +3,18 @@
 state: running -> committed | failed | abandoned. The file is replaced atomically at each change;
 a committed attempt names its immutable step-record object (record_id), which is what refs and
 caches point at. Checkpoints saved during the attempt are listed in order (oldest first).
+
+Each write also records `log_anchor`, the audit log's head (seq and hash of its last line) at
+that moment: an anchor the log does not control, so verify sees a log cut or rewritten behind it.
 """
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
+from artifacts import writers
 from artifacts.atomic import write_replace
-from artifacts.errors import StoreError
+from artifacts.errors import StoreError, store_os_error
 from artifacts.hashing import canonical_json, is_full_id
 from artifacts.store import Store
 
@@ -24,8 +28,15 @@ def attempt_path(store: Store, key: str, number: int) -> Path:
 def write_attempt(store: Store, attempt: dict) -> None:
     if attempt["state"] not in STATES:
         raise ValueError(f"bad attempt state {attempt['state']}")
+    from artifacts.auditlog import current_anchor
+
+    writers.hold(store)  # the attempt names inputs and checkpoints: gc must not sweep them meanwhile
     path = attempt_path(store, attempt["cache_key"], attempt["attempt"])
-    write_replace(path, canonical_json(attempt) + b"\n")
+    anchored = {**attempt, "log_anchor": current_anchor(store)}
+    try:
+        write_replace(path, canonical_json(anchored) + b"\n")
+    except OSError as exc:
+        raise store_os_error(exc, f"cannot write attempt record {path}") from None
 
 
 def read_attempt(path: Path) -> dict:

@@ -9,8 +9,9 @@ import re
 from pathlib import Path
 
 from artifacts.atomic import write_replace
-from artifacts.errors import StoreError
-from artifacts.hashing import is_full_id
+from artifacts import writers
+from artifacts.errors import StoreError, quote, store_os_error
+from artifacts.hashing import ID_LENGTH, is_full_id
 from artifacts.locks import store_lock
 from artifacts.store import Store
 
@@ -20,7 +21,7 @@ _SEGMENT = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]{0,99}$")
 def check_ref_name(name: str) -> str:
     parts = name.split("/")
     if not name or any(not _SEGMENT.match(p) for p in parts):
-        raise StoreError(f"bad ref name {name!r}: use '/'-separated parts of letters, digits, '.', '_', '-', '+'")
+        raise StoreError(f"bad ref name {quote(name)}: use '/'-separated parts of letters, digits, '.', '_', '-', '+'")
     return name
 
 
@@ -29,20 +30,41 @@ def _ref_path(store: Store, name: str) -> Path:
 
 
 def read_ref(store: Store, name: str) -> str | None:
-    path = _ref_path(store, name)
-    if not path.is_file():
+    return _read_ref_file(_ref_path(store, name), name)
+
+
+def _read_ref_file(path: Path, name: str) -> str | None:
+    """The id a ref file holds; StoreError naming the ref when it holds anything else (a foreign
+    or binary file, say) — never more than a ref's worth of it is read."""
+    try:
+        with open(path, "rb") as f:
+            raw = f.read(ID_LENGTH + 64)
+    except (FileNotFoundError, IsADirectoryError, NotADirectoryError):
         return None
-    oid = path.read_text().strip()
+    except OSError as exc:
+        raise StoreError(f"ref {name} cannot be read ({exc.strerror})") from None
+    oid = raw.strip().decode("ascii", "replace")
     if not is_full_id(oid):
-        raise StoreError(f"ref {name} is damaged (holds {oid[:20]!r}, not an id)")
+        raise StoreError(f"ref {name} is damaged (holds {quote(raw[:20])}, not an id): "
+                         f"not written by accrue? move {path} out of the store")
     return oid
 
 
 def set_ref(store: Store, name: str, oid: str, log: bool = True) -> str | None:
     """Point name at oid (which must exist). Returns the previous target. Logs a ref-moved event."""
     path = _ref_path(store, name)
+    writers.hold(store)  # before the existence check: gc cannot sweep oid from now on
     if not is_full_id(oid) or not store.has_object(oid):
         raise StoreError(f"refusing to point ref {name} at {oid[:12]}: no such object in the store")
+    try:
+        return _move(store, name, path, oid, log)
+    except OSError as exc:
+        raise store_os_error(exc, f"cannot move ref {name}") from None
+
+
+def _move(store: Store, name: str, path: Path, oid: str, log: bool) -> str | None:
+    from artifacts.auditlog import append_event, ensure_appendable
+
     with store_lock(store.locks_dir, "refs"):
         old = read_ref(store, name)
         if old != oid:
@@ -53,24 +75,33 @@ def set_ref(store: Store, name: str, oid: str, log: bool = True) -> str | None:
                     raise StoreError(f"ref {name} conflicts with existing ref {parent.relative_to(store.refs_dir)}")
             if path.is_dir():
                 raise StoreError(f"ref {name} conflicts with existing refs under {name}/")
+            if log:
+                ensure_appendable(store)  # a move the log cannot record is not made
             write_replace(path, (oid + "\n").encode(), tmp_dir=path.parent if path.parent.exists() else None)
             if log:
-                from artifacts.auditlog import append_event
-
                 append_event(store, "ref-moved", ref=name, old=old, new=oid)
     return old
 
 
-def list_refs(store: Store, prefix: str = "") -> dict[str, str]:
-    """All refs (name -> id) whose name starts with prefix; a damaged ref raises StoreError."""
+def list_refs(store: Store, prefix: str = "", problems: list[str] | None = None) -> dict[str, str]:
+    """All refs (name -> id) whose name starts with prefix. A damaged or foreign file under refs/
+    raises StoreError, or, when a `problems` list is given, is reported there and skipped."""
     out: dict[str, str] = {}
     if not store.refs_dir.is_dir():
         return out
     for path in sorted(store.refs_dir.rglob("*")):
-        if path.is_file() and not path.name.startswith("."):
-            name = path.relative_to(store.refs_dir).as_posix()
-            if name.startswith(prefix):
-                oid = read_ref(store, name)
-                if oid:
-                    out[name] = oid
+        if path.name.startswith(".") or not path.is_file():
+            continue  # temp files of ref updates; directories of refs
+        name = path.relative_to(store.refs_dir).as_posix()
+        if not name.startswith(prefix):
+            continue
+        try:
+            oid = _read_ref_file(path, check_ref_name(name))
+        except StoreError as exc:
+            if problems is None:
+                raise
+            problems.append(str(exc))
+            continue
+        if oid:
+            out[name] = oid
     return out

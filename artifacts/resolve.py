@@ -2,12 +2,14 @@
 `X:role` picks output `role` of the step record X (e.g. workflow/quick/stage/1/handoff:handoff)."""
 from __future__ import annotations
 
-from artifacts.errors import StoreError
+from artifacts import writers
+from artifacts.errors import StoreError, quote
 from artifacts.refs import _SEGMENT, read_ref
 from artifacts.store import Store
 
 
 def resolve(store: Store, text: str) -> str:
+    writers.hold(store)  # whoever looks an id up may name it next: gc waits until this handle closes
     base, _, role = text.partition(":")
     oid = None
     if base and all(_SEGMENT.match(p) for p in base.split("/")):
@@ -18,9 +20,9 @@ def resolve(store: Store, text: str) -> str:
         record = store.read_json(oid)
         outputs = record.get("outputs") if record.get("type") == "step-record" else None
         if outputs is None:
-            raise StoreError(f"{base}: not a step record, so it has no output {role!r}")
+            raise StoreError(f"{quote(base)}: not a step record, so it has no output {quote(role)}")
         if role not in outputs:
-            raise StoreError(f"{base}: step {record['step']} has no output {role!r} "
+            raise StoreError(f"{quote(base)}: step {record['step']} has no output {quote(role)} "
                              f"(it has: {', '.join(sorted(outputs)) or 'none'})")
         oid = outputs[role]
     return oid

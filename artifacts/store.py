@@ -10,6 +10,9 @@ Layout under the store root (default `.accrue/`, or $ACCRUE_STORE):
     tmp/                       staging area on the same filesystem as objects/
     quarantine/                objects that failed verification, moved aside, never deleted
     remotes/<name>/            what this store knows of remote <name> (see artifacts/remotes)
+
+A handle that writes or names objects holds a shared writer lock until close() (see writers.py):
+gc sweeps only while no writer is alive.
 """
 from __future__ import annotations
 
@@ -20,7 +23,8 @@ from pathlib import Path
 from typing import Any, Callable, Iterator
 
 from artifacts.atomic import fsync_dir, link_into_place, temp_name, write_new_fsynced, write_replace
-from artifacts.errors import StoreError
+from artifacts import writers
+from artifacts.errors import StoreError, os_error_text, quote, store_os_error
 from artifacts.hashing import (HASH_NAME, ID_LENGTH, canonical_json, copy_hashing, hash_bytes,
                                hash_file, is_full_id)
 
@@ -59,10 +63,13 @@ class Store:
             return cls.open(root), False
         if root.exists() and not root.is_dir():
             raise StoreError(f"{root}: exists and is not a directory")
-        for sub in _SUBDIRS:
-            (root / sub).mkdir(parents=True, exist_ok=True)
-        (root / "objects" / HASH_NAME).mkdir(exist_ok=True)
-        write_replace(config, canonical_json({"format": STORE_FORMAT, "hash": HASH_NAME}) + b"\n")
+        try:
+            for sub in _SUBDIRS:
+                (root / sub).mkdir(parents=True, exist_ok=True)
+            (root / "objects" / HASH_NAME).mkdir(exist_ok=True)
+            write_replace(config, canonical_json({"format": STORE_FORMAT, "hash": HASH_NAME}) + b"\n")
+        except OSError as exc:
+            raise StoreError(f"cannot create a store at {root}: {os_error_text(exc)}") from None
         return cls(root), True
 
     @classmethod
@@ -73,8 +80,12 @@ class Store:
             raise StoreError(f"no accrue store at {root} (run `accrue init` or pass --store PATH)")
         try:
             cfg = json.loads(config.read_bytes())
-        except ValueError:
+        except ValueError:  # also UnicodeDecodeError
             raise StoreError(f"{config}: not valid JSON") from None
+        except OSError as exc:
+            raise StoreError(f"cannot read the store's config: {os_error_text(exc)}") from None
+        if not isinstance(cfg, dict):
+            raise StoreError(f"{config}: not a store config (expected a JSON object, got {type(cfg).__name__})")
         if cfg.get("format") != STORE_FORMAT or cfg.get("hash") != HASH_NAME:
             raise StoreError(f"{config}: unsupported store format {cfg.get('format')!r} / hash "
                              f"{cfg.get('hash')!r} (this accrue reads format {STORE_FORMAT}, {HASH_NAME})")
@@ -86,6 +97,15 @@ class Store:
         except OSError:
             pass  # a read-only store can still be read and verified
         return store
+
+    def close(self) -> None:
+        """Let gc run again (see writers.py); the handle may still be used, and re-registers."""
+        writers.release(self)
+
+    def _writing(self) -> "_WriteErrors":
+        """Register as a writer; an OSError while writing becomes one StoreError line."""
+        writers.hold(self)
+        return _WriteErrors(self.root)
 
     # ----------------------------------------------------------------- objects
     def object_path(self, oid: str) -> Path:
@@ -113,30 +133,43 @@ class Store:
 
     def put_bytes(self, data: bytes) -> str:
         oid = hash_bytes(data)
-        if self.has_object(oid):
-            return oid
-        tmp = temp_name(self.tmp_dir, "obj-")
-        write_new_fsynced(tmp, data)
-        self._publish_tmp(tmp, oid)
+        with self._writing():
+            if self.has_object(oid):
+                return oid
+            tmp = temp_name(self.tmp_dir, "obj-")
+            write_new_fsynced(tmp, data)
+            self._publish_tmp(tmp, oid)
         return oid
 
     def put_json(self, value: Any) -> str:
         return self.put_bytes(canonical_json(value))
 
     def ingest_file(self, src: Path) -> tuple[str, int]:
-        """Copy an outside file in, hashing while it is written (one pass). Returns (id, size)."""
-        tmp = temp_name(self.tmp_dir, "obj-")
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
-        try:
-            with open(src, "rb", buffering=0) as f:
-                oid, size = copy_hashing(f, fd, os.fstat(f.fileno()).st_size)
-            os.fsync(fd)
-        except BaseException:
-            os.close(fd)
-            tmp.unlink(missing_ok=True)
-            raise
-        os.close(fd)
-        self._publish_tmp(tmp, oid)
+        """Copy an outside file in, hashing while it is written (one pass). Returns (id, size).
+
+        A source that changes size meanwhile is refused (nothing is stored)."""
+        with self._writing():
+            try:
+                f = open(src, "rb", buffering=0)
+            except OSError as exc:
+                raise StoreError(f"cannot read {os_error_text(exc)}") from None
+            with f:
+                tmp = temp_name(self.tmp_dir, "obj-")
+                fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+                try:
+                    before = os.fstat(f.fileno()).st_size
+                    oid, size = copy_hashing(f, fd, before)
+                    after = os.fstat(f.fileno()).st_size
+                    if not before == size == after:
+                        raise StoreError(f"{src}: changed size while it was being stored ({before} -> "
+                                         f"{after} bytes); nothing was stored")
+                    os.fsync(fd)
+                except BaseException:
+                    os.close(fd)
+                    tmp.unlink(missing_ok=True)
+                    raise
+                os.close(fd)
+            self._publish_tmp(tmp, oid)
         return oid, size
 
     def adopt_file(self, path: Path) -> tuple[str, int]:
@@ -145,28 +178,30 @@ class Store:
         Hash in place; if the object exists already nothing is written (checkpoints of unchanged
         replay shards cost one read); otherwise the file itself is fsynced and hard-linked in.
         """
-        oid, size = hash_file(path)
-        if self.object_size(oid) == size:
-            return oid, size
-        if self.has_object(oid):  # a damaged copy of the same id: move it aside, then replace it
-            self.quarantine(oid)
-        fd = os.open(path, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-        os.chmod(path, 0o444)
-        link_into_place(path, self.object_path(oid))
+        with self._writing():
+            oid, size = hash_file(path)
+            if self.object_size(oid) == size:
+                return oid, size
+            if self.has_object(oid):  # a damaged copy of the same id: move it aside, then replace it
+                self.quarantine(oid)
+            fd = os.open(path, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+            os.chmod(path, 0o444)
+            link_into_place(path, self.object_path(oid))
         return oid, size
 
     def copy_in_checked(self, path: Path, expected: str | None = None) -> tuple[str, int]:
         """Store a file the caller may still hold open (checkpoints): hash first so a file that is
         already an object is never rewritten; else copy it, and refuse if it changed meanwhile."""
-        oid, size = hash_file(path)
-        if self.object_size(oid) == size:
-            return oid, size
-        if self.has_object(oid):
-            self.quarantine(oid)
+        with self._writing():
+            oid, size = hash_file(path)
+            if self.object_size(oid) == size:
+                return oid, size
+            if self.has_object(oid):
+                self.quarantine(oid)
         copied, copied_size = self.ingest_file(path)
         if copied != oid:
             raise StoreError(f"{path}: file changed while it was being stored")
@@ -251,14 +286,14 @@ class Store:
         if is_full_id(text):
             return text
         if len(text) < 4 or any(c not in "0123456789abcdef" for c in text):
-            raise StoreError(f"{prefix!r} is neither a ref nor an id (ids are hex, at least 4 digits)")
+            raise StoreError(f"{quote(prefix)} is neither a ref nor an id (ids are hex, at least 4 digits)")
         fan = self.objects_dir / text[:2]
         matches = sorted(fan.name + p.name for p in fan.iterdir()
                          if p.name.startswith(text[2:])) if fan.is_dir() else []
         if not matches:
-            raise StoreError(f"no object or ref matches {prefix!r}")
+            raise StoreError(f"no object or ref matches {quote(prefix)}")
         if len(matches) > 1:
-            raise StoreError(f"id prefix {prefix!r} is ambiguous ({len(matches)} objects: "
+            raise StoreError(f"id prefix {quote(prefix)} is ambiguous ({len(matches)} objects: "
                              f"{', '.join(m[:12] for m in matches[:4])}…); give more digits")
         return matches[0]
 
@@ -266,6 +301,21 @@ class Store:
         path = self.tmp_dir / f"{prefix}-{os.getpid()}-{os.urandom(4).hex()}"
         path.mkdir(parents=True)
         return path
+
+
+class _WriteErrors:
+    """Context: an OSError (disk full, read-only filesystem, …) becomes one StoreError line."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+
+    def __enter__(self) -> None:
+        return None
+
+    def __exit__(self, kind, exc, tb) -> bool:
+        if isinstance(exc, OSError):
+            raise store_os_error(exc, f"cannot write to the store at {self.root}") from None
+        return False
 
 
 def make_writable_tree(path: Path) -> None:
