@@ -312,10 +312,14 @@ def _head_problems(head: Head, lines: list[bytes], ends: list[int], present: boo
         last = _parse(lines[-1]) or {}
         return [LogProblem(f"the log ends at seq {last.get('seq', '?')} (byte {ends[-1]}), but log/head says "
                            f"it ended at seq {head.seq} (byte {head.end}): its tail was cut")]
-    if head.end not in ends:
+    starts = [0, *ends[:-1]]
+    if head.end in ends:
+        n = ends.index(head.end) + 1
+    elif head.start in starts:  # the line is where the head says, but longer or shorter
+        n = starts.index(head.start) + 1
+    else:
         return [LogProblem(f"no log line ends at byte {head.end}, where log/head says seq {head.seq} ends: "
                            "the log was rewritten")]
-    n = ends.index(head.end) + 1
     event = _parse(lines[n - 1]) or {}
     if hash_bytes(lines[n - 1]) != head.hash or event.get("seq") != head.seq:
         return [LogProblem(f"log line {n} (seq {event.get('seq')}) is not the line log/head recorded: "
