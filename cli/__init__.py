@@ -15,6 +15,7 @@ _COMMAND_MODULES = [
     "cli.policy_cmds",    # policy finetune/chunk
     "cli.metrics_cmds",   # metrics FILE.json
     "cli.report_cmds",    # report WORKFLOW
+    "cli.bench_cmds",     # bench SPEC / bench status / bench report
     "cli.remote_cmds",    # remote add/list/remove, push, fetch, pull
 ]
 

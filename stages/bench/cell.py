@@ -1,0 +1,84 @@
+"""One bench cell: an ordinary workflow run, every stage in order, through the same planner and runner
+as `accrue run` — in a Ray worker or in the bench's own process.
+
+    result = run_cell(CellJob(...))     # {"ok", "error", "seconds", "steps_run", "steps_cached"}; never raises
+
+The runner waits (wait=True) when another cell holds a step's lock, so two cells that need the same
+fine-tune compute it once: the second finds the first's committed result when the lock frees. Steps
+run in `continue` mode: an attempt cut off by a killed bench resumes from its last checkpoint.
+The step output goes to the cell's log file, not to the bench's terminal.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import time
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+
+# environment a worker takes over from the bench process (offline hubs, headless GL, thread counts)
+ENV_PREFIXES = ("ACCRUE_", "HF_", "TRANSFORMERS_", "MUJOCO_", "RERUN", "OMP_", "MKL_")
+
+
+@dataclass(frozen=True)
+class CellJob:
+    store: str                      # absolute store path (a shared filesystem on a cluster)
+    workflow: dict                  # the cell's validated workflow as JSON (stages.bench.spec.workflow_data)
+    source: str                     # where it came from, for error messages
+    log: str                        # the cell's log file (appended)
+    cwd: str                        # the bench's working directory (relative paths in workflows)
+    env: dict = field(default_factory=dict)
+
+
+def job_env() -> dict:
+    return {k: v for k, v in os.environ.items() if k.startswith(ENV_PREFIXES)}
+
+
+def one_line(exc: BaseException) -> str:
+    from accrue.errors import AccrueError
+    from artifacts.errors import StoreError
+    from stages.errors import StageError
+
+    text = (str(exc).strip().splitlines() or [""])[0]
+    return text if isinstance(exc, (AccrueError, StoreError, StageError)) else f"{type(exc).__name__}: {text}"
+
+
+def run_cell(job: CellJob) -> dict:
+    started = time.monotonic()
+    Path(job.log).parent.mkdir(parents=True, exist_ok=True)
+    with open(job.log, "a", encoding="utf-8") as log, \
+            contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
+        try:
+            run, cached = _run_stages(job, log)
+            return {"ok": True, "error": None, "seconds": time.monotonic() - started,
+                    "steps_run": run, "steps_cached": cached}
+        except BaseException as exc:  # noqa: BLE001 - a cell's failure is data for the bench, not a crash
+            if isinstance(exc, KeyboardInterrupt):
+                raise
+            log.write(traceback.format_exc())
+            return {"ok": False, "error": one_line(exc), "seconds": time.monotonic() - started,
+                    "steps_run": 0, "steps_cached": 0}
+
+
+def _run_stages(job: CellJob, log) -> tuple[int, int]:
+    from rich.console import Console
+
+    from artifacts.store import Store
+    from stages.plan import plan_stage
+    from stages.runner import Runner
+    from stages.workflow import parse_workflow
+
+    os.environ.update(job.env)
+    if Path(job.cwd).is_dir():       # on another node the bench's directory may not exist
+        os.chdir(job.cwd)
+    wf = parse_workflow(job.workflow, job.source)
+    store = Store.open(Path(job.store))
+    console = Console(file=log, width=120, force_terminal=False, highlight=False)
+    console.rule(f"cell {wf.name} ({wf.method}, seed {wf.seed}): {' → '.join(wf.tasks)}")
+    runner = Runner(store, console=console, wait=True)
+    run = cached = 0
+    for k in range(1, wf.num_stages + 1):
+        for r in runner.run_plan(plan_stage(wf, k, store), mode="continue"):
+            run, cached = run + (not r.cached), cached + r.cached
+    return run, cached

@@ -1,0 +1,151 @@
+"""A bench's report from the store: per method, the mean over orderings x seeds of FWT, NBT, AUC,
+ACC_final and F_final with 95% bootstrap CIs; the per-ordering breakdown; every cell that is not done
+(or cannot be read) listed as missing, with why.
+
+    report = build_report(store, spec)                   # JSON-able dict
+    files = write_report(report, curves, out_dir)        # report.md, summary.csv, cells.csv, report.json, PNGs
+    text = markdown(report, command=...)                 # what scripts/bench_tables.py pastes into the README
+"""
+from __future__ import annotations
+
+import csv
+import io
+import json
+from pathlib import Path
+
+from accrue.metrics import aggregate_runs, run_record
+from artifacts.errors import StoreError
+from artifacts.store import Store
+from stages.bench.spec import BenchSpec
+from stages.bench.state import cell_states
+from stages.errors import StageError
+from stages.report.data import load_run
+from stages.report.summary import curve_tensor
+from stages.report.tables import (METHOD_HEADER, ORDERING_HEADER, TABLE_METRICS, markdown_table, method_rows,
+                                  ordering_rows, summary_csv)
+
+FILES = {"markdown": "report.md", "summary_csv": "summary.csv", "cells_csv": "cells.csv", "json": "report.json",
+         "metric_bars": "metrics.png", "stage_curves": "stage_curves.png"}
+
+
+def default_out_dir(spec: BenchSpec) -> Path:
+    return Path("runs") / "bench" / spec.name / "report"
+
+
+def _stage_curves(run) -> list[dict]:
+    """Per stage k: its grid, the success of the task learned in k, and the mean over earlier tasks."""
+    out = []
+    for sc in run.curves:
+        current = sc.success[sc.task_ids[-1]]
+        earlier = sc.task_ids[:-1]
+        mean_earlier = ([sum(sc.success[t][e] for t in earlier) / len(earlier) for e in range(len(sc.grid))]
+                        if earlier else None)
+        out.append({"grid": sc.grid, "current": current, "earlier": mean_earlier})
+    return out
+
+
+def build_report(store: Store, spec: BenchSpec) -> tuple[dict, dict]:
+    """(report, curves by method for the plots)."""
+    states = cell_states(store, spec)
+    cells, records, missing = [], [], []
+    curves: dict[str, list] = {m: [] for m in spec.methods}
+    for cell in spec.cells:
+        st = states[cell.name]
+        row = {"cell": cell.name, "method": cell.method, "ordering": cell.ordering, "seed": cell.seed,
+               "state": st.state, "stages_done": st.stages_done, "error": st.error, "metrics": None}
+        if st.state == "done":
+            try:
+                run = load_run(store, cell.workflow)
+                rec = run_record(curve_tensor(run), method=cell.method, tasks=cell.tasks, ordering=cell.ordering,
+                                 seed=cell.seed)
+            except (StageError, StoreError) as exc:
+                row.update(state="unreadable", error=str(exc))
+            else:
+                row["metrics"] = rec["metrics"]
+                records.append(rec)
+                curves[cell.method].append(_stage_curves(run))
+        if row["metrics"] is None:
+            missing.append({k: row[k] for k in ("cell", "method", "ordering", "seed", "state", "stages_done", "error")})
+        cells.append(row)
+    agg = aggregate_runs(records)
+    present = {m["method"] for m in agg["methods"]}
+    # a method without a single finished run still gets its row (all "—"), never dropped
+    for method in spec.methods:
+        if method not in present:
+            agg["methods"].append({"method": method, "runs": 0, "orderings": [], "metrics": {
+                name: {"mean": None, "ci_low": None, "ci_high": None, "n": 0, "undefined": 0} for name in TABLE_METRICS}})
+    agg["methods"].sort(key=lambda m: spec.methods.index(m["method"]))
+    expected = {m: sum(1 for c in spec.cells if c.method == m) for m in spec.methods}
+    report = {
+        "spec": spec.name, "spec_file": str(spec.path), "description": spec.description, "base": str(spec.base),
+        "methods": spec.methods, "orderings": spec.orderings, "seeds": spec.seeds, "reference": spec.reference,
+        "cells_total": len(spec.cells), "cells_done": len(records), "cells": cells, "missing": missing,
+        "expected_runs": expected, "aggregate": agg,
+    }
+    return report, curves
+
+
+def cells_csv(report: dict) -> str:
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["cell", "method", "ordering", "seed", "state", *TABLE_METRICS, "error"])
+    for c in report["cells"]:
+        m = c["metrics"] or {}
+        w.writerow([c["cell"], c["method"], c["ordering"], c["seed"], c["state"],
+                    *("" if m.get(n) is None else repr(float(m[n])) for n in TABLE_METRICS), c["error"] or ""])
+    return buf.getvalue()
+
+
+def markdown(report: dict, command: str | None = None, heading_level: int = 3) -> str:
+    agg = report["aggregate"]
+    h = "#" * heading_level
+    expected_o = {}
+    for c in report["cells"]:
+        key = (c["method"], c["ordering"])
+        expected_o[key] = expected_o.get(key, 0) + 1
+    orderings = "; ".join(f"{name} = {' → '.join(tasks)}" for name, tasks in report["orderings"].items())
+    lines = [f"{h} bench `{report['spec']}`", ""]
+    if report["description"]:
+        lines += [report["description"], ""]
+    lines += [
+        f"Made by `{command or 'accrue bench report ' + report['spec_file']}`. "
+        f"{report['cells_done']} of {report['cells_total']} cells done "
+        f"({len(report['methods'])} methods × {len(report['orderings'])} orderings × {len(report['seeds'])} seeds); "
+        f"seeds {', '.join(map(str, report['seeds']))}; orderings: {orderings}.",
+        f"Each entry: mean over runs (orderings × seeds) [{round(agg['confidence'] * 100)}% percentile-bootstrap CI "
+        f"of the mean, {agg['resamples']} resamples, numpy seed {agg['bootstrap_seed']}]; — = undefined or no run.",
+        "",
+        markdown_table(METHOD_HEADER, method_rows(agg, report["expected_runs"])),
+        "Per ordering (mean [CI] over its seeds):",
+        "",
+        markdown_table(ORDERING_HEADER, ordering_rows(agg, expected_o)),
+    ]
+    if report["missing"]:
+        lines += [f"Missing cells ({len(report['missing'])}):", ""]
+        for m in report["missing"]:
+            why = f": {m['error']}" if m["error"] else ""
+            lines.append(f"- {m['method']} · {m['ordering']} · seed {m['seed']} — {m['state']} "
+                         f"(stages done: {m['stages_done']}){why}")
+        lines.append("")
+    return "\n".join(lines)
+
+
+def write_report(report: dict, curves: dict, out_dir: Path, command: str | None = None) -> dict[str, str | None]:
+    from stages.report.bench_plots import plot_metric_bars, plot_stage_curves
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / FILES["markdown"]).write_text(markdown(report, command, heading_level=1), encoding="utf-8")
+    (out / FILES["summary_csv"]).write_text(summary_csv(report["aggregate"]), encoding="utf-8")
+    (out / FILES["cells_csv"]).write_text(cells_csv(report), encoding="utf-8")
+    files: dict[str, str | None] = {k: str(out / FILES[k]) for k in ("markdown", "summary_csv", "cells_csv", "json")}
+    files["metric_bars"] = str(plot_metric_bars(report["aggregate"], out / FILES["metric_bars"]))
+    stage = plot_stage_curves({m: rs for m, rs in curves.items() if rs}, out / FILES["stage_curves"])
+    if stage is None:
+        (out / FILES["stage_curves"]).unlink(missing_ok=True)
+    files["stage_curves"] = None if stage is None else str(stage)
+    report = {**report, "files": files}
+    tmp = out / (FILES["json"] + ".tmp")
+    tmp.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+    tmp.replace(out / FILES["json"])
+    return files
