@@ -19,7 +19,14 @@ def metrics(
 
     from accrue.metrics import aggregate_runs, load_metrics_file, run_record
 
-    loaded = [run for f in files for run in load_metrics_file(f)]
+    loaded = []
+    for f in files:
+        try:
+            loaded += load_metrics_file(f)
+        except RecursionError:  # json.loads of absurdly nested input
+            from accrue.errors import AccrueError
+
+            raise AccrueError(f"{f}: JSON nested too deeply to be a metrics file") from None
     records = [run_record(r["curves"], method=r["method"], tasks=r["tasks"], ordering=r["ordering"], seed=r["seed"])
                for r in loaded]
     agg = aggregate_runs(records)

@@ -14,7 +14,7 @@ sim_app = typer.Typer(help="Simulated insertion tasks: list them, record expert 
                       no_args_is_help=True)
 
 TaskArg = Annotated[str, typer.Argument(help="Task id, e.g. plugs/cross (see `accrue sim tasks`).", show_default=False)]
-SeedOpt = Annotated[int, typer.Option("--seed", help="Seed of the env (and expert / random policy).")]
+SeedOpt = Annotated[int, typer.Option("--seed", min=0, help="Seed of the env (and expert / random policy).")]
 
 
 def _console(stderr: bool = False):
@@ -84,6 +84,9 @@ def demos_cmd(
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Record scripted-expert demonstrations as a LeRobotDataset v3 (loads with lerobot offline)."""
+    from artifacts.placement import refuse_inside_store
+
+    refuse_inside_store(out, "--out")  # before the simulator's slow imports
     from accrue.sim.demos import write_demos
 
     summary = write_demos(task, episodes, out, seed=seed, quality=quality,
@@ -113,7 +116,15 @@ def watch_cmd(
                     show_default=False)] = None,
 ) -> None:
     """Run one episode and write a rerun recording of it (open with `rerun FILE.rrd`)."""
+    from accrue.errors import AccrueError
     from accrue.logs.episode_watch import watch_episode
+    from artifacts.placement import refuse_inside_store
+
+    if out is not None and out.is_dir():
+        raise AccrueError(f"--out {out}: is a directory; give the recording's file name (e.g. {out}/watch.rrd)")
+    for option, path in (("--out", out), ("--mcap", mcap)):
+        if path is not None:
+            refuse_inside_store(path, option)
 
     result = watch_episode(task, policy=policy, seed=seed, out=out, images=images, mcap_dir=mcap)
     con = _console()

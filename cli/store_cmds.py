@@ -44,12 +44,12 @@ def human_size(n: int | None) -> str:
     return f"{n} B"
 
 
-def parse_duration(text: str) -> float:
-    m = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*([smhd]?)\s*", text)
+def parse_duration(text: str, option: str = "--grace") -> float:
+    m = re.fullmatch(r"\s*(\d{1,12}(?:\.\d{1,9})?)\s*([smhd]?)\s*", text)
     if not m:
-        from artifacts.errors import StoreError
+        from artifacts.errors import StoreError, quote
 
-        raise StoreError(f"--grace: not a duration {text!r} (use e.g. 0, 90s, 30m, 24h, 14d)")
+        raise StoreError(f"{option}: not a duration {quote(text)} (use e.g. 0, 90s, 30m, 24h, 14d)")
     return float(m.group(1)) * {"": 1, "s": 1, "m": 60, "h": 3600, "d": 86400}[m.group(2)]
 
 
@@ -135,8 +135,19 @@ def lineage(target: Annotated[str, typer.Argument(metavar="ID_OR_REF")],
 
     st = open_store(store)
     node = build(st, resolve(st, target))
+    if node.get("error"):  # the target itself cannot be read: nothing to show
+        from artifacts.errors import StoreError
+
+        raise StoreError(f"lineage of {target[:200]}: {node['error']}")
+    broken = _unreadable(node)
     if as_json:
         print_json(node)
+    if broken:  # an incomplete lineage is a finding, like verify's: exit 1, after showing what is known
+        typer.echo(f"lineage incomplete: {broken} input{'s' if broken != 1 else ''} cannot be read "
+                   "(run `accrue verify`)", err=True)
+    if as_json:
+        if broken:
+            raise SystemExit(1)
         return
 
     def label(n: dict, role: str | None) -> str:
@@ -166,6 +177,12 @@ def lineage(target: Annotated[str, typer.Argument(metavar="ID_OR_REF")],
     root = Tree(label(node, None))
     grow(root, node)
     console().print(root)
+    if broken:
+        raise SystemExit(1)
+
+
+def _unreadable(node: dict) -> int:
+    return sum(bool(child.get("error")) + _unreadable(child) for child in node.get("inputs", {}).values())
 
 
 def log(n: Annotated[int, typer.Option("-n", "--lines", help="Show the last N events.", min=1)] = 20,
@@ -181,7 +198,7 @@ def log(n: Annotated[int, typer.Option("-n", "--lines", help="Show the last N ev
 
     st = open_store(store)
     events = (e for e in iter_events(st) if event is None or e.get("event") == event)
-    rows = list(events) if show_all else list(deque(events, maxlen=n))
+    rows = list(events) if show_all else list(deque(events, maxlen=min(n, 1 << 40)))  # deque caps maxlen
     if as_json:
         for e in rows:
             typer.echo(json.dumps(e, sort_keys=True))
@@ -189,7 +206,7 @@ def log(n: Annotated[int, typer.Option("-n", "--lines", help="Show the last N ev
     table = Table(title=f"audit log ({len(rows)} event{'s' if len(rows) != 1 else ''} shown)", title_justify="left")
     for col in ("seq", "time", "event", "step", "detail"):
         table.add_column(col, overflow="fold")
-    skip = {"seq", "ts", "event", "step", "prev", "pid", "host", "cache_key", "inputs", "outputs"}
+    skip = {"seq", "ts", "event", "step", "prev", "pid", "host", "cache_key", "inputs", "outputs", "log_format"}
     for e in rows:
         detail = " ".join(f"{k}={_short(v)}" for k, v in e.items() if k not in skip and v is not None)
         table.add_row(str(e.get("seq")), str(e.get("ts", ""))[:19].replace("T", " "), e.get("event", ""),
@@ -212,7 +229,10 @@ def refs(prefix: Annotated[str, typer.Argument(help="Only refs starting with thi
 
     from artifacts.refs import list_refs
 
-    found = list_refs(open_store(store), prefix)
+    problems: list[str] = []
+    found = list_refs(open_store(store), prefix, problems=problems)
+    for problem in problems:  # a foreign or damaged file under refs/: say so, list the rest
+        typer.echo(f"warning: {problem}", err=True)
     if as_json:
         print_json(found)
         return
@@ -225,6 +245,8 @@ def refs(prefix: Annotated[str, typer.Argument(help="Only refs starting with thi
 
 
 def verify(full: Annotated[bool, typer.Option("--full", help="Re-hash every object (slow), quarantine corrupt ones.")] = False,
+           repair: Annotated[bool, typer.Option("--repair", help="Seal damage found in the audit log (a cut, edited "
+                             "or half-written tail) with a log-repaired event naming it, so writes can go on.")] = False,
            remote: Annotated[Optional[str], typer.Option("--remote", metavar="NAME", help="Check that remote NAME holds every object its refs reach (with --full: re-hash them).")] = None,
            store: StoreOpt = None, as_json: JsonOpt = False) -> None:
     """Check the store; exit 1 if anything is wrong."""
@@ -242,9 +264,9 @@ def verify(full: Annotated[bool, typer.Option("--full", help="Re-hash every obje
         with Progress("re-hashing", BarColumn(), DownloadColumn(), TransferSpeedColumn(),
                       console=console(), transient=True) as bar:
             task = bar.add_task("", total=total)
-            report = verify_store(st, full=True, progress=lambda n: bar.advance(task, n))
+            report = verify_store(st, full=True, progress=lambda n: bar.advance(task, n), repair=repair)
     else:
-        report = verify_store(st, full=full)
+        report = verify_store(st, full=full, repair=repair)
     if as_json:
         print_json(report.as_dict())
     else:
@@ -266,11 +288,15 @@ def verify(full: Annotated[bool, typer.Option("--full", help="Re-hash every obje
 
 def gc(yes: Annotated[bool, typer.Option("--yes", help="Really delete (default is a dry run).")] = False,
        grace: Annotated[str, typer.Option("--grace", help="Keep unreferenced objects younger than this.")] = "24h",
+       wait: Annotated[str, typer.Option("--wait", help="Wait this long for running accrue processes to finish "
+                                         "(gc needs the store to itself).")] = "0",
        store: StoreOpt = None, as_json: JsonOpt = False) -> None:
-    """Remove objects no ref or record reaches (dry run unless --yes)."""
+    """Remove objects no ref or record reaches (dry run unless --yes). Runs only while no other
+    accrue process writes to the store."""
     from artifacts.gc import collect_garbage
 
-    report = collect_garbage(open_store(store), dry_run=not yes, grace_s=parse_duration(grace))
+    report = collect_garbage(open_store(store), dry_run=not yes, grace_s=parse_duration(grace, "--grace"),
+                             wait_s=parse_duration(wait, "--wait"))
     if as_json:
         print_json(report.as_dict())
         return

@@ -20,7 +20,28 @@ _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    # inf/nan pass `gt=0` and fail minutes later; refuse them here, naming the field
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _no_bool_numbers(cls, value: Any, info: Any) -> Any:
+        """YAML's `true` would be read as the number 1: a number field takes numbers only."""
+        if isinstance(value, bool) and _is_number_type(cls.model_fields[info.field_name].annotation):
+            raise ValueError(f"must be a number, not {str(value).lower()}")
+        return value
+
+
+def _is_number_type(annotation: Any) -> bool:
+    import types
+    import typing
+
+    if annotation in (int, float):
+        return True
+    if typing.get_origin(annotation) in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(annotation) if a is not type(None)]
+        return bool(args) and all(a in (int, float) for a in args)
+    return False
 
 
 class BasePolicySpec(_Strict):
@@ -116,7 +137,9 @@ _PHRASES = {
 
 
 def _format_error(err: dict) -> str:
-    loc = ".".join(str(p) for p in err["loc"]) or "(top level)"
+    from artifacts.errors import quote
+
+    loc = ".".join(str(p)[:100] for p in err["loc"]) or "(top level)"
     phrase = _PHRASES.get(err["type"])
     msg = phrase.format(**(err.get("ctx") or {})) if phrase else err["msg"]
     if msg.startswith("Value error, "):
@@ -124,7 +147,7 @@ def _format_error(err: dict) -> str:
     elif not phrase:
         msg = msg[:1].lower() + msg[1:]
     if err["type"] not in ("missing", "extra_forbidden") and "(got" not in msg:
-        msg += f" (got {err.get('input')!r})"
+        msg += f" (got {quote(err.get('input'))})"  # bounded: an alias bomb must not become the message
     return f"{loc}: {msg}"
 
 
@@ -197,10 +220,37 @@ def load_workflow(path: Path | str) -> Workflow:
     except (OSError, UnicodeDecodeError) as exc:
         raise StageError(f"{path}: cannot read ({exc.__class__.__name__})") from None
     try:
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=_unique_keys_loader())  # noqa: S506 - a SafeLoader subclass
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         raise StageError(f"{path}: YAML syntax error at {where}{problem}") from None
     return parse_workflow(data, str(path), default_name=path.stem)
+def _unique_keys_loader():
+    """yaml.SafeLoader that refuses a key given twice in one mapping (safe_load keeps the last)."""
+    import yaml
+
+    class UniqueKeyLoader(yaml.SafeLoader):
+        pass
+
+    def mapping(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bool = False) -> dict:
+        seen: set = set()
+        for key_node, _ in node.value:
+            key = loader.construct_object(key_node, deep=deep)
+            try:
+                duplicate = key in seen
+                seen.add(key)
+            except TypeError:  # an unhashable key: the constructor below refuses it
+                continue
+            if duplicate:
+                from artifacts.errors import quote
+
+                raise yaml.constructor.ConstructorError(None, None, f"duplicate key {quote(key, 100)}",
+                                                        key_node.start_mark)
+        return loader.construct_mapping(node, deep=deep)
+
+    UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, mapping)
+    return UniqueKeyLoader
+
+

@@ -8,6 +8,8 @@ RL fits in a few minutes on 2 cores); `LearnerConfig.paper()` gives the paper-sc
 from __future__ import annotations
 
 import dataclasses
+import math
+import reprlib
 from dataclasses import dataclass, field
 
 from accrue.errors import AccrueError
@@ -112,7 +114,7 @@ class LearnerConfig:
 
     def validate(self) -> None:
         def bad(name: str, why: str) -> AccrueError:
-            return AccrueError(f"learner.{name}: {why} (got {getattr(self, name)!r})")
+            return AccrueError(f"learner.{name}: {why} (got {reprlib.repr(getattr(self, name))})")  # bounded
 
         for name in ("algo", "method", "ablation"):
             allowed = {"algo": ALGOS, "method": METHODS, "ablation": ABLATIONS}[name]
@@ -151,8 +153,8 @@ class LearnerConfig:
                     v = float(v)
                 except ValueError:
                     raise bad(name, "must be a number") from None
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or v != v:
-                raise bad(name, "must be a number")
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):  # no nan/inf
+                raise bad(name, "must be a finite number")
             setattr(self, name, float(v))
         if self.v_max <= self.v_min:
             raise bad("v_max", "must be greater than v_min")
