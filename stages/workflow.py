@@ -139,7 +139,8 @@ _PHRASES = {
 def _format_error(err: dict) -> str:
     from artifacts.errors import quote
 
-    loc = ".".join(str(p)[:100] for p in err["loc"]) or "(top level)"
+    loc = ".".join(str(p) if re.fullmatch(r"[\w/.+-]{1,100}", str(p)) else quote(p, 60)  # a key may be anything
+                   for p in err["loc"]) or "(top level)"
     phrase = _PHRASES.get(err["type"])
     msg = phrase.format(**(err.get("ctx") or {})) if phrase else err["msg"]
     if msg.startswith("Value error, "):
