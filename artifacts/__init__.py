@@ -2,6 +2,7 @@
 
 Knows nothing of RL: objects, artifact manifests, refs, attempt records, the audit log, verify, gc.
 """
+
 from artifacts.errors import StoreError
 from artifacts.store import Store, default_store_path
 

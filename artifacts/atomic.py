@@ -1,4 +1,5 @@
 """Durable publish primitives: temp file in the same tree, fsync, link/rename, fsync the directory."""
+
 from __future__ import annotations
 
 import os
@@ -24,7 +25,7 @@ def write_new_fsynced(path: Path, data: bytes) -> None:
     try:
         view = memoryview(data)
         while view:  # a full disk may take part of a write before it refuses the rest
-            view = view[os.write(fd, view):]
+            view = view[os.write(fd, view) :]
         os.fsync(fd)
     except BaseException:
         os.close(fd)

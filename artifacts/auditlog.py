@@ -11,6 +11,7 @@ the head it saw (records.py). Cutting, editing or deleting the log's tail then d
 those anchors; `verify` reports it and appends refuse until `accrue verify --repair` seals the
 damage with a `log-repaired` event that names it (the damaged bytes stay, for the audit).
 """
+
 from __future__ import annotations
 
 import json
@@ -42,7 +43,7 @@ class Head:
     seq: int
     hash: str
     start: int  # byte offset of the last line
-    end: int    # byte offset just after it (its newline included)
+    end: int  # byte offset just after it (its newline included)
 
 
 def read_head(store: Store) -> Head | None:
@@ -118,15 +119,21 @@ def _tail(store: Store) -> tuple[int, str, int]:
             raise _damaged(store, "log/head is missing")
         return event["seq"] + 1, hash_bytes(last), size  # a log from before heads existed
     if size < head.end:
-        raise _damaged(store, f"it is {size} bytes long, but log/head says its seq {head.seq} ends at "
-                              f"byte {head.end}: its tail was cut")
+        raise _damaged(
+            store,
+            f"it is {size} bytes long, but log/head says its seq {head.seq} ends at byte {head.end}: its tail was cut",
+        )
     with open(store.log_path, "rb") as f:
         f.seek(head.start)
         data = f.read(size - head.start)
-    anchored, rest = data[:head.end - head.start], data[head.end - head.start:]
+    anchored, rest = data[: head.end - head.start], data[head.end - head.start :]
     event = _parse(anchored[:-1])
-    if (not anchored.endswith(b"\n") or hash_bytes(anchored[:-1]) != head.hash or event is None
-            or event.get("seq") != head.seq):
+    if (
+        not anchored.endswith(b"\n")
+        or hash_bytes(anchored[:-1]) != head.hash
+        or event is None
+        or event.get("seq") != head.seq
+    ):
         raise _damaged(store, f"its line of seq {head.seq} is not the one log/head recorded: it was edited")
     seq, prev = head.seq, head.hash
     if rest and not rest.endswith(b"\n"):
@@ -182,8 +189,16 @@ def append_event(store: Store, event: str, **fields: Any) -> dict:
     try:
         with _log_lock(store):
             seq, prev, size = _tail(store)
-            record = {"seq": seq, "ts": now_iso(), "event": event, "pid": os.getpid(),
-                      "host": socket.gethostname(), **fields, "prev": prev, "log_format": LOG_FORMAT}
+            record = {
+                "seq": seq,
+                "ts": now_iso(),
+                "event": event,
+                "pid": os.getpid(),
+                "host": socket.gethostname(),
+                **fields,
+                "prev": prev,
+                "log_format": LOG_FORMAT,
+            }
             line = canonical_json(record) + b"\n"
             _append_line(store, line, size)
             _write_head(store, seq, hash_bytes(line[:-1]), size, size + len(line))
@@ -210,23 +225,23 @@ def iter_events(store: Store) -> Iterator[dict]:
 @dataclass
 class LogProblem:
     text: str
-    line: int | None = None                 # 1-based line the problem is about
-    anchor: tuple[int, str] | None = None   # (seq, hash) an outside record expected
+    line: int | None = None  # 1-based line the problem is about
+    anchor: tuple[int, str] | None = None  # (seq, hash) an outside record expected
 
 
 @dataclass
 class LogCheck:
     events: int = 0
-    problems: list[LogProblem] = field(default_factory=list)   # not sealed by a repair
-    sealed: list[str] = field(default_factory=list)            # what each log-repaired event sealed
+    problems: list[LogProblem] = field(default_factory=list)  # not sealed by a repair
+    sealed: list[str] = field(default_factory=list)  # what each log-repaired event sealed
 
 
 @dataclass
 class _Lines:
-    lines: list[bytes]      # without their newlines
-    ends: list[int]         # byte offset just after each line
-    present: bool           # the file exists
-    partial: bool           # the last line has no newline (a write was cut off)
+    lines: list[bytes]  # without their newlines
+    ends: list[int]  # byte offset just after each line
+    present: bool  # the file exists
+    partial: bool  # the last line has no newline (a write was cut off)
 
 
 def _read_lines(store: Store) -> _Lines:
@@ -263,18 +278,26 @@ def check_log(store: Store, anchors: list[tuple[str, dict]] = (), has_history: b
             found.append(LogProblem(f"log line {n}: {why}", line=n))
         else:
             if event.get("prev") != prev:
-                found.append(LogProblem(f"log line {n} (seq {event.get('seq')}): hash chain broken — "
-                                        "a line before it was changed or removed", line=n))
+                found.append(
+                    LogProblem(
+                        f"log line {n} (seq {event.get('seq')}): hash chain broken — "
+                        "a line before it was changed or removed",
+                        line=n,
+                    )
+                )
             if event.get("seq") != n - 1:
                 found.append(LogProblem(f"log line {n}: seq {event.get('seq')} out of order", line=n))
-            newest_format = max(newest_format, event.get("log_format", 1) if isinstance(
-                event.get("log_format"), int) else 1)
+            newest_format = max(
+                newest_format, event.get("log_format", 1) if isinstance(event.get("log_format"), int) else 1
+            )
             if event.get("event") == "log-repaired":
                 sealed_lines.update(event.get("sealed_lines") or [])
                 sealed_anchors |= {(s, h) for s, h in event.get("sealed_anchors") or []}
                 named = event.get("problems") or ["?"]
-                repairs.append(f"log-repaired at seq {event.get('seq')} ({str(event.get('ts'))[:19]}) sealed "
-                               f"{len(named)} problem(s): {'; '.join(named[:3])}{'…' if len(named) > 3 else ''}")
+                repairs.append(
+                    f"log-repaired at seq {event.get('seq')} ({str(event.get('ts'))[:19]}) sealed "
+                    f"{len(named)} problem(s): {'; '.join(named[:3])}{'…' if len(named) > 3 else ''}"
+                )
         prev = hash_bytes(line)
     try:
         head = read_head(store)
@@ -288,42 +311,69 @@ def check_log(store: Store, anchors: list[tuple[str, dict]] = (), has_history: b
     elif lines and newest_format >= LOG_FORMAT:
         found.append(LogProblem("log/head is missing (it was deleted; the log's tail cannot be trusted)"))
     elif not lines and has_history:
-        found.append(LogProblem(f"the audit log {store.log_path} is missing or empty, but the store has refs "
-                                "and records: it was deleted"))
+        found.append(
+            LogProblem(
+                f"the audit log {store.log_path} is missing or empty, but the store has refs "
+                "and records: it was deleted"
+            )
+        )
     for what, anchor in anchors:
         seq, digest = anchor.get("seq"), anchor.get("hash")
         if not isinstance(seq, int) or seq < 0:
             continue
         if seq >= len(lines) or hash_bytes(lines[seq]) != digest:
             had = "does not hold it" if seq >= len(lines) else "holds a different line there"
-            found.append(LogProblem(f"{what} was written after log event seq {seq}, but the log {had}: "
-                                    "it was cut or rewritten", anchor=(seq, digest)))
+            found.append(
+                LogProblem(
+                    f"{what} was written after log event seq {seq}, but the log {had}: it was cut or rewritten",
+                    anchor=(seq, digest),
+                )
+            )
     check = LogCheck(events=len(lines), sealed=repairs)
-    check.problems = [p for p in found if not ((p.line is not None and p.line in sealed_lines)
-                                               or (p.anchor is not None and p.anchor in sealed_anchors))]
+    check.problems = [
+        p
+        for p in found
+        if not (
+            (p.line is not None and p.line in sealed_lines) or (p.anchor is not None and p.anchor in sealed_anchors)
+        )
+    ]
     return check
 
 
 def _head_problems(head: Head, lines: list[bytes], ends: list[int], present: bool) -> list[LogProblem]:
     if not lines:
-        return [LogProblem(f"the audit log is {'empty' if present else 'missing'}, but log/head says it ended "
-                           f"at seq {head.seq}: it was {'cut' if present else 'deleted'}")]
+        return [
+            LogProblem(
+                f"the audit log is {'empty' if present else 'missing'}, but log/head says it ended "
+                f"at seq {head.seq}: it was {'cut' if present else 'deleted'}"
+            )
+        ]
     if ends[-1] < head.end:
         last = _parse(lines[-1]) or {}
-        return [LogProblem(f"the log ends at seq {last.get('seq', '?')} (byte {ends[-1]}), but log/head says "
-                           f"it ended at seq {head.seq} (byte {head.end}): its tail was cut")]
+        return [
+            LogProblem(
+                f"the log ends at seq {last.get('seq', '?')} (byte {ends[-1]}), but log/head says "
+                f"it ended at seq {head.seq} (byte {head.end}): its tail was cut"
+            )
+        ]
     starts = [0, *ends[:-1]]
     if head.end in ends:
         n = ends.index(head.end) + 1
     elif head.start in starts:  # the line is where the head says, but longer or shorter
         n = starts.index(head.start) + 1
     else:
-        return [LogProblem(f"no log line ends at byte {head.end}, where log/head says seq {head.seq} ends: "
-                           "the log was rewritten")]
+        return [
+            LogProblem(
+                f"no log line ends at byte {head.end}, where log/head says seq {head.seq} ends: the log was rewritten"
+            )
+        ]
     event = _parse(lines[n - 1]) or {}
     if hash_bytes(lines[n - 1]) != head.hash or event.get("seq") != head.seq:
-        return [LogProblem(f"log line {n} (seq {event.get('seq')}) is not the line log/head recorded: "
-                           "it was edited", line=n)]
+        return [
+            LogProblem(
+                f"log line {n} (seq {event.get('seq')}) is not the line log/head recorded: it was edited", line=n
+            )
+        ]
     return []
 
 
@@ -351,11 +401,16 @@ def repair_log(store: Store, check: LogCheck) -> dict | None:
             prev = hash_bytes(lines[-1]) if lines else GENESIS
             seq = len(lines)
             record = {
-                "seq": seq, "ts": now_iso(), "event": "log-repaired", "pid": os.getpid(),
-                "host": socket.gethostname(), "problems": [p.text[:300] for p in problems[:50]],
+                "seq": seq,
+                "ts": now_iso(),
+                "event": "log-repaired",
+                "pid": os.getpid(),
+                "host": socket.gethostname(),
+                "problems": [p.text[:300] for p in problems[:50]],
                 "sealed_lines": sorted({p.line for p in problems if p.line is not None}),
                 "sealed_anchors": sorted({p.anchor for p in problems if p.anchor is not None}),
-                "prev": prev, "log_format": LOG_FORMAT,
+                "prev": prev,
+                "log_format": LOG_FORMAT,
             }
             line = canonical_json(record) + b"\n"
             _append_line(store, line, size)

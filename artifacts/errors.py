@@ -1,4 +1,5 @@
 """Errors of the artifact store: each carries a one-line, user-facing message."""
+
 from __future__ import annotations
 
 import reprlib
@@ -18,7 +19,7 @@ def quote(value: object, limit: int = QUOTE_LIMIT) -> str:
     short.maxlevel = 3
     short.maxlist = short.maxtuple = short.maxdict = short.maxset = 8
     text = short.repr(value)
-    return text if len(text) <= limit else text[:limit - 1] + "…"
+    return text if len(text) <= limit else text[: limit - 1] + "…"
 
 
 def os_error_text(exc: OSError) -> str:
@@ -34,7 +35,7 @@ def os_error_text(exc: OSError) -> str:
 def path_text(name: object) -> str:
     text = name.decode("utf-8", "backslashreplace") if isinstance(name, bytes) else str(name)
     text = text.encode("utf-8", "backslashreplace").decode("utf-8")  # undecodable bytes of a file name
-    return text if len(text) <= QUOTE_LIMIT else "…" + text[-(QUOTE_LIMIT - 1):]
+    return text if len(text) <= QUOTE_LIMIT else "…" + text[-(QUOTE_LIMIT - 1) :]
 
 
 def store_os_error(exc: OSError, what: str) -> StoreError:

@@ -5,6 +5,7 @@ its whole mark and sweep, so it runs only when no writer is alive (writers.py). 
 still keeps young unreferenced objects (a writer that died before rooting them, a store copied in
 by hand). Before deleting anything gc logs a `gc-started` event, so a store whose log cannot take
 the record of a deletion loses nothing."""
+
 from __future__ import annotations
 
 import os
@@ -36,9 +37,14 @@ class GcReport:
         return sum(s for _, s in self.removed)
 
     def as_dict(self) -> dict:
-        return {"dry_run": self.dry_run, "kept": self.kept, "young": self.young,
-                "removed": [i for i, _ in self.removed], "bytes": self.bytes,
-                "tmp_removed": self.tmp_removed}
+        return {
+            "dry_run": self.dry_run,
+            "kept": self.kept,
+            "young": self.young,
+            "removed": [i for i, _ in self.removed],
+            "bytes": self.bytes,
+            "tmp_removed": self.tmp_removed,
+        }
 
 
 def _age(st: os.stat_result, now: float) -> float:
@@ -54,8 +60,9 @@ def _owner_alive(name: str) -> bool:
     return bool(m) and psutil.pid_exists(int(m.group(1)))
 
 
-def collect_garbage(store: Store, dry_run: bool = True, grace_s: float = DEFAULT_GRACE_S,
-                    wait_s: float = 0.0) -> GcReport:
+def collect_garbage(
+    store: Store, dry_run: bool = True, grace_s: float = DEFAULT_GRACE_S, wait_s: float = 0.0
+) -> GcReport:
     """wait_s: how long to wait for active writers before giving up (StoreError)."""
     try:
         lock = try_lock(store_lock(store.locks_dir, "gc"), "the store (gc)", timeout=0)
@@ -99,8 +106,9 @@ def _collect(store: Store, dry_run: bool, grace_s: float) -> GcReport:
     if dry_run or not (report.removed or report.tmp_removed):
         return report
     # the log must be able to say what is about to go, or nothing goes
-    append_event(store, "gc-started", removing=len(report.removed), bytes=report.bytes,
-                 tmp_removing=len(report.tmp_removed))
+    append_event(
+        store, "gc-started", removing=len(report.removed), bytes=report.bytes, tmp_removing=len(report.tmp_removed)
+    )
     for oid, _ in report.removed:
         store.object_path(oid).unlink(missing_ok=True)
     for entry in tmp_paths:
@@ -108,6 +116,5 @@ def _collect(store: Store, dry_run: bool, grace_s: float) -> GcReport:
     for fan in {store.object_path(o).parent for o, _ in report.removed}:
         if fan.exists():
             fsync_dir(fan)
-    append_event(store, "gc", removed=len(report.removed), bytes=report.bytes,
-                 tmp_removed=len(report.tmp_removed))
+    append_event(store, "gc", removed=len(report.removed), bytes=report.bytes, tmp_removed=len(report.tmp_removed))
     return report

@@ -1,4 +1,5 @@
 """Content ids: BLAKE3 of raw bytes, and canonical JSON so that equal data hashes equally."""
+
 from __future__ import annotations
 
 import json
@@ -21,8 +22,7 @@ def _hasher(size_hint: int = 0) -> "blake3.blake3":
 
 def canonical_json(value: Any) -> bytes:
     """Sorted keys, no whitespace, UTF-8, no NaN: the one byte form used for every hashed JSON."""
-    return json.dumps(value, sort_keys=True, separators=(",", ":"), ensure_ascii=False,
-                      allow_nan=False).encode("utf-8")
+    return json.dumps(value, sort_keys=True, separators=(",", ":"), ensure_ascii=False, allow_nan=False).encode("utf-8")
 
 
 def hash_bytes(data: bytes) -> str:

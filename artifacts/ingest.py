@@ -2,6 +2,7 @@
 
 Adding the same bytes under the same kind twice returns the first artifact (found through the
 ref ingested/<kind>/<content id>, which also keeps it from gc)."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -24,8 +25,7 @@ def add_path(store: Store, path: Path, kind: str, ref: str | None = None) -> tup
     if existing is not None and read_artifact(store, existing).get("content") == content["content"]:
         artifact_id, created = existing, False
     else:
-        artifact_id = write_manifest(store, content, kind,
-                                     producer={"step": "add", "source": source})
+        artifact_id = write_manifest(store, content, kind, producer={"step": "add", "source": source})
         append_event(store, "artifact-written", artifact=artifact_id, kind=kind, source=source)
         set_ref(store, index_ref, artifact_id)
         created = True

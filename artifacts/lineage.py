@@ -1,4 +1,5 @@
 """Lineage: the tree of inputs that produced an artifact or step record, down to demos and seeds."""
+
 from __future__ import annotations
 
 from typing import Any
@@ -34,12 +35,21 @@ def lineage(store: Store, oid: str, _seen: set[str] | None = None) -> dict:
     node: dict[str, Any] = {"id": oid, "type": obj.get("type")}
     if obj.get("type") == "artifact":
         producer = obj.get("producer", {})
-        node.update(kind=obj["kind"], step=producer.get("step"), size=obj.get("size"),
-                    created=obj.get("created"), seeds=seed_like(obj.get("config", {})))
+        node.update(
+            kind=obj["kind"],
+            step=producer.get("step"),
+            size=obj.get("size"),
+            created=obj.get("created"),
+            seeds=seed_like(obj.get("config", {})),
+        )
         if producer.get("source"):
             node["source"] = producer["source"]
     elif obj.get("type") == "step-record":
-        node.update(step=obj["step"], seeds=seed_like(obj.get("config", {})),
-                    created=obj.get("finished"), outputs=obj.get("outputs", {}))
+        node.update(
+            step=obj["step"],
+            seeds=seed_like(obj.get("config", {})),
+            created=obj.get("finished"),
+            outputs=obj.get("outputs", {}),
+        )
     node["inputs"] = {role: lineage(store, i, seen) for role, i in sorted(obj.get("inputs", {}).items())}
     return node

@@ -1,4 +1,5 @@
 """Kernel file locks (flock via filelock): the OS releases them when the holder dies."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -9,7 +10,7 @@ from artifacts.errors import StoreError
 if TYPE_CHECKING:
     from filelock import FileLock
 
-__all__ = ["store_lock", "try_lock", "Timeout"]
+__all__ = ["store_lock", "try_lock", "Timeout"]  # noqa: F822 - Timeout comes from __getattr__
 
 
 def __getattr__(name: str):

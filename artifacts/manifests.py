@@ -208,7 +208,7 @@ def materialize(store: Store, artifact_id: str, dest: Path, quarantine: bool = F
 
 
 def _make_read_only(path: Path) -> None:
-    for root, dirs, files in os.walk(path, topdown=False):
+    for root, _dirs, files in os.walk(path, topdown=False):
         for name in files:
             os.chmod(os.path.join(root, name), 0o444)
         os.chmod(root, 0o555)

@@ -7,6 +7,7 @@ caches point at. Checkpoints saved during the attempt are listed in order (oldes
 Each write also records `log_anchor`, the audit log's head (seq and hash of its last line) at
 that moment: an anchor the log does not control, so verify sees a log cut or rewritten behind it.
 """
+
 from __future__ import annotations
 
 import json
@@ -49,8 +50,13 @@ def read_attempt(path: Path) -> dict:
 def list_attempts(store: Store, key: str | None = None, problems: list[str] | None = None) -> list[dict]:
     """Attempts of one cache key (or of all keys), oldest first within a key. A damaged file
     raises StoreError, or is reported into `problems` and skipped when a list is given."""
-    keys = [key] if key else sorted(p.name for p in store.records_dir.iterdir()
-                                     if p.is_dir() and is_full_id(p.name)) if store.records_dir.is_dir() else []
+    keys = (
+        [key]
+        if key
+        else sorted(p.name for p in store.records_dir.iterdir() if p.is_dir() and is_full_id(p.name))
+        if store.records_dir.is_dir()
+        else []
+    )
     out = []
     for k in keys:
         d = store.records_dir / k

@@ -3,13 +3,14 @@
 A ref file holds one id and a newline. Updates happen under a kernel lock and by atomic
 replace, and only after the target object exists, so a ref never points at nothing.
 """
+
 from __future__ import annotations
 
 import re
 from pathlib import Path
 
-from artifacts.atomic import write_replace
 from artifacts import writers
+from artifacts.atomic import write_replace
 from artifacts.errors import StoreError, quote, store_os_error
 from artifacts.hashing import ID_LENGTH, is_full_id
 from artifacts.locks import store_lock
@@ -45,8 +46,10 @@ def _read_ref_file(path: Path, name: str) -> str | None:
         raise StoreError(f"ref {name} cannot be read ({exc.strerror})") from None
     oid = raw.strip().decode("ascii", "replace")
     if not is_full_id(oid):
-        raise StoreError(f"ref {name} is damaged (holds {quote(raw[:20])}, not an id): "
-                         f"not written by accrue? move {path} out of the store")
+        raise StoreError(
+            f"ref {name} is damaged (holds {quote(raw[:20])}, not an id): "
+            f"not written by accrue? move {path} out of the store"
+        )
     return oid
 
 

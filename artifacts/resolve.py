@@ -1,5 +1,6 @@
 """Turn what a user types into a full id: a ref name, a full id, or an unambiguous hex prefix;
 `X:role` picks output `role` of the step record X (e.g. workflow/quick/stage/1/handoff:handoff)."""
+
 from __future__ import annotations
 
 from artifacts import writers
@@ -22,7 +23,9 @@ def resolve(store: Store, text: str) -> str:
         if outputs is None:
             raise StoreError(f"{quote(base)}: not a step record, so it has no output {quote(role)}")
         if role not in outputs:
-            raise StoreError(f"{quote(base)}: step {record['step']} has no output {quote(role)} "
-                             f"(it has: {', '.join(sorted(outputs)) or 'none'})")
+            raise StoreError(
+                f"{quote(base)}: step {record['step']} has no output {quote(role)} "
+                f"(it has: {', '.join(sorted(outputs)) or 'none'})"
+            )
         oid = outputs[role]
     return oid

@@ -22,11 +22,10 @@ import stat
 from pathlib import Path
 from typing import Any, Callable, Iterator
 
-from artifacts.atomic import fsync_dir, link_into_place, temp_name, write_new_fsynced, write_replace
 from artifacts import writers
+from artifacts.atomic import fsync_dir, link_into_place, temp_name, write_new_fsynced, write_replace
 from artifacts.errors import StoreError, os_error_text, quote, store_os_error
-from artifacts.hashing import (HASH_NAME, ID_LENGTH, canonical_json, copy_hashing, hash_bytes,
-                               hash_file, is_full_id)
+from artifacts.hashing import HASH_NAME, canonical_json, copy_hashing, hash_bytes, hash_file, is_full_id
 
 STORE_FORMAT = 1
 ENV_VAR = "ACCRUE_STORE"
@@ -321,7 +320,7 @@ class _WriteErrors:
 def make_writable_tree(path: Path) -> None:
     """Give the owner write access to the directories (not the files: some may be hard links to
     read-only objects) so a materialised read-only copy can be removed."""
-    for root, dirs, files in os.walk(path):
+    for root, _dirs, _files in os.walk(path):
         os.chmod(root, stat.S_IRWXU)
 
 

@@ -2,6 +2,7 @@
 object, quarantine the corrupt ones, then the quick check sees them as missing); both check the
 audit log's chain against its head and the anchors in attempt records. On a store it cannot
 write, verify reports and quarantines nothing. `repair` seals the log's damage (auditlog.py)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -32,14 +33,23 @@ class VerifyReport:
         return not self.problems
 
     def as_dict(self) -> dict:
-        return {"ok": self.ok, "full": self.full, "objects_checked": self.objects_checked,
-                "bytes_hashed": self.bytes_hashed, "reachable": self.reachable,
-                "log_events": self.log_events, "quarantined": self.quarantined,
-                "problems": self.problems, "notes": self.notes, "repaired": self.repaired}
+        return {
+            "ok": self.ok,
+            "full": self.full,
+            "objects_checked": self.objects_checked,
+            "bytes_hashed": self.bytes_hashed,
+            "reachable": self.reachable,
+            "log_events": self.log_events,
+            "quarantined": self.quarantined,
+            "problems": self.problems,
+            "notes": self.notes,
+            "repaired": self.repaired,
+        }
 
 
-def verify_store(store: Store, full: bool = False, progress: Callable[[int], None] | None = None,
-                 repair: bool = False) -> VerifyReport:
+def verify_store(
+    store: Store, full: bool = False, progress: Callable[[int], None] | None = None, repair: bool = False
+) -> VerifyReport:
     report = VerifyReport(full=full)
     if full:
         _rehash(store, report, progress)
@@ -49,22 +59,29 @@ def verify_store(store: Store, full: bool = False, progress: Callable[[int], Non
         report.objects_checked = len(reach.sizes)
     report.problems += reach.problems
     attempts = list_attempts(store, problems=[])
-    anchors = [(f"attempt {a['cache_key'][:12]}/{a['attempt']:04d} ({a.get('step')})", a["log_anchor"])
-               for a in attempts if isinstance(a.get("log_anchor"), dict)]
+    anchors = [
+        (f"attempt {a['cache_key'][:12]}/{a['attempt']:04d} ({a.get('step')})", a["log_anchor"])
+        for a in attempts
+        if isinstance(a.get("log_anchor"), dict)
+    ]
     has_history = bool(attempts) or (store.refs_dir.is_dir() and any(p.is_file() for p in store.refs_dir.rglob("*")))
     log = check_log(store, anchors, has_history=has_history)
     if repair and log.problems:
         report.repaired = repair_log(store, log)
-        report.notes.append(f"repaired the audit log: sealed {len(log.problems)} problem(s) with a "
-                            f"log-repaired event (seq {report.repaired['seq']})")
+        report.notes.append(
+            f"repaired the audit log: sealed {len(log.problems)} problem(s) with a "
+            f"log-repaired event (seq {report.repaired['seq']})"
+        )
         log = check_log(store, anchors, has_history=has_history)
     report.log_events = log.events
     report.problems += [p.text for p in log.problems]
     report.notes += log.sealed
     for a in attempts:
         if a["state"] == "running":
-            report.notes.append(f"attempt {a['cache_key'][:12]}/{a['attempt']:04d} ({a['step']}) "
-                                f"is marked running by pid {a.get('pid')}")
+            report.notes.append(
+                f"attempt {a['cache_key'][:12]}/{a['attempt']:04d} ({a['step']}) "
+                f"is marked running by pid {a.get('pid')}"
+            )
     return report
 
 
@@ -88,8 +105,9 @@ def _rehash(store: Store, report: VerifyReport, progress: Callable[[int], None] 
                 dest = store.quarantine(oid)
             except OSError as exc:
                 writable = False
-                report.notes.append(f"the store cannot be written ({os_error_text(exc)}): corrupt objects "
-                                    "are reported, not quarantined")
+                report.notes.append(
+                    f"the store cannot be written ({os_error_text(exc)}): corrupt objects are reported, not quarantined"
+                )
             else:
                 report.quarantined.append(oid)
                 report.problems.append(f"object {oid[:12]} is corrupt: moved to {dest.relative_to(store.root)}")

@@ -14,6 +14,7 @@ has written (a test, a library user) converts its own shared lock instead of wai
 and F_GETLK names a holder's pid for the message. Closing any descriptor of the file drops the
 process's lock, so one descriptor per lock file is kept process-wide and reference-counted.
 """
+
 from __future__ import annotations
 
 import errno
@@ -151,8 +152,11 @@ def _acquire_exclusive(fd: int, path: str, wait_s: float) -> None:
             pid, is_gc = _holder_pid(fd)
             who = f"pid {pid}" if pid else "another process"
             if is_gc:
-                raise StoreError(f"the store (gc) is locked by another accrue process ({who}); "
-                                 "try again when it finishes")
-            raise StoreError(f"gc needs the store to itself, but an accrue process ({who}) is using it; "
-                             "run gc when it finishes, or pass --wait SECONDS")
+                raise StoreError(
+                    f"the store (gc) is locked by another accrue process ({who}); try again when it finishes"
+                )
+            raise StoreError(
+                f"gc needs the store to itself, but an accrue process ({who}) is using it; "
+                "run gc when it finishes, or pass --wait SECONDS"
+            )
         time.sleep(min(0.1, max(0.01, deadline - time.monotonic())))

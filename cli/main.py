@@ -3,6 +3,7 @@
 Only typer/rich are imported at module level; every command imports its heavy libraries
 (torch, mujoco, lerobot) inside its body so that `accrue --help` starts fast.
 """
+
 from __future__ import annotations
 
 import os
@@ -71,7 +72,7 @@ def _message(exc: BaseException) -> str | None:
         return None
     lines = [line.strip() for line in text.splitlines() if line.strip()]
     text = " ".join(lines) if len(lines) <= 3 else f"{lines[0]} (and {len(lines) - 1} more lines)"
-    return text if len(text) <= MESSAGE_LIMIT else text[:MESSAGE_LIMIT - 1] + "…"
+    return text if len(text) <= MESSAGE_LIMIT else text[: MESSAGE_LIMIT - 1] + "…"
 
 
 def main() -> None:

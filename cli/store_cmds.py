@@ -2,6 +2,7 @@
 
 Only typer/rich at module level; the store code is imported inside each command.
 """
+
 from __future__ import annotations
 
 import json
@@ -11,9 +12,15 @@ from typing import Annotated, Any, Optional
 
 import typer
 
-StoreOpt = Annotated[Optional[Path], typer.Option(
-    "--store", envvar="ACCRUE_STORE", help="Store directory (default: ./.accrue, or $ACCRUE_STORE).",
-    show_default=False)]
+StoreOpt = Annotated[
+    Optional[Path],
+    typer.Option(
+        "--store",
+        envvar="ACCRUE_STORE",
+        help="Store directory (default: ./.accrue, or $ACCRUE_STORE).",
+        show_default=False,
+    ),
+]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Machine-readable output.")]
 
 
@@ -65,10 +72,13 @@ def init(store: StoreOpt = None, as_json: JsonOpt = False) -> None:
         typer.echo(f"{'initialised empty' if created else 'already an'} accrue store at {st.root}")
 
 
-def add(path: Annotated[Path, typer.Argument(help="File or directory to ingest.", show_default=False)],
-        kind: Annotated[str, typer.Option("--kind", help="Artifact kind, e.g. demos, episodes, base-policy.")],
-        ref: Annotated[Optional[str], typer.Option("--ref", help="Also point this ref at it.")] = None,
-        store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+def add(
+    path: Annotated[Path, typer.Argument(help="File or directory to ingest.", show_default=False)],
+    kind: Annotated[str, typer.Option("--kind", help="Artifact kind, e.g. demos, episodes, base-policy.")],
+    ref: Annotated[Optional[str], typer.Option("--ref", help="Also point this ref at it.")] = None,
+    store: StoreOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
     """Ingest a file or directory (e.g. a LeRobotDataset) and print its id."""
     from artifacts.errors import StoreError
     from artifacts.ingest import add_path
@@ -83,8 +93,11 @@ def add(path: Annotated[Path, typer.Argument(help="File or directory to ingest."
         typer.echo(artifact_id)
 
 
-def show(target: Annotated[str, typer.Argument(metavar="ID_OR_REF", help="Id, id prefix, ref, or REF:role.")],
-         store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+def show(
+    target: Annotated[str, typer.Argument(metavar="ID_OR_REF", help="Id, id prefix, ref, or REF:role.")],
+    store: StoreOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
     """Show an artifact, step record or tree."""
     from rich.table import Table
 
@@ -125,8 +138,9 @@ def show(target: Annotated[str, typer.Argument(metavar="ID_OR_REF", help="Id, id
     out.print(table)
 
 
-def lineage(target: Annotated[str, typer.Argument(metavar="ID_OR_REF")],
-            store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+def lineage(
+    target: Annotated[str, typer.Argument(metavar="ID_OR_REF")], store: StoreOpt = None, as_json: JsonOpt = False
+) -> None:
     """The tree of inputs that produced an artifact or step record, down to demos and seeds."""
     from rich.tree import Tree
 
@@ -143,8 +157,10 @@ def lineage(target: Annotated[str, typer.Argument(metavar="ID_OR_REF")],
     if as_json:
         print_json(node)
     if broken:  # an incomplete lineage is a finding, like verify's: exit 1, after showing what is known
-        typer.echo(f"lineage incomplete: {broken} input{'s' if broken != 1 else ''} cannot be read "
-                   "(run `accrue verify`)", err=True)
+        typer.echo(
+            f"lineage incomplete: {broken} input{'s' if broken != 1 else ''} cannot be read (run `accrue verify`)",
+            err=True,
+        )
     if as_json:
         if broken:
             raise SystemExit(1)
@@ -185,10 +201,13 @@ def _unreadable(node: dict) -> int:
     return sum(bool(child.get("error")) + _unreadable(child) for child in node.get("inputs", {}).values())
 
 
-def log(n: Annotated[int, typer.Option("-n", "--lines", help="Show the last N events.", min=1)] = 20,
-        show_all: Annotated[bool, typer.Option("--all", help="Show every event.")] = False,
-        event: Annotated[Optional[str], typer.Option("--event", help="Only events of this type.")] = None,
-        store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+def log(
+    n: Annotated[int, typer.Option("-n", "--lines", help="Show the last N events.", min=1)] = 20,
+    show_all: Annotated[bool, typer.Option("--all", help="Show every event.")] = False,
+    event: Annotated[Optional[str], typer.Option("--event", help="Only events of this type.")] = None,
+    store: StoreOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
     """The audit log: step started/committed/failed, artifacts written, refs moved."""
     from collections import deque
 
@@ -209,8 +228,13 @@ def log(n: Annotated[int, typer.Option("-n", "--lines", help="Show the last N ev
     skip = {"seq", "ts", "event", "step", "prev", "pid", "host", "cache_key", "inputs", "outputs", "log_format"}
     for e in rows:
         detail = " ".join(f"{k}={_short(v)}" for k, v in e.items() if k not in skip and v is not None)
-        table.add_row(str(e.get("seq")), str(e.get("ts", ""))[:19].replace("T", " "), e.get("event", ""),
-                      e.get("step") or "", detail)
+        table.add_row(
+            str(e.get("seq")),
+            str(e.get("ts", ""))[:19].replace("T", " "),
+            e.get("event", ""),
+            e.get("step") or "",
+            detail,
+        )
     console().print(table)
 
 
@@ -222,8 +246,11 @@ def _short(value: Any) -> str:
     return str(value)
 
 
-def refs(prefix: Annotated[str, typer.Argument(help="Only refs starting with this.")] = "",
-         store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+def refs(
+    prefix: Annotated[str, typer.Argument(help="Only refs starting with this.")] = "",
+    store: StoreOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
     """List refs (mutable names pointing at artifacts and step records)."""
     from rich.table import Table
 
@@ -244,11 +271,27 @@ def refs(prefix: Annotated[str, typer.Argument(help="Only refs starting with thi
     console().print(table)
 
 
-def verify(full: Annotated[bool, typer.Option("--full", help="Re-hash every object (slow), quarantine corrupt ones.")] = False,
-           repair: Annotated[bool, typer.Option("--repair", help="Seal damage found in the audit log (a cut, edited "
-                             "or half-written tail) with a log-repaired event naming it, so writes can go on.")] = False,
-           remote: Annotated[Optional[str], typer.Option("--remote", metavar="NAME", help="Check that remote NAME holds every object its refs reach (with --full: re-hash them).")] = None,
-           store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+def verify(
+    full: Annotated[bool, typer.Option("--full", help="Re-hash every object (slow), quarantine corrupt ones.")] = False,
+    repair: Annotated[
+        bool,
+        typer.Option(
+            "--repair",
+            help="Seal damage found in the audit log (a cut, edited "
+            "or half-written tail) with a log-repaired event naming it, so writes can go on.",
+        ),
+    ] = False,
+    remote: Annotated[
+        Optional[str],
+        typer.Option(
+            "--remote",
+            metavar="NAME",
+            help="Check that remote NAME holds every object its refs reach (with --full: re-hash them).",
+        ),
+    ] = None,
+    store: StoreOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
     """Check the store; exit 1 if anything is wrong."""
     from rich.progress import BarColumn, DownloadColumn, Progress, TransferSpeedColumn
 
@@ -261,8 +304,9 @@ def verify(full: Annotated[bool, typer.Option("--full", help="Re-hash every obje
     st = open_store(store)
     if full and not as_json:
         total = sum(st.object_size(o) or 0 for o in st.iter_object_ids())
-        with Progress("re-hashing", BarColumn(), DownloadColumn(), TransferSpeedColumn(),
-                      console=console(), transient=True) as bar:
+        with Progress(
+            "re-hashing", BarColumn(), DownloadColumn(), TransferSpeedColumn(), console=console(), transient=True
+        ) as bar:
             task = bar.add_task("", total=total)
             report = verify_store(st, full=True, progress=lambda n: bar.advance(task, n), repair=repair)
     else:
@@ -275,36 +319,53 @@ def verify(full: Annotated[bool, typer.Option("--full", help="Re-hash every obje
             out.print(f"[dim]note: {note}[/]")
         for problem in report.problems:
             out.print(f"[red]problem:[/] {problem}")
-        what = f"{report.objects_checked} objects re-hashed ({human_size(report.bytes_hashed)})" if full \
+        what = (
+            f"{report.objects_checked} objects re-hashed ({human_size(report.bytes_hashed)})"
+            if full
             else f"{report.objects_checked} reachable objects present with their sizes"
+        )
         status = "[green]ok[/]" if report.ok else f"[red]{len(report.problems)} problem(s)[/]"
-        out.print(f"verify {'--full' if full else '(quick)'}: {status} — {what}, "
-                  f"{report.log_events} log events chained")
+        out.print(
+            f"verify {'--full' if full else '(quick)'}: {status} — {what}, {report.log_events} log events chained"
+        )
     if not report.ok:
         # SystemExit, not typer.Exit: cli.main runs the app with standalone_mode=False, where click
         # turns typer.Exit into a return value that main() does not pass on.
         raise SystemExit(1)
 
 
-def gc(yes: Annotated[bool, typer.Option("--yes", help="Really delete (default is a dry run).")] = False,
-       grace: Annotated[str, typer.Option("--grace", help="Keep unreferenced objects younger than this.")] = "24h",
-       wait: Annotated[str, typer.Option("--wait", help="Wait this long for running accrue processes to finish "
-                                         "(gc needs the store to itself).")] = "0",
-       store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+def gc(
+    yes: Annotated[bool, typer.Option("--yes", help="Really delete (default is a dry run).")] = False,
+    grace: Annotated[str, typer.Option("--grace", help="Keep unreferenced objects younger than this.")] = "24h",
+    wait: Annotated[
+        str,
+        typer.Option(
+            "--wait", help="Wait this long for running accrue processes to finish (gc needs the store to itself)."
+        ),
+    ] = "0",
+    store: StoreOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
     """Remove objects no ref or record reaches (dry run unless --yes). Runs only while no other
     accrue process writes to the store."""
     from artifacts.gc import collect_garbage
 
-    report = collect_garbage(open_store(store), dry_run=not yes, grace_s=parse_duration(grace, "--grace"),
-                             wait_s=parse_duration(wait, "--wait"))
+    report = collect_garbage(
+        open_store(store),
+        dry_run=not yes,
+        grace_s=parse_duration(grace, "--grace"),
+        wait_s=parse_duration(wait, "--wait"),
+    )
     if as_json:
         print_json(report.as_dict())
         return
     verb = "would remove" if report.dry_run else "removed"
-    typer.echo(f"gc: {verb} {len(report.removed)} objects ({human_size(report.bytes)}) and "
-               f"{len(report.tmp_removed)} stale temp entries; kept {report.kept} reachable and "
-               f"{report.young} younger than {grace}" + ("; pass --yes to delete" if report.dry_run and
-                                                         (report.removed or report.tmp_removed) else ""))
+    typer.echo(
+        f"gc: {verb} {len(report.removed)} objects ({human_size(report.bytes)}) and "
+        f"{len(report.tmp_removed)} stale temp entries; kept {report.kept} reachable and "
+        f"{report.young} younger than {grace}"
+        + ("; pass --yes to delete" if report.dry_run and (report.removed or report.tmp_removed) else "")
+    )
 
 
 def register(app: typer.Typer) -> None:
