@@ -108,7 +108,8 @@ def markdown(report: dict, command: str | None = None, heading_level: int = 3) -
     if report["description"]:
         lines += [report["description"], ""]
     lines += [
-        f"Made by `{command or 'accrue bench report ' + report['spec_file']}`. "
+        f"Cells run by `accrue bench {report['spec_file']}`; this table by "
+        f"`{command or 'accrue bench report ' + report['spec_file']}`. "
         f"{report['cells_done']} of {report['cells_total']} cells done "
         f"({len(report['methods'])} methods × {len(report['orderings'])} orderings × {len(report['seeds'])} seeds); "
         f"seeds {', '.join(map(str, report['seeds']))}; orderings: {orderings}.",

@@ -1,0 +1,166 @@
+"""The bench report and status on a store holding known cell results (written through the runner by
+stand-in steps, so no RL runs): aggregates equal a hand computation, missing cells are listed, never
+dropped, and scripts/bench_tables.py writes the tables into marked README blocks."""
+from __future__ import annotations
+
+import csv
+import io
+import json
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from artifacts.store import Store
+from stages.bench.report import build_report, markdown, write_report
+from stages.bench.spec import load_spec
+from stages.bench.state import cell_states, counts, record_outcome
+from stages.report.data import EVALUATE, SOURCES, TRAIN
+from stages.runner import Runner
+from stages.runner_types import STEP_NAMES, StagePlan, StepDef, StepInvocation
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "scripts"))
+import bench_tables  # noqa: E402
+
+BASE = {"name": "base", "tasks": ["nist/rect_peg", "nist/gear"], "method": "accrue", "horizon": 4,
+        "base_policy": {"init": "scripted-reference:0.0"},
+        "budgets": {"env_steps": 100, "eval_every": 100, "eval_episodes": 10, "num_envs": 2}}
+SPEC = {"name": "known", "base": "base.yaml", "methods": {"accrue": {}, "sequential": {}},
+        "orderings": {"S1": ["nist/rect_peg", "nist/gear"], "S2": ["nist/gear", "nist/rect_peg"]},
+        "seeds": [0, 1]}
+# (method, ordering, seed) -> (stage-1 best, task 1 after stage 2, stage-2 best); None = not finished
+VALUES = {("accrue", "S1", 0): (0.8, 0.7, 0.6), ("accrue", "S1", 1): (0.6, 0.6, 1.0),
+          ("accrue", "S2", 0): (1.0, 0.9, 0.8), ("accrue", "S2", 1): None,              # failed
+          ("sequential", "S1", 0): (0.8, 0.2, 0.6), ("sequential", "S1", 1): (0.8, 0.2, 0.6),
+          ("sequential", "S2", 0): (0.8, 0.2, 0.6), ("sequential", "S2", 1): (0.8, 0.2, 0.6)}
+
+
+def hand_metrics(first: float, kept: float, second: float) -> dict:
+    """Sec. V-A on two stages of grid [0, 100] with curves [0, first] and [0, second] (e* = 1)."""
+    fwt1, fwt2 = first / 2, second / 2
+    return {"FWT": (fwt1 + fwt2) / 2, "NBT": first - kept, "AUC": ((fwt1 + kept) / 2 + fwt2) / 2,
+            "ACC_final": (kept + second) / 2, "F_final": first - kept}
+
+
+def stand_in(name: str, files) -> StepDef:
+    role, filename = SOURCES.get(name, ("out", "out.json"))
+
+    def run(ctx):
+        out = ctx.new_output(role, "eval" if name in SOURCES else "checkpoint")
+        (out / filename).write_text(json.dumps(files(ctx.config)))
+    return StepDef(name=name, code_version="stand-in-1", run=run, outputs={role: "eval" if name in SOURCES else "checkpoint"})
+
+
+def commit_cell(store: Store, cell, values, stages: int | None = None) -> None:
+    first, kept, second = values
+    tasks = cell.tasks
+    rates = {1: {tasks[0]: [0.0, first]}, 2: {tasks[0]: [kept, kept], tasks[1]: [0.0, second]}}
+
+    def files_for(step):
+        def files(config):
+            k = config["stage"]
+            if step == TRAIN:
+                return {"stage": k, "task_ids": tasks[:k], "grid": [0, 100], "success": rates[k], "episodes_per_point": 10}
+            if step == EVALUATE:
+                last = {t: c[-1] for t, c in rates[k].items()}
+                return {"stage": k, "task_ids": tasks[:k], "success": last, "base_success": last, "episodes": 10}
+            return {"stage": k}
+        return files
+
+    runner = Runner(store)
+    for k in range(1, (stages or 2) + 1):
+        steps = tuple(StepInvocation(step=stand_in(s, files_for(s)), config={"cell": cell.name, "stage": k})
+                      for s in STEP_NAMES)
+        runner.run_plan(StagePlan(workflow=cell.name, stage=k, steps=steps))
+
+
+@pytest.fixture
+def bench(tmp_path):
+    (tmp_path / "base.yaml").write_text(yaml.safe_dump(BASE))
+    path = tmp_path / "known.yaml"
+    path.write_text(yaml.safe_dump(SPEC))
+    spec = load_spec(path)
+    store = Store.init(tmp_path / "store")[0]
+    for cell in spec.cells:
+        v = VALUES[(cell.method, cell.ordering, cell.seed)]
+        if v is not None:
+            commit_cell(store, cell, v)
+    failed = spec.cell("accrue", "S2", 1)
+    commit_cell(store, failed, (0.5, 0.5, 0.5), stages=1)         # got through stage 1, then failed
+    record_outcome(store, spec, failed, "failed", tries=2, seconds=3.0, error="step train: boom")
+    return spec, store, path
+
+
+def test_status_from_the_store(bench):
+    spec, store, _ = bench
+    states = cell_states(store, spec)
+    assert counts(states) == {"done": 7, "running": 0, "failed": 1, "partial": 0, "pending": 0}
+    failed = states[spec.cell("accrue", "S2", 1).name]
+    assert failed.error == "step train: boom" and failed.stages_done == 1 and failed.tries == 2
+
+
+def test_aggregates_equal_a_hand_computation(bench):
+    spec, store, _ = bench
+    report, curves = build_report(store, spec)
+    agg = {m["method"]: m for m in report["aggregate"]["methods"]}
+    done = [v for (m, _, _), v in VALUES.items() if m == "accrue" and v is not None]
+    for name in ("FWT", "NBT", "AUC", "ACC_final", "F_final"):
+        want = sum(hand_metrics(*v)[name] for v in done) / len(done)
+        s = agg["accrue"]["metrics"][name]
+        assert s["mean"] == pytest.approx(want) and s["n"] == 3
+        assert s["ci_low"] <= s["mean"] <= s["ci_high"]
+    assert agg["accrue"]["metrics"]["NBT"]["ci_low"] < agg["accrue"]["metrics"]["NBT"]["ci_high"]
+    seq = agg["sequential"]["metrics"]["NBT"]            # four identical runs: a degenerate interval
+    assert seq["mean"] == seq["ci_low"] == seq["ci_high"] == pytest.approx(0.6)
+    s2 = next(o for o in agg["accrue"]["orderings"] if o["ordering"] == "S2")
+    assert s2["seeds"] == [0] and s2["metrics"]["FWT"]["mean"] == pytest.approx(hand_metrics(1.0, 0.9, 0.8)["FWT"])
+    assert [m["cell"] for m in report["missing"]] == [spec.cell("accrue", "S2", 1).name]
+    assert report["missing"][0]["state"] == "failed" and report["missing"][0]["error"] == "step train: boom"
+    assert len(curves["accrue"]) == 3 and curves["accrue"][0][1]["earlier"] == [0.7, 0.7]
+
+
+def test_markdown_csv_and_plots_show_missing_cells(bench, tmp_path):
+    spec, store, _ = bench
+    report, curves = build_report(store, spec)
+    text = markdown(report, command="accrue bench report known.yaml")
+    assert "| accrue | 3 of 4 |" in text and "| sequential | 4 |" in text
+    assert "| accrue | S2 | 0 (1 of 2) |" in text
+    assert "accrue · S2 · seed 1 — failed (stages done: 1): step train: boom" in text
+    assert "seeds 0, 1" in text and "S2 = nist/gear → nist/rect_peg" in text and "4000 resamples" in text
+    files = write_report(report, curves, tmp_path / "out")
+    for path in files.values():
+        assert path and Path(path).stat().st_size > 0
+    rows = list(csv.DictReader(io.StringIO(Path(files["cells_csv"]).read_text())))
+    assert len(rows) == 8 and {r["state"] for r in rows} == {"done", "failed"}
+    failed = next(r for r in rows if r["state"] == "failed")
+    assert failed["NBT"] == "" and failed["error"] == "step train: boom"
+    summary = list(csv.DictReader(io.StringIO(Path(files["summary_csv"]).read_text())))
+    nbt = next(r for r in summary if r["method"] == "accrue" and r["ordering"] == "all" and r["metric"] == "NBT")
+    assert float(nbt["mean"]) == pytest.approx((0.1 + 0.0 + 0.1) / 3) and nbt["n"] == "3"
+    assert json.loads(Path(files["json"]).read_text())["cells_done"] == 7
+
+
+def test_a_method_with_no_finished_run_keeps_its_row(bench, tmp_path):
+    spec, store, path = bench
+    data = yaml.safe_load(path.read_text())
+    data["methods"]["ewc"] = {}
+    path.write_text(yaml.safe_dump(data))
+    report, _ = build_report(store, load_spec(path))
+    assert "| ewc | 0 of 4 | — | — | — | — | — |" in markdown(report)
+    assert sum(m["method"] == "ewc" for m in report["missing"]) == 4
+
+
+def test_bench_tables_script_fills_marked_readme_blocks(bench, tmp_path, capsys):
+    spec, store, path = bench
+    readme = tmp_path / "README.md"
+    readme.write_text("intro\n<!-- bench:known -->\nold table\n<!-- /bench:known -->\noutro\n")
+    assert bench_tables.main([str(path), "--store", str(store.root), "--readme", str(readme)]) == 0
+    text = readme.read_text()
+    assert "old table" not in text and text.startswith("intro\n<!-- bench:known -->\n### bench `known`")
+    assert text.endswith("<!-- /bench:known -->\noutro\n") and "| accrue | 3 of 4 |" in text
+    assert f"python scripts/bench_tables.py {path} --store" in text
+    readme.write_text("no markers\n")
+    assert bench_tables.main([str(path), "--store", str(store.root), "--readme", str(readme)]) == 2
+    assert "no <!-- bench:known -->" in capsys.readouterr().err
