@@ -36,11 +36,6 @@ def subset(obs: dict, rows: np.ndarray) -> dict:
     return {k: v[rows] for k, v in obs.items()}
 
 
-def state_features(obs: dict) -> np.ndarray:
-    """s for state observations with no image encoder: the sim's state vector itself."""
-    return np.asarray(obs["state"], dtype=np.float32)
-
-
 def env_seed(seed: int, stage: int, purpose: str, task_index: int = 0) -> int:
     """Distinct, reproducible env seeds per (workflow seed, stage, purpose) so that warmup, training and
     evaluation never replay each other's episodes; evaluation seeds depend on the task only, so every
@@ -62,7 +57,7 @@ class ChunkStats:
 
 
 class ChunkCollector:
-    """Steps N envs one chunk at a time, writing (s, a, ã, R^(H), s', ã', done, task, episode) to B^k."""
+    """Steps N envs one chunk at a time, writing (s, a, ã, R^(H), s', ã', done, task, episode, ended) to B^k."""
 
     def __init__(self, env, reference: ReferenceFn, features: FeatureFn, buffer, task_index: int,
                  gamma: float, next_episode: int = 0):
@@ -85,9 +80,9 @@ class ChunkCollector:
         a = np.asarray(act(self.s, self.ref, self.fresh), dtype=np.float32)
         res = self.env.step_chunk(a, self.gamma)
         s_next, ref_next = self.features(res.obs), self.reference(res.obs)
-        self.buffer.add(self.s, a, self.ref, res.reward.astype(np.float32), s_next, ref_next,
-                        res.terminated, self.task_index, self.episode_id)
         done = res.terminated | res.truncated
+        self.buffer.add(self.s, a, self.ref, res.reward.astype(np.float32), s_next, ref_next,
+                        res.terminated, self.task_index, self.episode_id, ended=done)
         stats = ChunkStats(env_steps=int(res.steps.sum()), episodes=int(done.sum()),
                            successes=int(res.success[done].sum()))
         if done.any():
@@ -171,8 +166,10 @@ class Evaluator:
 
 
 def actor_act(learner) -> ActFn:
-    """π̄_θ(s, ã): the actor's deterministic output (evaluation, Eq. 3)."""
-    return lambda s, ref, fresh: learner.act(s, ref, explore=False)
+    """π̄ of the actor the method deploys now (RETAIN: the merged actor), fixed at this call: evaluate with
+    a fresh one at every grid point."""
+    actor = learner.deployed_actor()
+    return lambda s, ref, fresh: learner.act_with(actor, s, ref)
 
 
 # ---------------------------------------------------------------------------------------- training
@@ -216,7 +213,7 @@ class LoopState:
 
 
 def train_loop(learner, collector: ChunkCollector, evaluator: Evaluator, settings: LoopSettings,
-               prior=None, teacher=None, state: LoopState | None = None,
+               prior=None, teacher=None, state: LoopState | None = None, fresh_ref=None,
                frozen_acts: dict[str, ActFn] | None = None,
                on_checkpoint: Callable[[LoopState], None] | None = None,
                on_progress: Callable[[LoopState, dict], None] | None = None) -> LoopState:
@@ -228,15 +225,16 @@ def train_loop(learner, collector: ChunkCollector, evaluator: Evaluator, setting
     """
     state = state or LoopState()
     grid, ckpt_points = settings.grid(), settings.checkpoint_points()
-    current = actor_act(learner)
-    acts = {t: (frozen_acts or {}).get(t, current) for t in settings.task_ids}
     started, info = time.monotonic(), {}
 
     def evaluate_due() -> None:
-        """One evaluation on tasks 1..k covers every grid point reached and not yet evaluated."""
+        """One evaluation on tasks 1..k covers every grid point reached and not yet evaluated, each task
+        scored with the actor the method would deploy for it now."""
         due = [g for g in grid if g <= state.env_steps and g not in state.grid_done]
         if not due:
             return
+        deployed = actor_act(learner)
+        acts = {t: (frozen_acts or {}).get(t, deployed) for t in settings.task_ids}
         rates = {t: evaluator.success_rate(t, acts[t]) for t in settings.task_ids}
         for g in due:
             state.grid_done.append(g)
@@ -256,7 +254,7 @@ def train_loop(learner, collector: ChunkCollector, evaluator: Evaluator, setting
         state.episodes += stats.episodes
         state.successes += stats.successes
         # lines 8-9: critic on B^k (Eq. 2), actor on B^k and B^{<k} (Eq. 5): `utd` updates per chunk step
-        info = learner.train_step(collector.buffer, prior, teacher)
+        info = learner.train_step(collector.buffer, prior, teacher, fresh_ref)
         state.updates += learner.cfg.utd
         crossed = [p for p in ckpt_points if p <= state.env_steps and p not in state.checkpoints_done]
         if crossed and state.env_steps < settings.env_steps:

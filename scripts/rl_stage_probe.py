@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from accrue import rl_loop
+from accrue.learner_inputs import state_features
 from accrue.learner import LearnerConfig, ReplayBuffer, make_learner
 from accrue.sim import get_task, make_expert, make_vec_env
 
@@ -68,7 +69,7 @@ def main() -> None:
                  else base_reference(args.base, args.task, H))
     cfg = LearnerConfig.from_dict({"seed": args.seed, **json.loads(args.learner)})
     env = make_vec_env(args.task, args.num_envs, seed=rl_loop.env_seed(args.seed, 1, "train"))
-    features = rl_loop.state_features
+    features = state_features
     buffer = ReplayBuffer(features(env.reset()).shape[1], H)
     learner = make_learner(cfg, buffer.state_dim, H)
     collector = rl_loop.ChunkCollector(env, reference, features, buffer, task_index=0, gamma=cfg.gamma)

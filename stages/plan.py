@@ -7,7 +7,8 @@ Stage k runs, in order (paper Algorithm 1; `record-demos` only when the workflow
 
     record-demos   expert demos D^k of task k                          config: task, seed, quality, expert kind
     finetune-base  π_base^{k-1} (or the workflow's init) + D^1..D^k -> π_base^k
-    cache-teacher  handoff k-1 -> Eq. 3 targets (a "skipped" record at stage 1 / non-distilling methods)
+    cache-teacher  handoff k-1 [+ π_base^k] -> Eq. 3 targets (a "skipped" record at stage 1 / non-distilling
+                   methods; π_base^k's chunks at the retained states with learner.distill_inputs fresh/both)
     warmup         π_base^k on task k -> first shard of B^k
     train          π_base^k, B^k, handoff k-1, targets -> θ^k ψ^k, B^k, learning curve
     evaluate-all   π_base^k + θ^k on tasks 1..k -> row k of the success matrix, MCAP episodes
@@ -122,8 +123,13 @@ def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
     from stages.steps.cache_teacher import skip_reason
 
     distills = skip_reason(k, method, ablation) is None
-    add("cache-teacher", {"stage": k, "method": method, "ablation": ablation, "seed": wf.seed},
-        {"handoff": previous_handoff} if distills else {})
+    teacher_config = {"stage": k, "method": method, "ablation": ablation, "seed": wf.seed}
+    teacher_inputs = {"handoff": previous_handoff} if distills else {}
+    distill_inputs = learner.get("distill_inputs", "stored")
+    if distills and distill_inputs != "stored":   # π_base^k's chunks at the retained states are cached too
+        teacher_config.update(distill_inputs=distill_inputs, task_ids=tasks, encoder=wf.encoder, horizon=wf.horizon)
+        teacher_inputs["base-policy"] = FromStep("finetune-base", "base-policy")
+    add("cache-teacher", teacher_config, teacher_inputs)
 
     env = {"horizon": wf.horizon, "obs_mode": wf.obs_mode, "encoder": wf.encoder, "num_envs": b.num_envs}
     if wf.task_features:      # in the cache key only when used, so workflows without it keep their keys
@@ -149,6 +155,10 @@ def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
         handoff_inputs["handoff"] = previous_handoff
     add("handoff", {"stage": k, "retained_episodes": b.retained_episodes, "method": method, "ablation": ablation,
                     "seed": wf.seed}, handoff_inputs)
+    if wf.robot is not None:   # warmup, train and evaluate-all on a lerobot robot (stages/steps/hw_plan.py)
+        from stages.steps.hw_plan import hardware_steps
+
+        steps = hardware_steps(wf, k, steps)
     return StagePlan(workflow=wf.name, stage=k, steps=tuple(steps))
 
 

@@ -9,13 +9,12 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from accrue.methods import METHODS
 from stages.errors import StageError
-
-METHODS = ("accrue", "sequential", "er", "ewc", "retain", "single-task", "isolated")
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
 
 
@@ -77,6 +76,44 @@ class Budgets(_Strict):
         return self
 
 
+class RobotSpec(_Strict):
+    """A lerobot robot runs warmup, train and evaluate-all (paper Sec. V-C; accrue/robot, stages/steps/hw_*).
+    The fields from `operator` down are session settings: they do not enter any cache key."""
+    type: str                                   # a lerobot RobotConfig registry name, e.g. accrue_sim
+    config: dict[str, Any] = {}                 # that robot config's fields
+    imports: list[str] = []                     # modules registering a third-party robot type
+    state_keys: Optional[list[str]] = None      # observation key per accrue state column (default STATE_NAMES)
+    action_keys: Optional[list[str]] = None     # action key per delta axis (default dx dy dz droll dpitch dyaw)
+    action_limits: Optional[list[float]] = None  # robot units per unit of normalised action, per axis
+    done_key: Optional[str] = None              # observation key > 0.5 when the robot ends an episode itself
+    control_hz: Optional[float] = Field(None, gt=0)     # default: the task's
+    episode_steps: Optional[int] = Field(None, gt=0)    # default: the task's max_steps
+    safety: dict[str, Any] = {}                 # workspace_min_m/max_m [x,y,z], max_speed_m_s, max_force_n, max_torque_nm
+    stop_window: int = Field(20, gt=0)          # the running-success window ...
+    stop_successes: int = Field(19, gt=0)       # ... and the successes in it that end the stage (19/20)
+    budget_s: float = Field(3600.0, gt=0)       # RL robot time per stage (s) when the stop rule is not reached
+    max_episodes: int = Field(1000, gt=0)
+    retention_trials: int = Field(20, ge=0)     # evaluate-all: operator-labelled trials per earlier task
+    checkpoint_every: int = Field(200, gt=0)    # learner updates between sealed learner checkpoints
+    publish_every: int = Field(20, gt=0)        # learner updates between weight snapshots for the actor
+    operator: Literal["terminal", "scripted"] = "terminal"
+    operator_name: str = ""
+    scripted: dict[str, Any] = {}               # scripted operator: delay_s, mistakes [episode], corrects, abort_before
+    learner_address: Optional[str] = None       # host:port of `accrue robot learner` (two hosts); none: local process
+    clock: float = Field(1.0, ge=0)             # accrue_sim only: k times real time (0 = as fast as it goes)
+    faults: dict[str, Any] = {}                 # accrue_sim only: disconnect_after_steps, late_observation_steps...
+    timeouts: dict[str, float] = {}             # connect_s, observation_s, action_s, reconnect_attempts
+
+    @model_validator(mode="after")
+    def _consistent(self) -> "RobotSpec":
+        if self.stop_successes > self.stop_window:
+            raise ValueError(f"stop_successes must be <= stop_window ({self.stop_window}) (got {self.stop_successes})")
+        if self.type != "accrue_sim" and (self.clock != 1.0 or self.faults):
+            raise ValueError("clock and faults apply to the simulated robot (type accrue_sim) only "
+                             f"(got type {self.type!r})")
+        return self
+
+
 class Workflow(_Strict):
     name: str
     description: str = ""
@@ -92,6 +129,7 @@ class Workflow(_Strict):
     base_policy: BasePolicySpec = BasePolicySpec()
     learner: dict[str, Any] = {}                # LearnerConfig fields (accrue.learner.config)
     budgets: Budgets
+    robot: Optional[RobotSpec] = None          # a robot instead of the simulator (hardware steps)
 
     @field_validator("name")
     @classmethod
@@ -208,26 +246,6 @@ def _learner_config_class():
     return module.LearnerConfig
 
 
-def load_workflow(path: Path | str) -> Workflow:
-    import yaml
-
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise StageError(f"{path}: no such workflow file") from None
-    except IsADirectoryError:
-        raise StageError(f"{path}: is a directory, not a workflow file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise StageError(f"{path}: cannot read ({exc.__class__.__name__})") from None
-    try:
-        data = yaml.load(text, Loader=_unique_keys_loader())  # noqa: S506 - a SafeLoader subclass
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise StageError(f"{path}: YAML syntax error at {where}{problem}") from None
-    return parse_workflow(data, str(path), default_name=path.stem)
 def _unique_keys_loader():
     """yaml.SafeLoader that refuses a key given twice in one mapping (safe_load keeps the last)."""
     import yaml
@@ -255,3 +273,23 @@ def _unique_keys_loader():
     return UniqueKeyLoader
 
 
+def load_workflow(path: Path | str) -> Workflow:
+    import yaml
+
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise StageError(f"{path}: no such workflow file") from None
+    except IsADirectoryError:
+        raise StageError(f"{path}: is a directory, not a workflow file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise StageError(f"{path}: cannot read ({exc.__class__.__name__})") from None
+    try:
+        data = yaml.load(text, Loader=_unique_keys_loader())  # noqa: S506 - a SafeLoader subclass
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise StageError(f"{path}: YAML syntax error at {where}{problem}") from None
+    return parse_workflow(data, str(path), default_name=path.stem)

@@ -6,7 +6,8 @@ import torch
 
 from accrue.errors import AccrueError
 from accrue.learner import (Batch, LearnerConfig, ReplayBuffer, begin_stage, compute_teacher_targets, end_stage,
-                            estimate_fisher, make_learner, retain_last_episodes, stage_plan)
+                            estimate_fisher, make_learner, retain_last_episodes)
+from accrue.methods import rules
 
 D, H, A = 6, 2, 3
 SMALL = dict(actor_hidden=[32, 32], critic_hidden=[32], projector_dim=16, batch_size=32, num_atoms=21,
@@ -117,9 +118,9 @@ def test_stage_start_rules():
     with pytest.raises(AccrueError, match="dims"):
         begin_stage(prev, cfg, D + 1, H, A)
 
-    plan = stage_plan("isolated")
+    plan = rules("isolated")
     assert plan.checkpoint_per_task and plan.inherit_actor and not plan.uses_prior_memory
-    assert stage_plan("er").critic_data == "current+prior" and stage_plan("accrue").critic_data == "current"
+    assert rules("er").critic_data == "current+prior" and rules("accrue").critic_data == "current"
 
 
 def test_ewc_fisher_and_penalty_hold_parameters():

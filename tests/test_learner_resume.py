@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from accrue.learner import LearnerConfig, ReplayBuffer, compute_teacher_targets, load_learner, make_learner
-from accrue.learner import retain_last_episodes
+from accrue.learner import retain_last_episodes, save_learner
 
 D, H, A = 6, 2, 3
 
@@ -41,7 +41,7 @@ def test_resume_is_bit_identical(tmp_path, algo):
     a = make_learner(cfg, D, H, A)
     teacher = compute_teacher_targets(a, prior.column("state"), prior.column("ref"), 32)
     run(a, buf, prior, teacher, 3)
-    a.save(tmp_path / "ckpt")
+    save_learner(a, tmp_path / "ckpt")
     uninterrupted = run(a, buf, prior, teacher, 4)
 
     torch.manual_seed(99), np.random.seed(99)          # scramble the globals: the load must restore them

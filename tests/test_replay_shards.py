@@ -6,19 +6,21 @@ import torch
 
 from accrue.errors import AccrueError
 from accrue.learner import ReplayBuffer, retain_last_episodes
+from accrue.learner.replay import complete_episodes
 
 D, H, A = 5, 3, 2
 
 
-def add_rows(buf, n, task, episode, start=0.0, done=None):
+def add_rows(buf, n, task, episode, start=0.0, done=None, ended=None):
     s = torch.arange(n * D, dtype=torch.float32).view(n, D) + start
     chunk = torch.full((n, H, A), start / 100.0)
     done = torch.zeros(n, dtype=torch.bool) if done is None else done
-    buf.add(s, chunk, -chunk, torch.arange(n, dtype=torch.float32) + start, s + 1, chunk * 0.5, done, task, episode)
+    buf.add(s, chunk, -chunk, torch.arange(n, dtype=torch.float32) + start, s + 1, chunk * 0.5, done, task, episode,
+            ended=ended)
 
 
 def same(a: ReplayBuffer, b: ReplayBuffer) -> bool:
-    names = ("state", "action", "ref", "reward", "next_state", "next_ref", "done", "task", "episode")
+    names = ("state", "action", "ref", "reward", "next_state", "next_ref", "done", "task", "episode", "ended")
     return len(a) == len(b) and all(torch.equal(a.column(k), b.column(k)) for k in names)
 
 
@@ -68,18 +70,52 @@ def test_sampling_is_deterministic_under_a_generator():
         ReplayBuffer(D, H, A).sample(1, torch.Generator())
 
 
-def test_retain_last_episodes_per_task():
+def test_retain_keeps_the_last_complete_episodes_never_fragments():
     buf = ReplayBuffer(D, H, A)
-    # task 0: episodes 0..3 with 2 chunks each, interleaved like parallel envs; task 1: episodes 7, 8
-    for step in range(2):
-        for ep in range(4):
-            add_rows(buf, 1, 0, ep, start=100 * ep + step)
-    add_rows(buf, 2, 1, torch.tensor([7, 8]), start=900.0)
+    # task 0: episodes 0..3 with 2 chunks each, interleaved like parallel envs. Episodes 0-2 end in their
+    # second chunk (episode 1 first, then 0, then 2: success and time limit alike); episode 3 is a fragment
+    # cut by the budget. Task 1: episode 7 ends, episode 8 is a fragment.
+    for ep in range(4):
+        add_rows(buf, 1, 0, ep, start=100 * ep)
+    for ep in (1, 0, 2, 3):
+        add_rows(buf, 1, 0, ep, start=100 * ep + 1, ended=torch.tensor([ep != 3]))
+    add_rows(buf, 2, 1, torch.tensor([7, 8]), start=900.0, ended=torch.tensor([True, False]))
     kept = retain_last_episodes(buf, 2)
     pairs = list(zip(kept.column("task").tolist(), kept.column("episode").tolist()))
-    assert pairs == [(0, 2), (0, 3), (0, 2), (0, 3), (1, 7), (1, 8)]   # original order kept
+    # the last two episodes to END are 0 and 2 (whole, in original row order); the fragments never count,
+    # even though they were stored last; task 1 has one complete episode and keeps just it
+    assert pairs == [(0, 0), (0, 2), (0, 0), (0, 2), (1, 7)]
+    assert complete_episodes(buf) == {0: [1, 0, 2], 1: [7]}
     assert len(retain_last_episodes(buf, 0)) == 0
-    assert len(retain_last_episodes(buf, 10)) == len(buf)
+    assert sorted(set(retain_last_episodes(buf, 10).column("episode").tolist())) == [0, 1, 2, 7]
+
+
+def test_retained_memory_of_a_checkpointed_vec_env_run_holds_only_whole_episodes():
+    """64-env shape of the old bug: every env's episode still running at the budget's end was stored last."""
+    from accrue import rl_loop
+    from accrue.learner_inputs import state_features
+    from accrue.sim import make_vec_env
+    from accrue.sim.observation import IDX
+
+    env = make_vec_env("nist/rect_peg", num_envs=4, seed=3)
+    buf = ReplayBuffer(env.reset()["state"].shape[1], 2, 6)
+    collector = rl_loop.ChunkCollector(env, lambda obs: torch.zeros(len(obs["state"]), 2, 6).numpy(),
+                                       state_features, buf, task_index=0, gamma=0.99)
+    collector.restart()
+    for _ in range(60):       # 60 chunks x 2 steps: several whole episodes per env, then a cut
+        collector.step(rl_loop.execute_reference)
+    env.close()
+    kept = retain_last_episodes(buf, 3)
+    ended = kept.column("ended")
+    episodes = kept.column("episode")
+    assert len(set(episodes.tolist())) == 3
+    time_frac = kept.column("state")[:, IDX["time_frac"]]
+    for e in set(episodes.tolist()):          # each kept episode is whole: starts at step 0, ends at its last row
+        rows = (episodes == e).nonzero().flatten()
+        assert float(time_frac[rows[0]]) == 0.0
+        assert int(ended[rows].sum()) == 1 and bool(ended[rows[-1]])
+    in_flight = set(collector.episode_id.tolist())
+    assert not in_flight & set(episodes.tolist())
 
 
 def test_n_step_returns_follow_the_episode():

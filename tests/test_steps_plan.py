@@ -118,3 +118,24 @@ def test_shipped_workflows_load_and_plan(store, name):
         assert wf.horizon == 16 and wf.budgets.env_steps == 500_000 and wf.budgets.num_envs == 64
         assert wf.budgets.retained_episodes == (100 if name == "nist" else 50)
         assert wf.learner["algo"] == "fastsac"
+
+
+def test_fresh_distillation_caches_the_current_base_policy_chunks(store):
+    steps = by_name(plan_stage(workflow(learner={"distill_inputs": "fresh"}), 2, store))
+    teacher = steps["cache-teacher"]
+    assert teacher.inputs["base-policy"] == FromStep("finetune-base", "base-policy")
+    assert teacher.config["distill_inputs"] == "fresh" and teacher.config["task_ids"] == ["nist/rect_peg",
+                                                                                        "nist/round_peg"]
+    stored = by_name(plan_stage(workflow(), 2, store))["cache-teacher"]
+    assert "base-policy" not in stored.inputs and "distill_inputs" not in stored.config
+
+
+@pytest.mark.parametrize("method, ablation", [("accrue", "none"), ("accrue", "no-reference"), ("sequential", "none"),
+                                              ("er", "none"), ("single-task", "none"), ("isolated", "none")])
+def test_every_method_sees_the_same_learner_state(store, method, ablation):
+    """s = (E(I), q, e(ℓ)) is set by the workflow, never by the method: warmup, train and evaluate-all of
+    every method and ablation read the same encoder and task features."""
+    wf = workflow(method=method, task_features=32, learner={"ablation": ablation} if ablation != "none" else {})
+    steps = by_name(plan_stage(wf, 2, store))
+    for name in ("warmup", "train", "evaluate-all"):
+        assert steps[name].config["task_features"] == 32 and steps[name].config["encoder"] == "none"

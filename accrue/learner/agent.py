@@ -14,6 +14,7 @@ All randomness of the learner (sampling, reference dropout, exploration and poli
 from __future__ import annotations
 
 import contextlib
+import copy
 
 import numpy as np
 import torch
@@ -31,6 +32,7 @@ class ChunkLearner:
 
     def __init__(self, cfg: LearnerConfig, state_dim: int, horizon: int, action_dim: int = 6):
         self.cfg, self.state_dim, self.horizon, self.action_dim = cfg, state_dim, horizon, action_dim
+        self.rules = cfg.rules                   # the continual method's rules (accrue.methods)
         self.device = torch.device(cfg.device)
         if self.device.type == "cuda" and not torch.cuda.is_available():
             raise AccrueError("learner.device: CUDA requested but no GPU is available")
@@ -64,7 +66,8 @@ class ChunkLearner:
         c = self.cfg
         return dict(state_dim=self.state_dim, horizon=self.horizon, action_dim=self.action_dim,
                     hidden=c.actor_hidden, projector_dim=c.projector_dim, layer_norm=c.layer_norm,
-                    residual=c.actor_residual, init_scale=c.actor_init_scale, obs_normalization=c.obs_normalization)
+                    residual=c.actor_residual, init_scale=c.actor_init_scale, obs_normalization=c.obs_normalization,
+                    obs_norm_min_std=c.obs_norm_min_std, obs_norm_clip=c.obs_norm_clip)
 
     def _make_actor(self) -> Actor:
         return Actor(**self._actor_kwargs())
@@ -91,9 +94,21 @@ class ChunkLearner:
         return contextlib.nullcontext()
 
     # ---- acting -------------------------------------------------------------------------------
-    def _actor_ref(self, ref: torch.Tensor) -> torch.Tensor:
-        """ã as the actor sees it: zeros in the `no-reference` ablation (π_θ(s) instead of π_θ(s, ã))."""
-        return torch.zeros_like(ref) if self.cfg.ablation == "no-reference" else ref
+    def _ref_in(self, ref: torch.Tensor) -> torch.Tensor:
+        """ã as actor and critic see it: zeros in the no-reference ablation (π_θ(s), Q_ψ(s, a) instead of
+        π_θ(s, ã), Q_ψ(s, a, ã))."""
+        return ref if self.rules.use_reference else torch.zeros_like(ref)
+
+    _actor_ref = _ref_in   # the Eq. 3 teacher reads ã through the same rule
+
+    def deployed_actor(self) -> Actor:
+        """The actor the method would deploy if the stage ended now: RETAIN's discounted interpolation
+        (1−α)·θ_prev + α·θ (a copy; the training actor is untouched), the actor itself otherwise."""
+        if not (self.rules.merge and self.retain_prev):
+            return self.actor
+        merged = copy.deepcopy(self.actor)
+        interpolate_into(merged, self.retain_prev, self.cfg.retain_alpha)
+        return merged
 
     @torch.no_grad()
     def act(self, state, ref, explore: bool = True, reset_mask=None):
@@ -107,18 +122,23 @@ class ChunkLearner:
         s = torch.as_tensor(state, dtype=torch.float32, device=self.device)
         r = torch.as_tensor(ref, dtype=torch.float32, device=self.device).view(-1, self.horizon, self.action_dim)
         with self._autocast():
-            a = self._explore(s, self._actor_ref(r), reset_mask) if explore else \
-                self.actor.deterministic(s, self._actor_ref(r))
+            a = self._explore(s, self._ref_in(r), reset_mask) if explore else \
+                self.actor.deterministic(s, self._ref_in(r))
         a = a.float()
         return a.cpu().numpy() if as_numpy else a
+
+    @torch.no_grad()
+    def act_with(self, actor: Actor, state: np.ndarray, ref: np.ndarray) -> np.ndarray:
+        """π̄ of a given actor module (e.g. deployed_actor()) under this learner's input rules."""
+        s = torch.as_tensor(state, dtype=torch.float32, device=self.device)
+        r = torch.as_tensor(ref, dtype=torch.float32, device=self.device).view(-1, self.horizon, self.action_dim)
+        with self._autocast():
+            return actor.deterministic(s, self._ref_in(r)).float().cpu().numpy()
 
     def _explore(self, s, ref, reset_mask):
         raise NotImplementedError
 
     # ---- one gradient update ----------------------------------------------------------------
-    def _uses_prior_for_critic(self) -> bool:
-        return self.cfg.method == "er" or self.cfg.ablation == "critic-all-replay"
-
     def _dropout_keep(self, n: int) -> torch.Tensor:
         """(n, 1, 1) mask: 0 for the fraction p of rows whose ã is replaced by zeros (both networks)."""
         keep = torch.rand(n, generator=self.gen, device=self.device) >= self.cfg.ref_dropout
@@ -138,17 +158,16 @@ class ChunkLearner:
         cfg = self.cfg
         if prior is not None and len(prior) == 0:
             prior = None
-        critic_batch = Batch.cat(current, prior) if (prior is not None and self._uses_prior_for_critic()) \
+        critic_batch = Batch.cat(current, prior) if (prior is not None and self.rules.critic_on_prior) \
             else current
         info = self._critic_update(critic_batch)
         self.counters["updates"] += 1
         if self.counters["updates"] % cfg.policy_frequency == 0:
             info.update(self._actor_update(current, prior))
             self.counters["actor_updates"] += 1
-            if cfg.method == "retain" and cfg.retain_interval and \
+            if self.rules.merge and cfg.retain_interval and \
                     self.counters["actor_updates"] % cfg.retain_interval == 0:
-                from accrue.learner.continual import retain_merge
-                retain_merge(self)
+                self.merge_actor()
         # Polyak averaging of the target critic ψ' ← (1 − τ)ψ' + τψ
         torch._foreach_lerp_(list(self.critic_target.parameters()), list(self.critic.parameters()), cfg.tau)
         return info
@@ -167,32 +186,33 @@ class ChunkLearner:
         return {"critic_loss": loss.detach(), "q_mean": q_mean}
 
     def _critic_loss(self, s, a, ref, reward, s_next, ref_next, discount, keep, noise):
-        """Cross-entropy of Q_ψ(s, a, ã) to the projected Eq. 2 target."""
+        """Cross-entropy of Q_ψ(s, a, ã) to the projected Eq. 2 target. Reference dropout zeroes ã (and ã')
+        for the same rows in both networks."""
         norm = self.actor.obs_norm
+        ref_next_in, ref_in = self._ref_in(ref_next * keep), self._ref_in(ref * keep)
         with torch.no_grad():
-            a_next, bonus = self._next_action(s_next, self._actor_ref(ref_next * keep), noise)
-            next_logits = self.critic_target(norm(s_next), a_next, ref_next * keep)
+            a_next, bonus = self._next_action(s_next, ref_next_in, noise)
+            next_logits = self.critic_target(norm(s_next), a_next, ref_next_in)
             target = losses.td_target(next_logits.float(), reward, discount, self.support, self.cfg.use_cdq, bonus)
-        logits = self.critic(norm(s), a, ref * keep).float()
+        logits = self.critic(norm(s), a, ref_in).float()
         q_mean = expected_value(torch.softmax(logits.detach(), -1), self.support).mean()
         return losses.critic_loss(logits, target), q_mean
 
     def _actor_update(self, cur: Batch, prior: Batch | None) -> dict[str, float]:
         cfg = self.cfg
-        rl = Batch.cat(cur, prior) if (prior is not None and cfg.method == "er") else cur
-        distill = cfg.method == "accrue" and prior is not None
+        rl = Batch.cat(cur, prior) if (prior is not None and self.rules.actor_rl_on_prior) else cur
+        distill = self.rules.distill and prior is not None
         if distill and prior.teacher is None:
             raise AccrueError("ACCRUE needs cached teacher targets on the prior batch (Batch.with_teacher)")
+        student_s, student_ref, targets = self._distill_inputs(prior) if distill else (None, None, None)
         keep = self._dropout_keep(len(rl))
         eps = self._policy_eps(len(rl))
         self.critic.requires_grad_(False)     # the actor loss only moves θ
         with self._autocast():
-            out = self._actor_loss_fn(rl.state, rl.ref, keep, eps,
-                                      prior.state if distill else None, prior.ref if distill else None,
-                                      prior.teacher if distill else None)
+            out = self._actor_loss_fn(rl.state, rl.ref, keep, eps, student_s, student_ref, targets)
         self.critic.requires_grad_(True)
         loss = out["actor_loss"]
-        if cfg.method == "ewc" and self.ewc_fisher:
+        if self.rules.ewc_penalty and self.ewc_fisher:
             params = dict(self.actor.named_parameters())
             out["ewc_penalty"] = losses.ewc_penalty(params, self.ewc_anchor, self.ewc_fisher)
             loss = loss + cfg.ewc_lambda * out["ewc_penalty"]
@@ -205,15 +225,29 @@ class ChunkLearner:
         info.update(self._after_actor_step(out.get("_log_prob")))
         return info
 
+    def _distill_inputs(self, prior: Batch):
+        """Eq. 4's student inputs and targets. `stored` (the paper): π_θ(s_j, ã_j) → â_j. `fresh`: the current
+        base policy's chunk ã'_j at s_j replaces ã_j (reference shift after re-fine-tuning), same target
+        â_j = π̄_{θ^{k-1}}(s_j, ã_j). `both`: the two sets of rows together."""
+        mode = self.cfg.distill_inputs
+        if mode == "stored":
+            return prior.state, prior.ref, prior.teacher
+        if prior.fresh_ref is None:
+            raise AccrueError(f"learner.distill_inputs {mode}: the prior batch has no fresh reference chunks")
+        if mode == "fresh":
+            return prior.state, prior.fresh_ref, prior.teacher
+        return (torch.cat([prior.state, prior.state], 0), torch.cat([prior.ref, prior.fresh_ref], 0),
+                torch.cat([prior.teacher, prior.teacher], 0))
+
     def _actor_loss(self, s, ref, keep, eps, prior_s, prior_ref, prior_teacher):
         """Eq. 5 = Eq. 1 on the current batch + λ · Eq. 4 on the prior batch (one actor forward for both)."""
         n = s.shape[0]
-        ref_in = ref * keep
+        ref_in = self._ref_in(ref * keep)
         if prior_s is not None:   # batch the student's prior inputs with the current ones
             s_all = torch.cat([s, prior_s], 0)
-            ref_all = torch.cat([self._actor_ref(ref_in), self._actor_ref(prior_ref)], 0)
+            ref_all = torch.cat([ref_in, self._ref_in(prior_ref)], 0)
         else:
-            s_all, ref_all = s, self._actor_ref(ref_in)
+            s_all, ref_all = s, ref_in
         a, log_prob, a_det = self._policy_outputs(s_all, ref_all, n, eps)
         logits = self.critic(self.actor.obs_norm(s), a, ref_in).float()
         q = self._actor_q(expected_value(torch.softmax(logits, -1), self.support))
@@ -258,9 +292,10 @@ class ChunkLearner:
         return buffer.sample(n, self.gen, self.cfg.n_step, self.cfg.gamma)
 
     def train_step(self, buffer: ReplayBuffer, prior: ReplayBuffer | None = None,
-                   teacher: torch.Tensor | None = None) -> dict[str, float]:
+                   teacher: torch.Tensor | None = None, fresh_ref: torch.Tensor | None = None) -> dict[str, float]:
         """`utd` updates, each on a fresh current minibatch and (1:1) a prior minibatch when a prior memory
-        is in use by the method. Returns the mean of each reported figure."""
+        is in use by the method. `teacher` (and `fresh_ref` for distill_inputs fresh/both) are indexed like
+        the prior memory's rows. Returns the mean of each reported figure."""
         use_prior = prior is not None and len(prior) > 0 and self.uses_prior_memory
         sums: dict[str, torch.Tensor] = {}   # tensors until the end: one device sync per train_step
         counts: dict[str, int] = {}
@@ -272,11 +307,11 @@ class ChunkLearner:
             pri = None
             if use_prior:
                 pri = self.sample(prior, self.cfg.batch_size).to_device(self.device)
-                if self.cfg.method == "accrue":
+                if self.rules.distill:
                     if teacher is None:
                         raise AccrueError("ACCRUE needs teacher targets for the prior memory "
                                           "(compute_teacher_targets at stage start)")
-                    pri = pri.with_teacher(teacher)
+                    pri = pri.with_teacher(teacher, fresh_ref)
             for k, v in self._update(cur, pri).items():
                 sums[k] = sums.get(k, 0.0) + v
                 counts[k] = counts.get(k, 0) + 1
@@ -284,18 +319,19 @@ class ChunkLearner:
 
     @property
     def uses_prior_memory(self) -> bool:
-        return self.cfg.method in ("accrue", "er")
+        return self.rules.uses_prior_memory
 
-    # ---- whole training state (state.py does the work) --------------------------------------
-    def state_dict(self) -> dict:
-        from accrue.learner.state import training_state
-        tensors, meta = training_state(self)
-        return {"tensors": tensors, "meta": meta}
+    @torch.no_grad()
+    def merge_actor(self) -> None:
+        """RETAIN: θ ← (1 − α)·θ_prev + α·θ in place (nothing to merge before a previous actor exists)."""
+        if not self.retain_prev:
+            return
+        interpolate_into(self.actor, self.retain_prev, self.cfg.retain_alpha)
+        self.counters["merges"] += 1
 
-    def load_state_dict(self, state: dict) -> None:
-        from accrue.learner.state import load_training_state_into
-        load_training_state_into(self, state["tensors"], state["meta"])
 
-    def save(self, directory) -> None:
-        from accrue.learner.state import save_learner
-        save_learner(self, directory)
+@torch.no_grad()
+def interpolate_into(actor: Actor, previous: dict[str, torch.Tensor], alpha: float) -> None:
+    """θ ← (1 − α)·θ_prev + α·θ for every parameter of `actor` (RETAIN's weight interpolation)."""
+    for name, p in actor.named_parameters():
+        p.copy_((1 - alpha) * previous[name] + alpha * p)

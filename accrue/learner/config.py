@@ -14,11 +14,15 @@ from dataclasses import dataclass, field
 
 from accrue.errors import AccrueError
 
+from accrue.methods import ABLATIONS, METHODS, MethodRules, rules
+
 ALGOS = ("fasttd3", "fastsac")
-# The continual rule (paper Sec. V-A baselines + ACCRUE itself).
-METHODS = ("accrue", "sequential", "er", "ewc", "retain", "single-task", "isolated")
-# The paper's ablations of ACCRUE (Table IV).
-ABLATIONS = ("none", "no-reference", "beta0", "reset-critic", "critic-all-replay")
+# Eq. 4's student inputs: the stored (s_j, ã_j) as written (the paper), the current base policy's fresh
+# chunk at s_j, or both (accrue's option against reference shift; see docs/DEPARTURES.md)
+DISTILL_INPUTS = ("stored", "fresh", "both")
+# When the observation normaliser's statistics move: during the learner's first stage only (then frozen,
+# so teacher, student, EWC anchor and RETAIN's θ_prev read s through one fixed map), or every stage
+OBS_NORM_UPDATES = ("first-stage", "every-stage")
 
 
 @dataclass
@@ -55,6 +59,9 @@ class LearnerConfig:
     weight_decay: float = 0.1          # AdamW
     max_grad_norm: float = 0.0         # 0 = no clipping
     obs_normalization: bool = True     # running mean/std of s, part of the saved state
+    obs_norm_update: str = "first-stage"   # one of OBS_NORM_UPDATES ("every-stage" = before issue 10)
+    obs_norm_min_std: float = 0.1      # std floor: a column constant so far (a task code) cannot blow up
+    obs_norm_clip: float = 10.0        # |z| clip after normalising (0 = none)
 
     # exploration
     std_min: float = 0.001             # FastTD3: per-env noise std drawn in [std_min, std_max]
@@ -70,6 +77,7 @@ class LearnerConfig:
     # losses and continual rule (Eqs. 1, 4, 5)
     beta: float = 0.1                  # Eq. 1 anchor β‖a − ã‖²
     lam: float = 1.0                   # Eq. 5 distillation weight λ
+    distill_inputs: str = "stored"     # one of DISTILL_INPUTS; "stored" is Eq. 3-4 as written
     ewc_lambda: float = 100.0          # EWC penalty weight
     ewc_samples: int = 1024            # transitions used to estimate the Fisher at handoff
     retain_alpha: float = 0.5          # RETAIN: θ ← (1−α)·θ_prev + α·θ_cur
@@ -116,8 +124,9 @@ class LearnerConfig:
         def bad(name: str, why: str) -> AccrueError:
             return AccrueError(f"learner.{name}: {why} (got {reprlib.repr(getattr(self, name))})")  # bounded
 
-        for name in ("algo", "method", "ablation"):
-            allowed = {"algo": ALGOS, "method": METHODS, "ablation": ABLATIONS}[name]
+        for name in ("algo", "method", "ablation", "distill_inputs", "obs_norm_update"):
+            allowed = {"algo": ALGOS, "method": METHODS, "ablation": ABLATIONS, "distill_inputs": DISTILL_INPUTS,
+                       "obs_norm_update": OBS_NORM_UPDATES}[name]
             if getattr(self, name) not in allowed:
                 raise bad(name, f"must be one of {', '.join(allowed)}")
         if self.ablation != "none" and self.method != "accrue":
@@ -145,7 +154,7 @@ class LearnerConfig:
         floats = ("v_min", "v_max", "gamma", "tau", "actor_lr", "critic_lr", "weight_decay", "max_grad_norm",
                   "std_min", "std_max", "policy_noise", "noise_clip", "alpha_init", "alpha_lr",
                   "target_entropy_per_dim", "log_std_min", "log_std_max", "beta", "lam", "ewc_lambda",
-                  "retain_alpha", "ref_dropout", "actor_init_scale")
+                  "retain_alpha", "ref_dropout", "actor_init_scale", "obs_norm_min_std", "obs_norm_clip")
         for name in floats:
             v = getattr(self, name)
             if isinstance(v, str):      # PyYAML reads "1e-3" (no dot) as a string
@@ -170,7 +179,7 @@ class LearnerConfig:
             if getattr(self, name) <= 0:
                 raise bad(name, "must be positive")
         for name in ("weight_decay", "max_grad_norm", "std_min", "policy_noise", "noise_clip", "beta", "lam",
-                     "ewc_lambda"):
+                     "ewc_lambda", "obs_norm_min_std", "obs_norm_clip"):
             if getattr(self, name) < 0:
                 raise bad(name, "must be non-negative")
         if self.std_max < self.std_min:
@@ -187,5 +196,10 @@ class LearnerConfig:
 
     # ---- derived rules -------------------------------------------------------------------
     @property
+    def rules(self) -> MethodRules:
+        """The continual method's rules with the ablation applied (accrue.methods)."""
+        return rules(self.method, self.ablation)
+
+    @property
     def effective_beta(self) -> float:
-        return 0.0 if self.ablation == "beta0" else self.beta
+        return 0.0 if self.rules.zero_beta else self.beta

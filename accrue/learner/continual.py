@@ -1,29 +1,23 @@
-"""The continual rules: what a stage inherits, ACCRUE's cached teacher targets (Eq. 3), EWC, RETAIN.
+"""Stage boundaries of the continual methods: what a stage inherits (Algorithm 1 line 1), ACCRUE's cached
+teacher targets (Eq. 3), EWC's Fisher, and what a stage hands over (RETAIN's merge, the normaliser freeze).
 
-Stage flow the `train` step drives (Algorithm 1):
-    learner = begin_stage(prev_learner_or_None, cfg, state_dim, H, fisher_batch=...)   # line 1
-    teacher = compute_teacher_targets(prev_learner, prior.column("state"), prior.column("ref"), 1024)  # line 2
-    ... collect warmup, then per chunk env step: learner.train_step(buffer, prior, teacher)          # 3–10
-    end_stage(learner)                                             # RETAIN merge; handoff = learner + memory
-    memory = retain_last_episodes(ReplayBuffer.concat([prior, buffer]), N)                             # 11
-
-What each method inherits at stage start (see `stage_plan`):
+Each method's rules are one row of `accrue.methods.METHOD_RULES`; this module only applies them:
     accrue, sequential, er, ewc, retain, isolated — actor, critic, target critic and the observation
         normaliser come from the previous stage; optimiser moments, the SAC temperature and the update
         counters start afresh (a new task's gradients have a new scale); the learner's RNG continues.
     single-task — everything fresh (seed cfg.seed + stage), prior memory unused.
     ablation reset-critic — like accrue, but the critic (and its target) is re-initialised.
-    isolated — like sequential; additionally the caller keeps the stage's checkpoint for its own task
-        and evaluates task i with checkpoint i (`StagePlan.checkpoint_per_task`).
+    isolated — like sequential; the caller keeps each stage's learner for its own task.
 EWC — Fisher of the previous actor estimated on the previous stage's data (`fisher_batch`) at handoff,
     summed over finished stages; anchor θ* = previous stage's actor.
-RETAIN — θ ← (1 − α)·θ_prev + α·θ_cur with θ_prev the actor at stage start: at `end_stage`, and also every
-    `retain_interval` actor updates when that is > 0 (the discounted interpolation of the paper's baseline).
+RETAIN — θ ← (1 − α)·θ_prev + α·θ with θ_prev the actor at stage start (the merged θ^{k-1}, so stage i's
+    weights are discounted by (1 − α)^{k−i}): what is deployed and evaluated at every grid point
+    (`ChunkLearner.deployed_actor`), merged in place at `end_stage`, and every `retain_interval` actor
+    updates when that is > 0.
 """
 from __future__ import annotations
 
 import copy
-from dataclasses import dataclass
 
 import torch
 
@@ -32,34 +26,6 @@ from accrue.learner.agent import ChunkLearner
 from accrue.learner.config import LearnerConfig
 from accrue.learner.networks import Actor
 from accrue.learner.replay import Batch
-
-
-@dataclass(frozen=True)
-class StagePlan:
-    inherit_actor: bool
-    inherit_critic: bool
-    critic_data: str              # "current" or "current+prior"
-    actor_rl_data: str            # data of the Eq. 1 objective: "current" or "current+prior"
-    distill: bool                 # Eq. 4 on the prior memory with cached Eq. 3 targets
-    uses_prior_memory: bool
-    needs_fisher: bool
-    merge_at_end: bool
-    checkpoint_per_task: bool
-
-
-def stage_plan(method: str, ablation: str = "none") -> StagePlan:
-    fresh = method == "single-task"
-    return StagePlan(
-        inherit_actor=not fresh,
-        inherit_critic=not fresh and ablation != "reset-critic",
-        critic_data="current+prior" if method == "er" or ablation == "critic-all-replay" else "current",
-        actor_rl_data="current+prior" if method == "er" else "current",
-        distill=method == "accrue",
-        uses_prior_memory=method in ("accrue", "er"),
-        needs_fisher=method == "ewc",
-        merge_at_end=method == "retain",
-        checkpoint_per_task=method == "isolated",
-    )
 
 
 def make_learner(cfg: LearnerConfig, state_dim: int, horizon: int, action_dim: int = 6) -> ChunkLearner:
@@ -79,7 +45,7 @@ def begin_stage(prev: ChunkLearner | None, cfg: LearnerConfig, state_dim: int, h
         raise AccrueError(f"begin_stage: previous learner has state/chunk dims "
                           f"{(prev.state_dim, prev.horizon, prev.action_dim)}, this stage needs "
                           f"{(state_dim, horizon, action_dim)}")
-    plan = stage_plan(cfg.method, cfg.ablation)
+    plan = cfg.rules
     stage = prev.stage + 1
     if not plan.inherit_actor:
         learner = make_learner(cfg.replace(seed=cfg.seed + stage), state_dim, horizon, action_dim)
@@ -98,38 +64,30 @@ def begin_stage(prev: ChunkLearner | None, cfg: LearnerConfig, state_dim: int, h
             learner.critic = learner._make_critic().to(learner.device)
         learner.critic_target.load_state_dict(learner.critic.state_dict())
     learner.reset_optimizers()   # optimisers must point at the (possibly new) parameters
-    if plan.needs_fisher:
+    if plan.ewc_penalty:
         if fisher_batch is None:
             raise AccrueError("method ewc: begin_stage needs fisher_batch (previous stage's transitions)")
         fisher = estimate_fisher(prev.actor, fisher_batch, generator=learner.gen)
         learner.ewc_fisher = {k: fisher[k] + prev.ewc_fisher.get(k, 0.0) for k in fisher}
         learner.ewc_anchor = {k: v.detach().clone() for k, v in prev.actor.named_parameters()}
-    if plan.merge_at_end:
+    if plan.merge:
         learner.retain_prev = {k: v.detach().clone() for k, v in learner.actor.named_parameters()}
     return learner
 
 
 def end_stage(learner: ChunkLearner) -> ChunkLearner:
-    """The stage's handoff (θ^k, ψ^k): RETAIN merges its actor here; the other methods hand over as is."""
-    if stage_plan(learner.cfg.method, learner.cfg.ablation).merge_at_end:
-        retain_merge(learner)
+    """The stage's handoff (θ^k, ψ^k): RETAIN merges its actor; with obs_norm_update "first-stage" the
+    normaliser's statistics are frozen from here on (the learner's later stages read s through one map)."""
+    if learner.rules.merge:
+        learner.merge_actor()
+    if learner.cfg.obs_norm_update == "first-stage":
+        learner.actor.obs_norm.freeze()
     return learner
-
-
-@torch.no_grad()
-def retain_merge(learner: ChunkLearner) -> None:
-    """RETAIN: θ ← (1 − α)·θ_prev + α·θ_cur (θ_prev = actor at stage start; nothing to merge at stage 1)."""
-    if not learner.retain_prev:
-        return
-    alpha = learner.cfg.retain_alpha
-    for name, p in learner.actor.named_parameters():
-        p.copy_((1 - alpha) * learner.retain_prev[name] + alpha * p)
-    learner.counters["merges"] += 1
 
 
 def _as_actor(actor) -> tuple[Actor, callable]:
     if isinstance(actor, ChunkLearner):
-        return actor.actor, actor._actor_ref
+        return actor.actor, actor._ref_in
     return actor, (lambda ref: ref)
 
 

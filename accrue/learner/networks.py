@@ -23,18 +23,27 @@ _ATANH_CLIP = 1.0 - 1e-4   # atanh(±1) is infinite; references at the bound map
 
 class RunningNorm(nn.Module):
     """Running mean/std of s (parallel-variance update). Buffers, so they are part of the saved state.
-    ChunkLearner.train_step feeds it the current-task minibatch states before each update."""
+    ChunkLearner.train_step feeds it the current-task minibatch states before each update.
 
-    def __init__(self, dim: int, enabled: bool = True, eps: float = 1e-6):
+    Across stages (docs/DEPARTURES.md): the std has a floor `min_std`, so a column that was constant
+    so far (every task-feature column during stage 1) maps a new task's value to a bounded z instead
+    of ±hundreds of standard deviations; z is clipped to ±clip; and `freeze()` (at the handoff of the
+    learner's first stage, by default) stops the statistics, so that the teacher of Eq. 3, the student,
+    and EWC's and RETAIN's anchors all read s through the same map for the rest of the sequence.
+    """
+
+    def __init__(self, dim: int, enabled: bool = True, eps: float = 1e-6, min_std: float = 0.0,
+                 clip: float = 0.0):
         super().__init__()
-        self.enabled, self.eps = enabled, eps
+        self.enabled, self.eps, self.min_std, self.clip = enabled, eps, min_std, clip
         self.register_buffer("mean", torch.zeros(dim))
         self.register_buffer("var", torch.ones(dim))
         self.register_buffer("count", torch.zeros((), dtype=torch.float64))
+        self.register_buffer("frozen", torch.zeros((), dtype=torch.bool))
 
     @torch.no_grad()
     def update(self, x: torch.Tensor) -> None:
-        if not self.enabled or x.shape[0] == 0:
+        if not self.enabled or x.shape[0] == 0 or bool(self.frozen):
             return
         x = x.reshape(-1, self.mean.numel()).to(self.mean)
         n = float(x.shape[0])
@@ -46,10 +55,17 @@ class RunningNorm(nn.Module):
                        / total)
         self.count.fill_(total)
 
+    def freeze(self) -> None:
+        self.frozen.fill_(True)
+
+    def std(self) -> torch.Tensor:
+        return (self.var + self.eps).sqrt().clamp_min(self.min_std)
+
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if not self.enabled:
             return x
-        return (x - self.mean) / (self.var + self.eps).sqrt()
+        z = (x - self.mean) / self.std()
+        return z.clamp(-self.clip, self.clip) if self.clip > 0 else z
 
 
 def mlp(sizes: list[int], layer_norm: bool) -> nn.Sequential:
@@ -76,11 +92,13 @@ class Actor(nn.Module):
 
     def __init__(self, state_dim: int, horizon: int, action_dim: int, hidden: list[int], projector_dim: int,
                  layer_norm: bool = True, residual: bool = True, init_scale: float = 0.01,
-                 obs_normalization: bool = True, out_heads: int = 1):
+                 obs_normalization: bool = True, out_heads: int = 1, obs_norm_min_std: float = 0.0,
+                 obs_norm_clip: float = 0.0):
         super().__init__()
         self.horizon, self.action_dim, self.residual = horizon, action_dim, residual
         chunk = horizon * action_dim
-        self.obs_norm = RunningNorm(state_dim, enabled=obs_normalization)
+        self.obs_norm = RunningNorm(state_dim, enabled=obs_normalization, min_std=obs_norm_min_std,
+                                    clip=obs_norm_clip)
         self.proj = projector(state_dim, projector_dim)
         self.trunk = mlp([projector_dim + chunk, *hidden], layer_norm)
         self.act_fn = nn.SiLU()

@@ -1,13 +1,15 @@
-"""Replay of chunk transitions (s, a, ã, R^(H), s_{t+H}, ã_{t+H}, done, task, episode) and the retention rule.
+"""Replay of chunk transitions (s, a, ã, R^(H), s_{t+H}, ã_{t+H}, done, task, episode, ended) and the retention rule.
 
 - Storage is a set of growable tensors on one device (CPU or GPU); `sample` draws uniform indices from a
   caller-owned torch.Generator, so sampling is deterministic and resumable.
 - `done` must be the *termination* flag (success); a time-limit truncation still bootstraps from s_{t+H}.
+- `ended` marks the transition in which an episode reached its end (success or time limit). An episode
+  without one is a fragment: cut by the stage's budget or by the restart after an intra-step checkpoint.
 - Persistence is append-only: `save_new_shards(dir)` writes only the rows added since the last save as a
   new safetensors shard plus a small JSON index; earlier shards are rewritten byte-identically when the
   target directory lacks them, so a content-addressed store dedupes them. No capacity eviction: a stage
   has a fixed env-step budget, so the buffer is bounded by it (and eviction would break the shards).
-- `retain_last_episodes(buffer, n)` is the paper's memory B^{<k}: the last N episodes of each task.
+- `retain_last_episodes(buffer, n)` is the paper's memory B^{<k}: the last N complete episodes of each task.
 """
 from __future__ import annotations
 
@@ -23,7 +25,7 @@ from accrue.errors import AccrueError
 
 INDEX_FILE = "index.json"
 FORMAT_VERSION = 1
-_FIELDS = ("state", "action", "ref", "reward", "next_state", "next_ref", "done", "task", "episode")
+_FIELDS = ("state", "action", "ref", "reward", "next_state", "next_ref", "done", "task", "episode", "ended")
 
 
 @dataclass
@@ -40,15 +42,22 @@ class Batch:
     index: torch.Tensor | None = None       # rows of the buffer the batch came from
     discount: torch.Tensor | None = None    # bootstrap discount; None → γ^H · (1 − done)
     teacher: torch.Tensor | None = None     # Eq. 3 cached targets â_j (prior memory only)
+    fresh_ref: torch.Tensor | None = None   # current base policy's chunk at s_j (distill_inputs fresh/both)
+    ended: torch.Tensor | None = None       # (B,) bool, the episode ended in this transition
 
     def __len__(self) -> int:
         return self.state.shape[0]
 
-    def with_teacher(self, targets: torch.Tensor) -> "Batch":
-        """Attach the cached Eq. 3 targets of the sampled rows (targets indexed like the buffer)."""
+    def with_teacher(self, targets: torch.Tensor, fresh_ref: torch.Tensor | None = None) -> "Batch":
+        """Attach the cached Eq. 3 targets (and fresh reference chunks) of the sampled rows; both are indexed
+        like the buffer."""
         if self.index is None:
             raise AccrueError("batch has no row index; sample it from a ReplayBuffer to attach teacher targets")
-        return dataclasses.replace(self, teacher=targets[self.index.to(targets.device)].to(self.state.device))
+
+        def rows(t):
+            return None if t is None else t[self.index.to(t.device)].to(self.state.device)
+
+        return dataclasses.replace(self, teacher=rows(targets), fresh_ref=rows(fresh_ref))
 
     def to_device(self, device: torch.device) -> "Batch":
         if self.state.device == torch.device(device):
@@ -62,7 +71,7 @@ class Batch:
         def join(x, y):
             return None if x is None or y is None else torch.cat([x, y], 0)
         out = {f.name: join(getattr(a, f.name), getattr(b, f.name)) for f in dataclasses.fields(Batch)}
-        out["index"], out["teacher"] = None, None
+        out["index"], out["teacher"], out["fresh_ref"] = None, None, None
         return Batch(**out)
 
 
@@ -84,7 +93,8 @@ class ReplayBuffer:
         return {"state": ((self.state_dim,), torch.float32), "action": (chunk, torch.float32),
                 "ref": (chunk, torch.float32), "reward": ((), torch.float32),
                 "next_state": ((self.state_dim,), torch.float32), "next_ref": (chunk, torch.float32),
-                "done": ((), torch.bool), "task": ((), torch.int64), "episode": ((), torch.int64)}
+                "done": ((), torch.bool), "task": ((), torch.int64), "episode": ((), torch.int64),
+                "ended": ((), torch.bool)}
 
     def __len__(self) -> int:
         return self.size
@@ -108,12 +118,14 @@ class ReplayBuffer:
         self._next_row = nxt
 
     # ---- writing --------------------------------------------------------------------------
-    def add(self, state, action, ref, reward, next_state, next_ref, done, task, episode) -> None:
-        """Append N transitions (leading dim N on every array; task/episode may be scalars)."""
+    def add(self, state, action, ref, reward, next_state, next_ref, done, task, episode, ended=None) -> None:
+        """Append N transitions (leading dim N on every array; task/episode may be scalars). `ended` defaults
+        to `done` (a caller that never truncates); pass terminated | truncated."""
         state = torch.as_tensor(state, dtype=torch.float32)
         n = state.shape[0]
         cols = {"state": state, "action": action, "ref": ref, "reward": reward, "next_state": next_state,
-                "next_ref": next_ref, "done": done, "task": task, "episode": episode}
+                "next_ref": next_ref, "done": done, "task": task, "episode": episode,
+                "ended": done if ended is None else ended}
         layout = self._layout()
         rows = {}
         for name, value in cols.items():
@@ -152,7 +164,7 @@ class ReplayBuffer:
         d = self._data
         return Batch(state=d["state"][idx], action=d["action"][idx], ref=d["ref"][idx], reward=d["reward"][idx],
                      next_state=d["next_state"][idx], next_ref=d["next_ref"][idx], done=d["done"][idx].float(),
-                     task=d["task"][idx], episode=d["episode"][idx], index=idx)
+                     task=d["task"][idx], episode=d["episode"][idx], index=idx, ended=d["ended"][idx])
 
     def sample(self, n: int, generator: torch.Generator, n_step: int = 1, gamma: float | None = None) -> Batch:
         """n uniform rows. With n_step > 1 (needs gamma) the return sums the next chunks of the same episode:
@@ -243,6 +255,7 @@ class ReplayBuffer:
             if not path.exists():
                 raise AccrueError(f"{path}: replay shard listed in the index is missing")
             rows = load_file(str(path))
+            rows.setdefault("ended", rows["done"].clone())   # shards written before episodes were marked
             if rows["state"].shape[0] != shard["count"] or shard["start"] != buf.size:
                 raise AccrueError(f"{path}: replay shard does not match the index")
             buf._write(rows)
@@ -273,19 +286,25 @@ class ReplayBuffer:
         return out
 
 
+def complete_episodes(buffer: ReplayBuffer) -> dict[int, list[int]]:
+    """task -> the episodes that ended inside the buffer (success or time limit), ordered by when they ended."""
+    task, episode, ended = (buffer.column(c).tolist() for c in ("task", "episode", "ended"))
+    out: dict[int, list[int]] = {}
+    for t, e, end in zip(task, episode, ended):
+        if end:
+            out.setdefault(t, []).append(e)
+    return out
+
+
 def retain_last_episodes(buffer: ReplayBuffer, n: int) -> ReplayBuffer:
-    """The paper's retained memory: for each task in `buffer`, its last n episodes (by when each episode's
-    last chunk was stored), all their transitions in original order. Pool finished tasks with
+    """The paper's retained memory: for each task in `buffer`, its last n episodes that ended (success or
+    time limit), whole, all their transitions in original order. Fragments — episodes cut by the budget's
+    end or by an intra-step checkpoint's restart — never count. A task with fewer than n complete episodes
+    keeps what it has (`complete_episodes` tells how many). Pool finished tasks with
     `retain_last_episodes(ReplayBuffer.concat([prior, current]), n)` — prior tasks already hold ≤ n."""
     if n < 0:
         raise AccrueError(f"retain_last_episodes: n must be >= 0 (got {n})")
+    keep = {(t, e) for t, eps in complete_episodes(buffer).items() for e in (eps[-n:] if n > 0 else [])}
     task, episode = buffer.column("task").tolist(), buffer.column("episode").tolist()
-    last_seen: dict[tuple[int, int], int] = {}
-    for row, key in enumerate(zip(task, episode)):
-        last_seen[key] = row
-    keep: set[tuple[int, int]] = set()
-    for t in sorted(set(task)):
-        eps = sorted((row, key) for key, row in last_seen.items() if key[0] == t)
-        keep.update(key for _, key in eps[len(eps) - n:] if n > 0)
     rows = torch.tensor([r for r, key in enumerate(zip(task, episode)) if key in keep], dtype=torch.long)
     return buffer.select(rows)

@@ -17,6 +17,7 @@ import torch
 from accrue.errors import AccrueError
 from accrue.learner.agent import ChunkLearner
 from accrue.learner.config import LearnerConfig
+from accrue.learner.continual import make_learner
 
 TENSORS_FILE = "learner.safetensors"
 META_FILE = "learner.json"
@@ -78,6 +79,8 @@ def load_training_state_into(learner: ChunkLearner, tensors: dict[str, torch.Ten
     for name, module in (("actor", learner.actor), ("critic", learner.critic),
                          ("critic_target", learner.critic_target)):
         sd = {k[len(name) + 1:]: v for k, v in tensors.items() if k.startswith(name + "/")}
+        if name == "actor":   # checkpoints written before the normaliser could be frozen
+            sd.setdefault("obs_norm.frozen", torch.zeros((), dtype=torch.bool))
         module.load_state_dict(sd)
     if "log_alpha" in tensors:
         with torch.no_grad():
@@ -115,8 +118,6 @@ def save_learner(learner: ChunkLearner, directory: str | Path) -> None:
 
 def load_learner(directory: str | Path, device: str | None = None) -> ChunkLearner:
     from safetensors.torch import load_file
-
-    from accrue.learner.continual import make_learner
 
     directory = Path(directory)
     try:

@@ -19,11 +19,13 @@ from artifacts.refs import read_ref
 from artifacts.store import Store
 from stages.errors import StageError
 from stages.runner import step_ref
+from stages.steps import evaluate_all as evaluate_step
+from stages.steps import train as train_step
 from stages.workflow import Workflow
 
 TRAIN, EVALUATE = "train", "evaluate-all"
 # step name -> (output role, file inside that directory artifact)
-SOURCES = {TRAIN: ("curve", "curve.json"), EVALUATE: ("eval", "eval.json")}
+SOURCES = {TRAIN: ("curve", train_step.CURVE_FILE), EVALUATE: ("eval", evaluate_step.EVAL_FILE)}
 
 
 @dataclass(frozen=True)

@@ -62,49 +62,11 @@ def reference_fn(policy, task_id: str, horizon: int):
     return lambda obs: policy.reference_chunk(obs, instruction, horizon)
 
 
-def features_fn(encoder_spec: str):
-    """s = (E(I), q): frozen encoder features of the image (if any) ‖ the sim state vector."""
-    import numpy as np
-
-    from accrue.rl_loop import state_features
-
-    if encoder_spec == "none":
-        return state_features
-    from accrue.encoders import make_encoder
-
-    encoder = make_encoder(encoder_spec)
-
-    def features(obs: dict) -> np.ndarray:
-        if "image" not in obs:
-            raise StageError(f"encoder {encoder_spec} needs image observations: set obs_mode: state+image")
-        return np.concatenate([encoder.encode(obs["image"]), state_features(obs)], axis=1).astype(np.float32)
-
-    return features
-
-
-def task_features_fn(features, task_id: str, dim: int):
-    """s = (E(I), q, e(ℓ)): `features` with the frozen hashed embedding of the task's instruction appended
-    (the same text embedding the base policy is conditioned on), or `features` itself when dim is 0."""
-    if dim <= 0:
-        return features
-    import numpy as np
-
-    from accrue.policy.instruction_embedding import embed_instructions
-    from accrue.sim import get_task
-
-    code = embed_instructions([get_task(task_id).instruction], dim)[0].astype(np.float32)
-
-    def with_task(obs: dict) -> np.ndarray:
-        s = features(obs)
-        return np.concatenate([s, np.broadcast_to(code, (len(s), dim))], axis=1)
-
-    return with_task
-
-
 def per_task_features(config: dict, task_ids: list[str]) -> dict:
-    """task id -> its s(obs), sharing one frozen encoder."""
-    base = features_fn(config["encoder"])
-    return {t: task_features_fn(base, t, config.get("task_features", 0)) for t in task_ids}
+    """task id -> its learner state s(obs) (accrue.learner_inputs), from a step's config."""
+    from accrue.learner_inputs import per_task_features as features
+
+    return features(config["encoder"], config.get("task_features", 0), task_ids)
 
 
 def make_env(task_id: str, num_envs: int, seed: int, obs_mode: str):

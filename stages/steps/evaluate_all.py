@@ -4,8 +4,11 @@ from __future__ import annotations
 
 from stages.runner_context import StepContext
 from stages.runner_types import StepDef
+from stages.steps import train as train_step
 from stages.steps.common import (deterministic, load_base_policy, make_env, per_task_features, reference_fn,
                                  write_json)
+
+EVAL_FILE = "eval.json"     # the `eval` output: row k of the success matrix and the base policy alone
 
 
 def run(ctx: StepContext) -> None:
@@ -21,10 +24,10 @@ def run(ctx: StepContext) -> None:
     references = {t: reference_fn(policy, t, horizon) for t in tasks}
     features = per_task_features(c, tasks)
     checkpoint = ctx.input_path("checkpoint")
-    current = load_learner(checkpoint / "learner", device="cpu")
+    current = load_learner(checkpoint / train_step.LEARNER_DIR, device="cpu")
     # Isolated keeps one learner per task: task i is evaluated with checkpoint i
-    learners = {t: (load_learner(checkpoint / "per_task" / str(i), device="cpu")
-                    if (checkpoint / "per_task" / str(i)).is_dir() else current)
+    per_task = checkpoint / train_step.PER_TASK_DIR
+    learners = {t: (load_learner(per_task / str(i), device="cpu") if (per_task / str(i)).is_dir() else current)
                 for i, t in enumerate(tasks, 1)}
     evaluator = rl_loop.Evaluator(
         lambda t, n: make_env(t, n, rl_loop.env_seed(seed, k, "eval", tasks.index(t)), c["obs_mode"]),
@@ -36,7 +39,7 @@ def run(ctx: StepContext) -> None:
         ctx.console.print(f"evaluate-all: {t}: actor {success[t]:.2f}  base policy alone {base_success[t]:.2f} "
                           f"({c['episodes']} episodes)")
     evaluator.close()
-    write_json(ctx.new_output("eval", "eval") / "eval.json", {
+    write_json(ctx.new_output("eval", "eval") / EVAL_FILE, {
         "stage": k, "task_ids": tasks, "success": success, "base_success": base_success,
         "episodes": c["episodes"], "method": c["method"], "seed": seed,
         "per_task_checkpoint": sorted(t for t in tasks if learners[t] is not current)})

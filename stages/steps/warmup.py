@@ -6,6 +6,8 @@ from stages.runner_types import StepDef
 from stages.steps.common import (deterministic, load_base_policy, make_env, per_task_features, reference_fn,
                                  write_json)
 
+INFO_FILE = "warmup.json"     # in the `replay` output, beside the shards: counts and the next episode id
+
 
 def run(ctx: StepContext) -> None:
     from accrue import rl_loop
@@ -25,12 +27,12 @@ def run(ctx: StepContext) -> None:
     env.close()
     out = ctx.new_output("replay", "replay")
     buffer.save_new_shards(out)
-    write_json(out / "warmup.json", {"stage": c["stage"], "task": c["task"], "episodes": stats.episodes,
+    write_json(out / INFO_FILE, {"stage": c["stage"], "task": c["task"], "episodes": stats.episodes,
                                      "successes": stats.successes, "env_steps": stats.env_steps,
                                      "transitions": len(buffer), "next_episode": collector.next_episode})
     ctx.console.print(f"warmup: {stats.episodes} base-policy episodes on {c['task']}, "
                       f"{stats.successes} succeeded, {len(buffer)} chunk transitions")
 
 
-STEP = StepDef(name="warmup", code_version="warmup-1", run=run, inputs=("base-policy",),
+STEP = StepDef(name="warmup", code_version="warmup-2", run=run, inputs=("base-policy",),
                outputs={"replay": "replay"}, description="base-policy rollouts seeding B^k")
