@@ -24,42 +24,10 @@ OnlyOpt = Annotated[Optional[List[str]], typer.Option(
 
 
 def _meter(quiet: bool):
-    """A rich progress bar with bytes, speed and objects, drawn on stderr (stdout stays clean)."""
+    from artifacts.remotes.progress import RichMeter
     from artifacts.remotes.transfer import Meter
 
-    if quiet:
-        return Meter()
-    from rich.console import Console
-    from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TransferSpeedColumn
-
-    class RichMeter(Meter):
-        def __init__(self) -> None:
-            import threading
-
-            self.bar, self.lock = None, threading.Lock()  # advanced from the transfer threads
-
-        def start(self, what: str, objects: int, nbytes: int) -> None:
-            if not objects:
-                return
-            self.bar = Progress(TextColumn(what), BarColumn(), DownloadColumn(), TransferSpeedColumn(),
-                                TextColumn("{task.fields[objects]} objects"),
-                                console=Console(stderr=True), transient=True)
-            self.bar.start()
-            self.task = self.bar.add_task("", total=nbytes or 1, objects=f"0/{objects}")
-            self.done, self.total = 0, objects
-
-        def advance(self, nbytes: int) -> None:
-            if self.bar is not None:
-                with self.lock:
-                    self.done += 1
-                    self.bar.update(self.task, advance=nbytes, objects=f"{self.done}/{self.total}")
-
-        def stop(self) -> None:
-            if self.bar is not None:
-                self.bar.stop()
-                self.bar = None
-
-    return RichMeter()
+    return Meter() if quiet else RichMeter()
 
 
 def _pick(store_path, words: Optional[List[str]]):

@@ -304,7 +304,7 @@ class DirBackend(Backend):
         if create:
             self._ensure_root()
         elif not self.root.is_dir():
-            raise StoreError(f"{self.describe()}: {self.root} does not exist (is the disk mounted?)")
+            raise StoreError(f"{self.describe()}: the directory does not exist (is the disk mounted?)")
 
     def get_bytes(self, key: str) -> bytes | None:
         try:
@@ -374,7 +374,7 @@ class DirBackend(Backend):
 
     def list_sizes(self, prefix: str) -> dict[str, int]:
         if not self.root.is_dir():
-            raise StoreError(f"{self.describe()}: {self.root} does not exist (is the disk mounted?)")
+            raise StoreError(f"{self.describe()}: the directory does not exist (is the disk mounted?)")
         if prefix == OBJECTS:  # the hot path: two levels of scandir, no per-file Path objects
             out = {}
             base = self._path(OBJECTS)

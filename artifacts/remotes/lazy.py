@@ -3,8 +3,6 @@ notes their ids here (remotes/<name>/promised). When a step needs one, the store
 (Store.fetch_missing) fetches it from a promisor remote, verified like any download."""
 from __future__ import annotations
 
-import sys
-
 from artifacts.locks import store_lock
 from artifacts.store import Store
 
@@ -45,6 +43,7 @@ def fetch_promised(store: Store, missing: list[str]) -> bool:
     """Fetch missing objects from the promisor remotes (in config order). True if all arrived."""
     from artifacts.remotes.backends import MissingOnRemote, open_backend
     from artifacts.remotes.config import list_remotes
+    from artifacts.remotes.progress import RichMeter
     from artifacts.remotes.transfer import default_jobs, download_object, parallel
 
     todo = list(dict.fromkeys(missing))
@@ -52,15 +51,18 @@ def fetch_promised(store: Store, missing: list[str]) -> bool:
         if not todo:
             break
         backend = open_backend(spec)
-        print(f"fetching {len(todo)} object(s) this partial clone left on remote {spec.name}…",
-              file=sys.stderr, flush=True)
+        meter = RichMeter()
+        meter.start(f"fetching from {spec.name}", len(todo), 0)  # sizes unknown until they arrive
 
         def one(oid: str) -> str | None:
             try:
-                download_object(store, backend, oid)
+                meter.advance(download_object(store, backend, oid))
                 return None
             except MissingOnRemote:
                 return oid
 
-        todo = [o for o in parallel(one, todo, default_jobs()) if o is not None]
+        try:
+            todo = [o for o in parallel(one, todo, default_jobs()) if o is not None]
+        finally:
+            meter.stop()
     return not todo
