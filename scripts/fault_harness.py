@@ -1,0 +1,305 @@
+"""Fault harness: kill -9 a tiny workflow at random moments, resume, and check nothing was lost.
+
+    .venv/bin/python scripts/fault_harness.py --trials 100 --out benchmarks/results/fault_harness.json
+
+First one uninterrupted reference run (its own store). Then each trial, in a fresh store: start
+`accrue run WORKFLOW`, wait until it has logged its first event, kill its whole process group with
+SIGKILL after a delay drawn uniformly over the reference run's length (so kills land in every
+step, the lerobot fine-tuning subprocess included), check the store, resume with
+`accrue run WORKFLOW --continue`, and check again. A trial passes when
+
+  * `verify --full` finds no problem, both right after the kill and after the resume;
+  * no lock is held once the processes are gone (every locks/*.lock and the writer lock);
+  * every step of every stage ends committed with outputs whose content ids equal the reference's.
+
+Prints one line per trial and a summary; --out writes them as JSON (with the command line).
+"""
+
+from __future__ import annotations
+
+import argparse
+import fcntl
+import json
+import os
+import random
+import shlex
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+# The tiny workflow of tests/test_e2e_tiny.py, smaller still: two stages so that every step runs
+# with and without an earlier stage (cache-teacher, the handoff's memory), checkpoints inside train.
+# BASE is --base.
+TINY = """
+name: harness
+tasks: [nist/rect_peg, nist/gear]
+method: accrue
+seed: 3
+horizon: 4
+task_features: 8
+base_policy: {init: BASE, finetune_steps: 2, batch_size: 8, demos_per_task: 2}
+learner: {actor_hidden: [32, 32], critic_hidden: [32, 32], projector_dim: 16, batch_size: 32, num_atoms: 11, utd: 1}
+budgets: {env_steps: 80, eval_every: 40, eval_episodes: 1, num_envs: 2, warmup_episodes: 1,
+          retained_episodes: 1, checkpoint_every: 20, log_episodes: 1}
+"""
+
+
+def accrue_env(store: Path) -> dict:
+    return {
+        **os.environ,
+        "ACCRUE_STORE": str(store),
+        "OMP_NUM_THREADS": "1",
+        "HF_HUB_OFFLINE": "1",
+        "HF_DATASETS_OFFLINE": "1",
+        "TRANSFORMERS_OFFLINE": "1",
+        "RERUN": "off",
+        "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl"),
+    }
+
+
+def accrue(store: Path, *args: str, timeout: float = 1800) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "cli.main", *args],
+        cwd=ROOT,
+        env=accrue_env(store),
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def outputs_by_step(store: Path) -> dict[str, dict[str, str]]:
+    """'stage/step' -> {role: content id} of the committed record each workflow ref names."""
+    from artifacts.manifests import read_artifact
+    from artifacts.refs import list_refs
+    from artifacts.store import Store
+
+    st = Store.open(store)
+    out = {}
+    for name, rid in list_refs(st, "workflow/harness/").items():
+        record = st.read_json(rid)
+        _, _, _, stage, step = name.split("/")
+        out[f"{stage}/{step}"] = {
+            role: read_artifact(st, oid)["content"] for role, oid in sorted(record["outputs"].items())
+        }
+    return out
+
+
+def held_locks(store: Path) -> list[str]:
+    """Lock files some process still holds (kernel flock, or the POSIX writer lock)."""
+    held = []
+    for path in sorted((store / "locks").glob("*.lock")):
+        fd = os.open(path, os.O_RDWR)
+        try:
+            if path.name == "writers.lock":
+                fcntl.lockf(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            else:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            held.append(path.name)
+        finally:
+            os.close(fd)
+    return held
+
+
+def verify_problems(store: Path) -> list[str]:
+    """`verify --full`'s problems (in this process: it needs no torch, so it is cheap)."""
+    from artifacts.store import Store
+    from artifacts.verify import verify_store
+
+    st = Store.open(store)
+    try:
+        return verify_store(st, full=True).problems
+    finally:
+        st.close()
+
+
+def step_windows(store: Path) -> list[tuple[str, float]]:
+    """(stage/step, seconds until the next step started) for every step-started event of a run."""
+    from datetime import datetime
+
+    events = [json.loads(line) for line in (store / "log" / "events.jsonl").read_bytes().splitlines()]
+    starts = [
+        (f"{e.get('stage')}/{e['step']}", datetime.fromisoformat(e["ts"]).timestamp())
+        for e in events
+        if e["event"] == "step-started"
+    ]
+    end = datetime.fromisoformat(events[-1]["ts"]).timestamp()
+    return [(name, (starts[i + 1][1] if i + 1 < len(starts) else end) - t) for i, (name, t) in enumerate(starts)]
+
+
+def started_steps(store: Path) -> int:
+    log = store / "log" / "events.jsonl"
+    return log.read_bytes().count(b'"event":"step-started"') if log.exists() else 0
+
+
+def running_step(store: Path) -> str:
+    """The step the log shows started and not finished (where the kill landed)."""
+    log = store / "log" / "events.jsonl"
+    open_steps: dict[tuple, str] = {}
+    for line in log.read_bytes().splitlines() if log.exists() else []:
+        try:
+            e = json.loads(line)
+        except ValueError:
+            continue
+        key = (e.get("cache_key"), e.get("attempt"))
+        if e.get("event") == "step-started":
+            open_steps[key] = f"{e.get('stage')}/{e.get('step')}"
+        elif e.get("event") in ("step-committed", "step-failed", "step-abandoned"):
+            open_steps.pop(key, None)
+    return ", ".join(open_steps.values()) or "between steps"
+
+
+def wait_for_step(store: Path, proc: subprocess.Popen, k: int, timeout: float = 900) -> bool:
+    """Until the k-th step (0-based) of the run has started; False if the run ended first."""
+    deadline = time.monotonic() + timeout
+    while started_steps(store) <= k:
+        if proc.poll() is not None or time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)
+    return True
+
+
+def reference_run(workdir: Path, wf: Path) -> tuple[dict, list[tuple[str, float]], float]:
+    store = workdir / "reference"
+    accrue(store, "init")
+    start = time.monotonic()
+    proc = accrue(store, "run", str(wf))
+    if proc.returncode != 0:
+        raise SystemExit(f"reference run failed:\n{proc.stderr[-3000:]}")
+    return outputs_by_step(store), step_windows(store), time.monotonic() - start
+
+
+def trial(n: int, workdir: Path, wf: Path, reference: dict, windows: list, rng: random.Random) -> dict:
+    store = workdir / f"trial-{n:03d}"
+    accrue(store, "init")
+    k = rng.randrange(len(windows))  # a step, then a moment inside its reference window
+    delay = rng.uniform(0, windows[k][1])
+    started = time.monotonic()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cli.main", "run", str(wf)],
+        cwd=ROOT,
+        env=accrue_env(store),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    killed_in = "after it finished"
+    if wait_for_step(store, proc, k):
+        deadline = time.monotonic() + delay
+        while proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.005)
+        if proc.poll() is None:
+            killed_in = running_step(store)
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)  # the run and its children (lerobot-train)
+    except ProcessLookupError:
+        pass
+    proc.wait()
+    time.sleep(0.2)  # let the kernel reap the children and drop their locks
+    result = {
+        "trial": n,
+        "aimed_at": windows[k][0],
+        "delay_s": round(delay, 3),
+        "killed_in": killed_in,
+        "killed_after_s": round(time.monotonic() - started, 2),
+    }
+    result["after_kill_problems"] = verify_problems(store)
+    result["after_kill_locks"] = held_locks(store)
+    resumed = accrue(store, "run", str(wf), "--continue")
+    result["resume_exit"] = resumed.returncode
+    if resumed.returncode != 0:
+        result["resume_error"] = resumed.stderr.strip()[-500:]
+    result["final_problems"] = verify_problems(store)
+    result["final_locks"] = held_locks(store)
+    got = outputs_by_step(store) if resumed.returncode == 0 else {}
+    result["differing_steps"] = sorted(k for k in reference if got.get(k) != reference[k])
+    result["ok"] = (
+        not result["after_kill_problems"]
+        and not result["after_kill_locks"]
+        and resumed.returncode == 0
+        and not result["final_problems"]
+        and not result["final_locks"]
+        and not result["differing_steps"]
+    )
+    return result
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--trials", type=int, default=100)
+    parser.add_argument("--seed", type=int, default=0, help="seed of the kill moments")
+    parser.add_argument(
+        "--base",
+        default="embedded-mlp",
+        help="base_policy.init: embedded-mlp (demos + lerobot fine-tuning in a subprocess, the "
+        "default) or scripted-reference:0.5 (no lerobot: fast, for CI)",
+    )
+    parser.add_argument("--out", type=Path, help="write the results as JSON here")
+    parser.add_argument("--workdir", type=Path, help="keep the stores here (default: a temp dir, removed)")
+    args = parser.parse_args()
+    rng = random.Random(args.seed)
+    with tempfile.TemporaryDirectory(prefix="accrue-faults-") as tmp:
+        workdir = args.workdir or Path(tmp)
+        workdir.mkdir(parents=True, exist_ok=True)
+        wf = workdir / "harness.yaml"
+        workflow = TINY.replace("BASE", json.dumps(args.base))
+        wf.write_text(workflow)
+        t0 = time.monotonic()
+        reference, windows, span = reference_run(workdir, wf)
+        print(f"reference run: {len(reference)} steps committed in {span:.1f} s", flush=True)
+        results = []
+        for n in range(args.trials):
+            r = trial(n, workdir, wf, reference, windows, rng)
+            results.append(r)
+            if args.out:  # after every trial: an interrupted harness still reports what it saw
+                write_results(args, workflow, results, span, t0)
+            print(
+                f"trial {n:3d}: {'ok  ' if r['ok'] else 'FAIL'} killed after {r['killed_after_s']:6.1f} s in "
+                f"{r['killed_in']}" + ("" if r["ok"] else f" — {json.dumps(r)}"),
+                flush=True,
+            )
+            if not args.workdir:
+                import shutil
+
+                shutil.rmtree(workdir / f"trial-{n:03d}", ignore_errors=True)
+    summary = write_results(args, workflow, results, span, t0)
+    print(f"fault harness: {summary['passed']}/{len(results)} trials passed; kills landed in {summary['killed_in']}")
+    return 0 if summary["passed"] == len(results) else 1
+
+
+def write_results(args: argparse.Namespace, workflow: str, results: list[dict], span: float, t0: float) -> dict:
+    passed = sum(r["ok"] for r in results)
+    steps_hit: dict[str, int] = {}
+    for r in results:
+        for step in r["killed_in"].split(", "):
+            steps_hit[step] = steps_hit.get(step, 0) + 1
+    summary = {
+        "trials": len(results),
+        "requested": args.trials,
+        "passed": passed,
+        "failed": len(results) - passed,
+        "reference_run_s": round(span, 1),
+        "wall_s": round(time.monotonic() - t0, 1),
+        "killed_in": dict(sorted(steps_hit.items())),
+    }
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        command = "python scripts/fault_harness.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+        args.out.write_text(
+            json.dumps(
+                {"command": command, "workflow": workflow.strip(), "summary": summary, "results": results}, indent=1
+            )
+            + "\n"
+        )
+    return summary
+
+
+if __name__ == "__main__":
+    sys.exit(main())
