@@ -31,6 +31,7 @@ class GcReport:
     young: int = 0
     removed: list[tuple[str, int]] = field(default_factory=list)  # (id, size) removed or to remove
     tmp_removed: list[str] = field(default_factory=list)
+    problems: list[str] = field(default_factory=list)  # what the mark found wrong (--yes then refuses)
 
     @property
     def bytes(self) -> int:
@@ -44,6 +45,7 @@ class GcReport:
             "removed": [i for i, _ in self.removed],
             "bytes": self.bytes,
             "tmp_removed": self.tmp_removed,
+            "problems": self.problems,
         }
 
 
@@ -64,6 +66,10 @@ def collect_garbage(
     store: Store, dry_run: bool = True, grace_s: float = DEFAULT_GRACE_S, wait_s: float = 0.0
 ) -> GcReport:
     """wait_s: how long to wait for active writers before giving up (StoreError)."""
+    if not os.access(store.objects_dir, os.W_OK):  # a read-only store: nothing can change it meanwhile
+        if not dry_run:
+            raise StoreError(f"the store at {store.root} cannot be written: gc can only report (drop --yes)")
+        return _collect(store, True, grace_s)
     try:
         lock = try_lock(store_lock(store.locks_dir, "gc"), "the store (gc)", timeout=0)
     except OSError as exc:
@@ -80,6 +86,7 @@ def collect_garbage(
 def _collect(store: Store, dry_run: bool, grace_s: float) -> GcReport:
     report = GcReport(dry_run=dry_run)
     reach = walk(store)
+    report.problems = reach.problems
     if reach.problems and not dry_run:
         raise StoreError(f"gc refused: the store has problems ({reach.problems[0]}…); run `accrue verify`")
     now = time.time()

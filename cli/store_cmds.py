@@ -356,6 +356,8 @@ def gc(
         grace_s=parse_duration(grace, "--grace"),
         wait_s=parse_duration(wait, "--wait"),
     )
+    for problem in report.problems:  # e.g. a damaged ref: what it named is unknown, so --yes refuses
+        typer.echo(f"warning: {problem}", err=True)
     if as_json:
         print_json(report.as_dict())
         return

@@ -89,8 +89,9 @@ def test_read_only_filesystem_init_add_gc_and_verify(tmp_path):
             assert "Read-only file system" in one_line_error(accrue("init", "--store", str(fs / "other")))
             line = one_line_error(accrue("add", str(src), "--kind", "base-policy", "--store", str(st.root)))
             assert "Read-only file system" in line
-            loose = one_line_error(accrue("gc", "--yes", "--grace", "0", "--store", str(st.root)))
-            assert "Read-only file system" in loose or "cannot" in loose
+            assert "cannot be written: gc can only report" in one_line_error(
+                accrue("gc", "--yes", "--grace", "0", "--store", str(st.root)))
+            assert accrue("gc", "--grace", "0", "--store", str(st.root)).returncode == 0   # a dry run reports
             full = accrue("verify", "--full", "--json", "--store", str(st.root))
             report = json.loads(full.stdout)
             assert full.returncode == 1 and report["quarantined"] == []
