@@ -2,6 +2,7 @@
 
 Only typer/rich at module level; the store and obstore are imported inside each command.
 """
+
 from __future__ import annotations
 
 from typing import Annotated, List, Optional
@@ -10,17 +11,33 @@ import typer
 
 from cli.store_cmds import JsonOpt, StoreOpt, console, human_size, open_store, print_json
 
-remote_app = typer.Typer(help="Remotes this store pushes to and pulls from (S3 or a directory).",
-                         no_args_is_help=True)
+remote_app = typer.Typer(help="Remotes this store pushes to and pulls from (S3 or a directory).", no_args_is_help=True)
 
-WordsArg = Annotated[Optional[List[str]], typer.Argument(
-    metavar="[NAME] [REF]...", help="Remote (optional when there is one, or one named origin), then refs "
-    "(a ref, or a prefix like workflow/quick; default: every ref).", show_default=False)]
-JobsOpt = Annotated[Optional[int], typer.Option("--jobs", "-j", min=1, help="Parallel transfers (default 16, or $ACCRUE_REMOTE_JOBS).",
-                                                show_default=False)]
-OnlyOpt = Annotated[Optional[List[str]], typer.Option(
-    "--only", metavar="KIND", help="Partial clone: bring every manifest and record, but the data of these "
-    "artifact kinds only (e.g. --only handoff); the rest is fetched when a step needs it.", show_default=False)]
+WordsArg = Annotated[
+    Optional[List[str]],
+    typer.Argument(
+        metavar="[NAME] [REF]...",
+        help="Remote (optional when there is one, or one named origin), then refs "
+        "(a ref, or a prefix like workflow/quick; default: every ref).",
+        show_default=False,
+    ),
+]
+JobsOpt = Annotated[
+    Optional[int],
+    typer.Option(
+        "--jobs", "-j", min=1, help="Parallel transfers (default 16, or $ACCRUE_REMOTE_JOBS).", show_default=False
+    ),
+]
+OnlyOpt = Annotated[
+    Optional[List[str]],
+    typer.Option(
+        "--only",
+        metavar="KIND",
+        help="Partial clone: bring every manifest and record, but the data of these "
+        "artifact kinds only (e.g. --only handoff); the rest is fetched when a step needs it.",
+        show_default=False,
+    ),
+]
 
 
 def _meter(quiet: bool):
@@ -56,9 +73,12 @@ def _fail_on(conflicts: list[str]) -> None:
 
 # ---------------------------------------------------------------------------- remote add/list/remove
 @remote_app.command("add")
-def remote_add(name: Annotated[str, typer.Argument(help="Short name, e.g. origin or nas.")],
-               url: Annotated[str, typer.Argument(help="s3://BUCKET/PREFIX, or a directory (NAS, USB disk).")],
-               store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+def remote_add(
+    name: Annotated[str, typer.Argument(help="Short name, e.g. origin or nas.")],
+    url: Annotated[str, typer.Argument(help="s3://BUCKET/PREFIX, or a directory (NAS, USB disk).")],
+    store: StoreOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
     """Add a remote. S3 endpoint, region and credentials come from the usual AWS_* variables or profile."""
     from artifacts.remotes.config import add_remote
 
@@ -83,9 +103,12 @@ def remote_list(store: StoreOpt = None, as_json: JsonOpt = False) -> None:
 
 
 @remote_app.command("remove")
-def remote_remove(name: Annotated[str, typer.Argument()],
-                  force: Annotated[bool, typer.Option("--force", help="Even if a partial clone still needs it.")] = False,
-                  store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+def remote_remove(
+    name: Annotated[str, typer.Argument()],
+    force: Annotated[bool, typer.Option("--force", help="Even if a partial clone still needs it.")] = False,
+    store: StoreOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
     """Forget a remote and its remote-tracking refs (nothing on the remote changes)."""
     from artifacts.remotes.sync import forget_remote
 
@@ -97,9 +120,13 @@ def remote_remove(name: Annotated[str, typer.Argument()],
 
 
 # ---------------------------------------------------------------------------- push / fetch / pull
-def push(words: WordsArg = None,
-         force: Annotated[bool, typer.Option("--force", help="Move remote refs even if someone else moved them.")] = False,
-         jobs: JobsOpt = None, store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+def push(
+    words: WordsArg = None,
+    force: Annotated[bool, typer.Option("--force", help="Move remote refs even if someone else moved them.")] = False,
+    jobs: JobsOpt = None,
+    store: StoreOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
     """Upload what the refs reach and the remote lacks, then move the remote's refs (compare-and-swap)."""
     from artifacts.remotes.sync import push as do_push
 
@@ -113,9 +140,11 @@ def push(words: WordsArg = None,
             out.print(f"  {name}: {old[:12] if old else '(new)'} → {new[:12]}")
         for name in report.behind:
             out.print(f"  [yellow]{name}: the remote has moved on; `accrue pull {spec.name} {name}` to get it[/]")
-        out.print(f"push → {spec.name}: sent {report.objects_sent} objects ({human_size(report.bytes_sent)}), "
-                  f"moved {len(report.moved)} refs, {len(report.up_to_date)} up to date"
-                  + (f", {len(report.conflicts)} refused" if report.conflicts else ""))
+        out.print(
+            f"push → {spec.name}: sent {report.objects_sent} objects ({human_size(report.bytes_sent)}), "
+            f"moved {len(report.moved)} refs, {len(report.up_to_date)} up to date"
+            + (f", {len(report.conflicts)} refused" if report.conflicts else "")
+        )
     _fail_on(report.conflicts)
 
 
@@ -128,12 +157,15 @@ def _print_fetch(report, verb: str, as_json: bool) -> None:
         out.print(f"  {name}: {old[:12] if old else '(new)'} → {new[:12]}")
     tail = f"; {report.promised} objects left on the remote until needed" if report.promised else ""
     moved = f", moved {len(report.moved)} local refs" if verb == "pull" else ""
-    out.print(f"{verb} ← {report.remote}: received {report.objects_received} objects "
-              f"({human_size(report.bytes_received)}) for {len(report.refs)} refs{moved}{tail}")
+    out.print(
+        f"{verb} ← {report.remote}: received {report.objects_received} objects "
+        f"({human_size(report.bytes_received)}) for {len(report.refs)} refs{moved}{tail}"
+    )
 
 
-def fetch(words: WordsArg = None, only: OnlyOpt = None, jobs: JobsOpt = None,
-          store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+def fetch(
+    words: WordsArg = None, only: OnlyOpt = None, jobs: JobsOpt = None, store: StoreOpt = None, as_json: JsonOpt = False
+) -> None:
     """Download what the remote's refs reach (verified) and update the remote-tracking refs only."""
     from artifacts.remotes.sync import fetch as do_fetch
 
@@ -142,9 +174,14 @@ def fetch(words: WordsArg = None, only: OnlyOpt = None, jobs: JobsOpt = None,
     _print_fetch(report, "fetch", as_json)
 
 
-def pull(words: WordsArg = None, only: OnlyOpt = None,
-         force: Annotated[bool, typer.Option("--force", help="Take the remote's refs even over local changes.")] = False,
-         jobs: JobsOpt = None, store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+def pull(
+    words: WordsArg = None,
+    only: OnlyOpt = None,
+    force: Annotated[bool, typer.Option("--force", help="Take the remote's refs even over local changes.")] = False,
+    jobs: JobsOpt = None,
+    store: StoreOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
     """fetch, then move the local refs that have not changed since this store last saw the remote."""
     from artifacts.remotes.sync import pull as do_pull
 
@@ -167,8 +204,10 @@ def verify_remote_command(name: str, full: bool, store, as_json: bool) -> None:
             out.print(f"[red]problem:[/] {problem}")
         status = "[green]ok[/]" if report.ok else f"[red]{len(report.problems)} problem(s)[/]"
         what = f", {human_size(report.bytes_hashed)} re-hashed" if full else ""
-        out.print(f"verify --remote {name}{' --full' if full else ''}: {status} — {report.reachable} objects "
-                  f"reachable from {report.refs} refs and logs are on the remote{what}")
+        out.print(
+            f"verify --remote {name}{' --full' if full else ''}: {status} — {report.reachable} objects "
+            f"reachable from {report.refs} refs and logs are on the remote{what}"
+        )
     if not report.ok:
         raise SystemExit(1)
 

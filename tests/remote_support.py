@@ -1,5 +1,6 @@
 """Shared by the remote tests: a moto S3 server the suite starts itself, remotes of both kinds,
 and a small store with artifacts and a step record."""
+
 from __future__ import annotations
 
 import os
@@ -16,8 +17,13 @@ from test_runner_support import count_invocation  # noqa: E402
 
 from artifacts.store import Store  # noqa: E402
 
-S3_ENV = {"AWS_ACCESS_KEY_ID": "testing", "AWS_SECRET_ACCESS_KEY": "testing", "AWS_REGION": "us-east-1",
-          "ACCRUE_REMOTE_RETRIES": "1", "ACCRUE_REMOTE_CONNECT_TIMEOUT": "2"}
+S3_ENV = {
+    "AWS_ACCESS_KEY_ID": "testing",
+    "AWS_SECRET_ACCESS_KEY": "testing",
+    "AWS_REGION": "us-east-1",
+    "ACCRUE_REMOTE_RETRIES": "1",
+    "ACCRUE_REMOTE_CONNECT_TIMEOUT": "2",
+}
 
 
 @pytest.fixture(scope="session")
@@ -42,8 +48,13 @@ def s3_env(moto_endpoint, monkeypatch):
 def s3_client(endpoint: str):
     import boto3
 
-    return boto3.client("s3", endpoint_url=endpoint, region_name="us-east-1",
-                        aws_access_key_id="testing", aws_secret_access_key="testing")
+    return boto3.client(
+        "s3",
+        endpoint_url=endpoint,
+        region_name="us-east-1",
+        aws_access_key_id="testing",
+        aws_secret_access_key="testing",
+    )
 
 
 @pytest.fixture(params=["dir", "s3"])
@@ -66,7 +77,7 @@ def remote_file_keys(url: str, under: str) -> dict[str, bytes]:
         out = {}
         for page in client.get_paginator("list_objects_v2").paginate(Bucket=bucket, Prefix=f"{prefix}/{under}"):
             for item in page.get("Contents", []):
-                out[item["Key"][len(prefix) + 1:]] = client.get_object(Bucket=bucket, Key=item["Key"])["Body"].read()
+                out[item["Key"][len(prefix) + 1 :]] = client.get_object(Bucket=bucket, Key=item["Key"])["Body"].read()
         return out
     root = Path(url)
     base = root / under
@@ -106,12 +117,23 @@ def make_store(path: Path, files: int = 6, seed: int = 3) -> Store:
         (src / "policy" / f"part{i}.bin").write_bytes(rng.randbytes(1000 + 37 * i))
     (src / "policy" / "seed.txt").write_text(str(seed))  # the test step reads it
     (src / "replay.bin").write_bytes(rng.randbytes(300_000))
-    assert accrue("add", str(src / "policy"), "--kind", "handoff", "--ref", "team/handoff", "--store", str(path)).returncode == 0
-    assert accrue("add", str(src / "replay.bin"), "--kind", "replay", "--ref", "team/replay", "--store", str(path)).returncode == 0
+    assert (
+        accrue(
+            "add", str(src / "policy"), "--kind", "handoff", "--ref", "team/handoff", "--store", str(path)
+        ).returncode
+        == 0
+    )
+    assert (
+        accrue(
+            "add", str(src / "replay.bin"), "--kind", "replay", "--ref", "team/replay", "--store", str(path)
+        ).returncode
+        == 0
+    )
     store = Store.open(path)
     handoff = (store.refs_dir / "team" / "handoff").read_text().strip()
     Runner(store, console=Console(file=open(os.devnull, "w"))).run_plan(
-        StagePlan("wf", 1, (count_invocation(3, seed=seed, inputs={"seed": handoff}),)))
+        StagePlan("wf", 1, (count_invocation(3, seed=seed, inputs={"seed": handoff}),))
+    )
     return store
 
 

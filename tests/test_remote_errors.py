@@ -1,5 +1,6 @@
 """Remote mistakes are one line on stderr, exit 2, and change nothing in the local store: wrong
 credentials, a missing bucket, an unreachable endpoint, an unmounted disk, bad names and URLs."""
+
 from __future__ import annotations
 
 import json
@@ -44,13 +45,18 @@ def test_wrong_credentials_missing_bucket_and_unreachable_endpoint(robot, s3_env
     monkeypatch.setenv("AWS_ACCESS_KEY_ID", "AKIAWRONGKEY000000")
     with enable_iam_authentication():
         line = one_line_error(cli(robot, verb, "origin"))
-    assert re.fullmatch(r"error: remote origin \(s3://lab-store/accrue\): access denied \(InvalidAccessKeyId\); "
-                        r"check AWS_ACCESS_KEY_ID / AWS_SECRET_ACCESS_KEY or AWS_PROFILE", line), line
+    assert re.fullmatch(
+        r"error: remote origin \(s3://lab-store/accrue\): access denied \(InvalidAccessKeyId\); "
+        r"check AWS_ACCESS_KEY_ID / AWS_SECRET_ACCESS_KEY or AWS_PROFILE",
+        line,
+    ), line
     monkeypatch.setenv("AWS_ACCESS_KEY_ID", "testing")
 
     line = one_line_error(cli(robot, verb, "gone"))
-    assert line == "error: remote gone (s3://no-such-bucket-here/accrue): the bucket does not exist " \
-                   "(create it, or fix the URL)"
+    assert (
+        line == "error: remote gone (s3://no-such-bucket-here/accrue): the bucket does not exist "
+        "(create it, or fix the URL)"
+    )
 
     endpoint = f"http://127.0.0.1:{_closed_port()}"
     monkeypatch.setenv("AWS_ENDPOINT_URL", endpoint)
@@ -70,14 +76,17 @@ def test_an_unmounted_directory_remote_and_an_empty_one(robot, tmp_path):
     assert snapshot(robot) == before
 
 
-@pytest.mark.parametrize("args, pattern", [
-    (("remote", "add", "bad name", "/tmp/x"), r"bad remote name"),
-    (("remote", "add", "web", "https://example.com/x"), r"unsupported scheme"),
-    (("remote", "add", "s3", "s3:///prefix"), r"names no bucket"),
-    (("remote", "remove", "nowhere"), r"no remote named 'nowhere'"),
-    (("push",), r"this store has no remotes; add one with `accrue remote add NAME URL`"),
-    (("pull", "--only", "Not A Kind"), r"bad artifact kind|no remotes"),
-])
+@pytest.mark.parametrize(
+    "args, pattern",
+    [
+        (("remote", "add", "bad name", "/tmp/x"), r"bad remote name"),
+        (("remote", "add", "web", "https://example.com/x"), r"unsupported scheme"),
+        (("remote", "add", "s3", "s3:///prefix"), r"names no bucket"),
+        (("remote", "remove", "nowhere"), r"no remote named 'nowhere'"),
+        (("push",), r"this store has no remotes; add one with `accrue remote add NAME URL`"),
+        (("pull", "--only", "Not A Kind"), r"bad artifact kind|no remotes"),
+    ],
+)
 def test_remote_argument_mistakes(robot, args, pattern):
     line = one_line_error(cli(robot, *args))
     assert re.search(pattern, line), line
@@ -89,8 +98,10 @@ def test_remote_add_list_remove_and_choosing_one(robot, tmp_path):
     assert "exists already" in one_line_error(cli(robot, "remote", "add", "nas", str(tmp_path / "b")))
     cli(robot, "remote", "add", "cloud", "s3://bucket-x/lab")
     listed = json.loads(cli(robot, "remote", "list", "--json").stdout)
-    assert listed == {"cloud": {"kind": "s3", "promisor": False, "url": "s3://bucket-x/lab"},
-                      "nas": {"kind": "dir", "promisor": False, "url": str(tmp_path / "nas" / "a")}}
+    assert listed == {
+        "cloud": {"kind": "s3", "promisor": False, "url": "s3://bucket-x/lab"},
+        "nas": {"kind": "dir", "promisor": False, "url": str(tmp_path / "nas" / "a")},
+    }
     # two remotes, none named origin: the name is required; a ref that matches nothing says so
     assert "which remote?" in one_line_error(cli(robot, "push"))
     assert "no ref 'team/nothing' in this store" in one_line_error(cli(robot, "push", "nas", "team/nothing"))

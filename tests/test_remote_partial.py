@@ -1,5 +1,6 @@
 """Partial clones: `pull --only handoff` brings every manifest and record but leaves the data of
 other kinds on the remote; a step that needs it fetches it then, verified."""
+
 from __future__ import annotations
 
 import json
@@ -8,8 +9,7 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from remote_support import (make_store, moto_endpoint, overwrite_remote_key, remote_url, s3_env,  # noqa: E402,F401
-                            user_refs)
+from remote_support import make_store, moto_endpoint, overwrite_remote_key, remote_url, s3_env, user_refs  # noqa: E402,F401
 from test_cli_store import accrue, one_line_error  # noqa: E402
 from test_runner_support import count_invocation  # noqa: E402
 
@@ -56,8 +56,11 @@ def test_pull_only_handoff_then_a_step_fetches_what_it_needs(tmp_path, remote_ur
     assert user_refs(lab) == user_refs(robot)
     assert all(st.has_object(o) for o in content_ids(lab, "team/handoff"))
     # left behind: the replay file, the checkpoint's two files, the step's (non-handoff) result
-    left = content_ids(lab, "team/replay") + content_ids(lab, "team/ckpt") + \
-        content_ids(lab, "workflow/wf/stage/1/train:result")
+    left = (
+        content_ids(lab, "team/replay")
+        + content_ids(lab, "team/ckpt")
+        + content_ids(lab, "workflow/wf/stage/1/train:result")
+    )
     assert pulled["promised"] == len(set(left)) >= 4
     assert not any(st.has_object(o) for o in left)
     # auditable as it is: lineage, show, and verify (quick and full) pass on the partial clone
@@ -97,3 +100,37 @@ def test_a_lazy_fetch_refuses_a_corrupt_object_and_without_the_remote_it_is_miss
     assert one_line_error(cli(lab, "show", replay)) == f"error: object {replay[:12]} is missing from the store"
     out = cli(lab, "verify")
     assert out.returncode == 1 and f"missing object {replay[:12]}" in out.stdout
+
+
+def test_the_readme_flow_robot_learner_auditor(tmp_path):
+    """README "Sharing a store", with a directory remote and a tiny plan standing in for `accrue run`."""
+    from rich.console import Console
+
+    from stages.runner import Runner
+    from stages.runner_types import StagePlan
+
+    nas = tmp_path / "mnt" / "nas"
+    nas.mkdir(parents=True)
+    robot, learner, laptop = tmp_path / "robot", tmp_path / "learner", tmp_path / "laptop"
+    for store in (robot, learner, laptop):
+        cli(store, "init")
+        assert cli(store, "remote", "add", "origin", str(nas / "accrue")).returncode == 0
+    day = tmp_path / "episodes" / "2026-12-01"
+    day.mkdir(parents=True)
+    (day / "seed.txt").write_text("4")
+    (day / "ep-0000.bin").write_bytes(os.urandom(50_000))
+    episodes = cli(robot, "add", str(day), "--kind", "episodes", "--ref", "robot/episodes/day1").stdout.strip()
+    assert cli(robot, "push").returncode == 0
+
+    assert cli(learner, "pull", "origin", "robot/episodes").returncode == 0
+    Runner(Store.open(learner), console=Console(file=open(os.devnull, "w"))).run_plan(
+        StagePlan("quickstart", 1, (count_invocation(3, seed=4, inputs={"seed": episodes}),))
+    )
+    assert cli(learner, "push", "origin", "workflow/quickstart").returncode == 0
+
+    assert cli(laptop, "pull", "origin", "workflow/quickstart", "--only", "handoff").returncode == 0
+    ref = "workflow/quickstart/stage/1/train:result"
+    assert cli(laptop, "lineage", ref).stdout == cli(learner, "lineage", ref).stdout
+    assert "episodes" in cli(laptop, "lineage", ref).stdout
+    assert cli(laptop, "verify", "--remote", "origin").returncode == 0
+    assert cli(laptop, "verify").returncode == 0

@@ -1,5 +1,6 @@
 """push / pull / fetch against both kinds of remote: a directory, and a real S3 API (moto's server,
 started by the suite). Round trips, resumable pushes, compare-and-swap, verified downloads."""
+
 from __future__ import annotations
 
 import json
@@ -11,14 +12,21 @@ import sys
 import threading
 from pathlib import Path
 
-import pytest
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from remote_support import (delete_remote_key, make_store, moto_endpoint, overwrite_remote_key,  # noqa: E402,F401
-                            remote_file_keys, remote_url, s3_env, snapshot, user_refs)
+from remote_support import (  # noqa: E402,F401
+    delete_remote_key,
+    make_store,
+    moto_endpoint,
+    overwrite_remote_key,
+    remote_file_keys,
+    remote_url,
+    s3_env,
+    snapshot,
+    user_refs,
+)
 from test_cli_store import accrue, one_line_error  # noqa: E402
 
-from artifacts.remotes.sync import pull, push  # noqa: E402
+from artifacts.remotes.sync import push  # noqa: E402
 from artifacts.store import Store  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -52,14 +60,16 @@ def test_push_then_pull_into_an_empty_store_gives_the_same_refs(tmp_path, remote
     # lineage and show read pulled refs exactly as local ones
     ref = "workflow/wf/stage/1/train:result"
     assert cli(b, "lineage", ref).stdout == cli(a, "lineage", ref).stdout
-    assert json.loads(cli(b, "show", "team/handoff", "--json").stdout) == \
-        json.loads(cli(a, "show", "team/handoff", "--json").stdout)
+    assert json.loads(cli(b, "show", "team/handoff", "--json").stdout) == json.loads(
+        cli(a, "show", "team/handoff", "--json").stdout
+    )
     # the robot's audit log came along as a segment (an artifact) under remote-logs/
     logs = {n: i for n, i in json.loads(cli(b, "refs", "remote-logs/", "--json").stdout).items()}
     [log_id] = logs.values()
     segment = json.loads(cli(b, "show", log_id, "--json").stdout)
     assert segment["kind"] == "audit-log" and segment["meta"]["events"] == len(
-        (a / "log" / "events.jsonl").read_bytes().splitlines())
+        (a / "log" / "events.jsonl").read_bytes().splitlines()
+    )
     # a second pull finds nothing to do
     assert json.loads(cli(b, "pull", "--json").stdout)["objects_received"] == 0
 
@@ -112,8 +122,12 @@ def test_a_push_killed_mid_transfer_resumes_and_sends_only_the_rest(tmp_path, re
     store = make_store(a, files=30)
     with_remote(a, remote_url)
     total = len(list(store.iter_object_ids()))
-    proc = subprocess.run([sys.executable, "-c", _KILLER.format(root=str(ROOT)), str(a), "12"],
-                          env={**os.environ}, capture_output=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-c", _KILLER.format(root=str(ROOT)), str(a), "12"],
+        env={**os.environ},
+        capture_output=True,
+        timeout=120,
+    )
     assert proc.returncode == -signal.SIGKILL, proc.stderr
     assert len(remote_file_keys(remote_url, "objects/")) == 12
     assert remote_file_keys(remote_url, "refs/") == {}  # refs move only after every object is there
@@ -152,8 +166,11 @@ def test_two_stores_pushing_one_ref_at_once_one_wins_the_other_gets_a_conflict(t
     assert remote_ref == ids[winners[0]]
     # the CLI says it in one line naming the ref and both ids, and --force overwrites
     line = one_line_error(cli(stores[loser], "push", "team/handoff"))
-    assert re.search(rf"ref team/handoff: remote origin has {ids[winners[0]][:12]}, but this store last saw "
-                     r"nothing there; pull first, or push --force", line), line
+    assert re.search(
+        rf"ref team/handoff: remote origin has {ids[winners[0]][:12]}, but this store last saw "
+        r"nothing there; pull first, or push --force",
+        line,
+    ), line
     assert cli(stores[loser], "push", "team/handoff", "--force").returncode == 0
     remote_ref = remote_file_keys(remote_url, "refs/team/handoff")["refs/team/handoff"].decode().strip()
     assert remote_ref == ids[loser]
@@ -202,8 +219,9 @@ def test_a_byte_flipped_in_a_remote_object_is_refused_on_pull(tmp_path, remote_u
     assert not [p for p in (b / "tmp").iterdir()]  # no half download left behind
     # what did arrive intact is kept for the next try, but nothing corrupt, and no ref moved
     assert all(Store.open(b).read_bytes(o) for o in Store.open(b).iter_object_ids())
-    assert {k: v for k, v in snapshot(b).items() if k.startswith("refs/")} == \
-        {k: v for k, v in before.items() if k.startswith("refs/")}
+    assert {k: v for k, v in snapshot(b).items() if k.startswith("refs/")} == {
+        k: v for k, v in before.items() if k.startswith("refs/")
+    }
     # and verify --remote --full finds it too
     bad = cli(b, "verify", "--remote", "origin", "--full", "--json")
     assert bad.returncode == 1 and any(replay[:12] in p and "corrupt" in p for p in json.loads(bad.stdout)["problems"])

@@ -14,6 +14,7 @@ it; push and pull never send or receive that namespace. `remote-logs/<remote>/<s
 keep the audit-log segments pulled from other stores. `remotes/<remote>/` in the store root holds
 the ids a partial pull left on the remote (promised) and a cache of remote ref versions.
 """
-TRACKING = "remotes"        # local refs/remotes/<remote>/<ref>
+
+TRACKING = "remotes"  # local refs/remotes/<remote>/<ref>
 LOG_TRACKING = "remote-logs"  # local refs/remote-logs/<remote>/<store id>
 RESERVED = (TRACKING + "/", LOG_TRACKING + "/")

@@ -1,5 +1,6 @@
 """Two kinds of remote behind one small interface: S3-compatible object storage (through obstore)
 and a plain directory (a mounted NAS, a USB disk). Every failure becomes one StoreError line."""
+
 from __future__ import annotations
 
 import contextlib
@@ -80,8 +81,10 @@ class Backend:
 
 
 def _local_corrupt(oid: str) -> StoreError:
-    return StoreError(f"object {oid[:12]} in this store is corrupt (its bytes no longer match its id); "
-                      "nothing corrupt is pushed — run `accrue verify --full`")
+    return StoreError(
+        f"object {oid[:12]} in this store is corrupt (its bytes no longer match its id); "
+        "nothing corrupt is pushed — run `accrue verify --full`"
+    )
 
 
 # ============================================================================ S3
@@ -90,14 +93,18 @@ def _s3_store(spec: RemoteSpec):
 
     env = os.environ
     endpoint = env.get("AWS_ENDPOINT_URL_S3") or env.get("AWS_ENDPOINT_URL") or env.get("AWS_ENDPOINT")
-    client = {"connect_timeout": timedelta(seconds=float(env.get("ACCRUE_REMOTE_CONNECT_TIMEOUT", "5"))),
-              "timeout": timedelta(seconds=float(env.get("ACCRUE_REMOTE_TIMEOUT", "300")))}
+    client = {
+        "connect_timeout": timedelta(seconds=float(env.get("ACCRUE_REMOTE_CONNECT_TIMEOUT", "5"))),
+        "timeout": timedelta(seconds=float(env.get("ACCRUE_REMOTE_TIMEOUT", "300"))),
+    }
     if endpoint and endpoint.startswith("http://"):
         client["allow_http"] = True
     retries = int(env.get("ACCRUE_REMOTE_RETRIES", "3"))
-    retry = {"max_retries": retries, "retry_timeout": timedelta(seconds=30 if retries else 1),
-             "backoff": {"init_backoff": timedelta(milliseconds=100), "max_backoff": timedelta(seconds=2),
-                         "base": 2}}
+    retry = {
+        "max_retries": retries,
+        "retry_timeout": timedelta(seconds=30 if retries else 1),
+        "backoff": {"init_backoff": timedelta(milliseconds=100), "max_backoff": timedelta(seconds=2), "base": 2},
+    }
     kwargs: dict = {}
     if endpoint:
         kwargs["endpoint"] = endpoint
@@ -112,8 +119,14 @@ def _s3_store(spec: RemoteSpec):
         session = boto3.Session(profile_name=env.get("AWS_PROFILE"))
         if session.get_credentials() is not None:
             provider = Boto3CredentialProvider(session)
-    return S3Store(spec.bucket, prefix=spec.prefix or None, client_options=client, retry_config=retry,
-                   credential_provider=provider, **kwargs)
+    return S3Store(
+        spec.bucket,
+        prefix=spec.prefix or None,
+        client_options=client,
+        retry_config=retry,
+        credential_provider=provider,
+        **kwargs,
+    )
 
 
 _S3_CODE = re.compile(r"<Code>([A-Za-z]+)</Code>")
@@ -125,16 +138,35 @@ def explain_s3_error(exc: BaseException, where: str) -> StoreError:
     low = text.lower()
     if code == "NoSuchBucket":
         return StoreError(f"{where}: the bucket does not exist (create it, or fix the URL)")
-    if code in ("InvalidAccessKeyId", "SignatureDoesNotMatch", "AccessDenied", "InvalidToken",
-                "ExpiredToken", "AuthorizationHeaderMalformed") or \
-            type(exc).__name__ in ("PermissionDeniedError", "UnauthenticatedError"):
-        return StoreError(f"{where}: access denied ({code or type(exc).__name__}); check AWS_ACCESS_KEY_ID / "
-                          "AWS_SECRET_ACCESS_KEY or AWS_PROFILE")
-    if any(s in low for s in ("error sending request", "connection refused", "dns error", "timed out",
-                              "tcp connect", "connect error", "failed to lookup", "connection reset")):
+    if code in (
+        "InvalidAccessKeyId",
+        "SignatureDoesNotMatch",
+        "AccessDenied",
+        "InvalidToken",
+        "ExpiredToken",
+        "AuthorizationHeaderMalformed",
+    ) or type(exc).__name__ in ("PermissionDeniedError", "UnauthenticatedError"):
+        return StoreError(
+            f"{where}: access denied ({code or type(exc).__name__}); check AWS_ACCESS_KEY_ID / "
+            "AWS_SECRET_ACCESS_KEY or AWS_PROFILE"
+        )
+    if any(
+        s in low
+        for s in (
+            "error sending request",
+            "connection refused",
+            "dns error",
+            "timed out",
+            "tcp connect",
+            "connect error",
+            "failed to lookup",
+            "connection reset",
+        )
+    ):
         endpoint = os.environ.get("AWS_ENDPOINT_URL_S3") or os.environ.get("AWS_ENDPOINT_URL") or "AWS S3"
-        return StoreError(f"{where}: cannot reach {endpoint} (connection failed); check the network "
-                          "and AWS_ENDPOINT_URL")
+        return StoreError(
+            f"{where}: cannot reach {endpoint} (connection failed); check the network and AWS_ENDPOINT_URL"
+        )
     first = text.strip().splitlines()[0] if text.strip() else type(exc).__name__
     return StoreError(f"{where}: {code + ': ' if code else ''}{first[:200]}")
 
@@ -346,8 +378,10 @@ class DirBackend(Backend):
                 break
             except FileExistsError:
                 if time.monotonic() > deadline:
-                    raise StoreError(f"{self.describe()}: {key} is locked by another push ({lock}); "
-                                     "remove that file if no push is running") from None
+                    raise StoreError(
+                        f"{self.describe()}: {key} is locked by another push ({lock}); "
+                        "remove that file if no push is running"
+                    ) from None
                 time.sleep(0.05)
         try:
             try:
@@ -367,7 +401,7 @@ class DirBackend(Backend):
 
     def _walk(self, prefix: str) -> Iterator[tuple[str, Path]]:
         base = self._path(prefix)
-        for root, dirs, files in os.walk(base):
+        for root, _dirs, files in os.walk(base):
             for name in files:
                 path = Path(root) / name
                 yield path.relative_to(self.root).as_posix(), path

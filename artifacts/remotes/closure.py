@@ -1,4 +1,5 @@
 """What a manifest names, and orders that put every object after the objects it names."""
+
 from __future__ import annotations
 
 from artifacts.errors import StoreError
@@ -14,8 +15,9 @@ def children(oid: str, obj: dict) -> list[tuple[str, int | None]]:
     if kind == "tree":
         return [(e["id"], e["size"]) for e in obj["entries"]]
     if kind == "step-record":
-        return [(i, None) for i in obj.get("inputs", {}).values()] + \
-               [(i, None) for i in obj.get("outputs", {}).values()]
+        return [(i, None) for i in obj.get("inputs", {}).values()] + [
+            (i, None) for i in obj.get("outputs", {}).values()
+        ]
     raise StoreError(f"object {oid[:12]} is not a manifest")
 
 

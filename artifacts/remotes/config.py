@@ -1,4 +1,5 @@
 """The remotes a store knows (kept in the store's config) and what their URLs mean."""
+
 from __future__ import annotations
 
 import re
@@ -16,9 +17,9 @@ _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,39}$")
 class RemoteSpec:
     name: str
     url: str
-    kind: str            # "s3" or "dir"
-    bucket: str = ""     # s3 only
-    prefix: str = ""     # s3 only: key prefix inside the bucket, no slashes at either end
+    kind: str  # "s3" or "dir"
+    bucket: str = ""  # s3 only
+    prefix: str = ""  # s3 only: key prefix inside the bucket, no slashes at either end
     path: Path | None = None  # dir only: absolute directory
     promisor: bool = False
 
@@ -33,7 +34,7 @@ def parse_url(name: str, url: str, promisor: bool = False) -> RemoteSpec:
         return RemoteSpec(name, url, "s3", bucket=bucket, prefix=prefix.strip("/"), promisor=promisor)
     if "://" in url and not url.startswith("file://"):
         raise StoreError(f"remote URL {url!r}: unsupported scheme (use s3://BUCKET/PREFIX or a directory)")
-    path = Path(url[len("file://"):] if url.startswith("file://") else url).expanduser()
+    path = Path(url[len("file://") :] if url.startswith("file://") else url).expanduser()
     return RemoteSpec(name, url, "dir", path=path.absolute(), promisor=promisor)
 
 
@@ -44,8 +45,10 @@ def check_remote_name(name: str) -> str:
 
 
 def list_remotes(store: Store) -> dict[str, RemoteSpec]:
-    return {name: parse_url(name, r["url"], bool(r.get("promisor")))
-            for name, r in sorted(store.read_config().get("remotes", {}).items())}
+    return {
+        name: parse_url(name, r["url"], bool(r.get("promisor")))
+        for name, r in sorted(store.read_config().get("remotes", {}).items())
+    }
 
 
 def get_remote(store: Store, name: str) -> RemoteSpec:

@@ -1,6 +1,7 @@
 """Partial clones: `accrue pull --only KIND` leaves the data of other artifacts on the remote and
 notes their ids here (remotes/<name>/promised). When a step needs one, the store's hook
 (Store.fetch_missing) fetches it from a promisor remote, verified like any download."""
+
 from __future__ import annotations
 
 from artifacts.locks import store_lock
@@ -41,28 +42,33 @@ def add_promised(store: Store, remote: str, oids: list[str]) -> None:
 
 def fetch_promised(store: Store, missing: list[str]) -> bool:
     """Fetch missing objects from the promisor remotes (in config order). True if all arrived."""
-    from artifacts.remotes.backends import MissingOnRemote, open_backend
+    from artifacts.remotes.backends import open_backend
     from artifacts.remotes.config import list_remotes
-    from artifacts.remotes.progress import RichMeter
-    from artifacts.remotes.transfer import default_jobs, download_object, parallel
 
     todo = list(dict.fromkeys(missing))
     for spec in (s for s in list_remotes(store).values() if s.promisor):
-        if not todo:
-            break
-        backend = open_backend(spec)
-        meter = RichMeter()
-        meter.start(f"fetching from {spec.name}", len(todo), 0)  # sizes unknown until they arrive
-
-        def one(oid: str) -> str | None:
-            try:
-                meter.advance(download_object(store, backend, oid))
-                return None
-            except MissingOnRemote:
-                return oid
-
-        try:
-            todo = [o for o in parallel(one, todo, default_jobs()) if o is not None]
-        finally:
-            meter.stop()
+        if todo:
+            todo = _fetch_from(store, open_backend(spec), spec.name, todo)
     return not todo
+
+
+def _fetch_from(store: Store, backend, name: str, todo: list[str]) -> list[str]:
+    """Download what one remote has (in parallel, verified); returns the ids it lacks."""
+    from artifacts.remotes.backends import MissingOnRemote
+    from artifacts.remotes.progress import RichMeter
+    from artifacts.remotes.transfer import default_jobs, download_object, parallel
+
+    meter = RichMeter()
+    meter.start(f"fetching from {name}", len(todo), 0)  # sizes unknown until they arrive
+
+    def one(oid: str) -> str | None:
+        try:
+            meter.advance(download_object(store, backend, oid))
+            return None
+        except MissingOnRemote:
+            return oid
+
+    try:
+        return [o for o in parallel(one, todo, default_jobs()) if o is not None]
+    finally:
+        meter.stop()

@@ -2,6 +2,7 @@
 that remote, as an `audit-log` artifact whose input `previous` is the segment before it. The first
 line of a segment carries the hash of the last line of the previous one, so the chain can be
 checked across segments exactly as within the local file."""
+
 from __future__ import annotations
 
 import json
@@ -40,12 +41,20 @@ def next_segment(store: Store, sid: str, previous: str | None, start: int) -> Se
     lines = data.splitlines()
     first, last = json.loads(lines[0]), json.loads(lines[-1])
     manifest = {
-        "type": "artifact", "format": MANIFEST_FORMAT, "kind": KIND,
+        "type": "artifact",
+        "format": MANIFEST_FORMAT,
+        "kind": KIND,
         "producer": {"store": sid, "host": socket.gethostname()},
-        "inputs": {"previous": previous} if previous else {}, "config": {}, "code_version": "",
-        "created": last.get("ts", ""), "meta": {"first_seq": first.get("seq"), "last_seq": last.get("seq"),
-                                                "events": len(lines)},
-        "layout": "file", "content": hash_bytes(data), "size": len(data), "files": 1, "name": "events.jsonl",
+        "inputs": {"previous": previous} if previous else {},
+        "config": {},
+        "code_version": "",
+        "created": last.get("ts", ""),
+        "meta": {"first_seq": first.get("seq"), "last_seq": last.get("seq"), "events": len(lines)},
+        "layout": "file",
+        "content": hash_bytes(data),
+        "size": len(data),
+        "files": 1,
+        "name": "events.jsonl",
     }
     raw = canonical_json(manifest)
     return Segment(hash_bytes(raw), raw, manifest["content"], data, end)

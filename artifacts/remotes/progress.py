@@ -1,5 +1,6 @@
 """The progress bar of transfers: bytes, speed and objects, drawn on stderr (stdout stays clean for
 --json), and only on a terminal (transient: nothing is left in logs or captured output)."""
+
 from __future__ import annotations
 
 import threading
@@ -17,9 +18,15 @@ class RichMeter(Meter):
         from rich.console import Console
         from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TransferSpeedColumn
 
-        self.bar = Progress(TextColumn(what), BarColumn(), DownloadColumn(), TransferSpeedColumn(),
-                            TextColumn("{task.fields[objects]} objects"),
-                            console=Console(stderr=True), transient=True)
+        self.bar = Progress(
+            TextColumn(what),
+            BarColumn(),
+            DownloadColumn(),
+            TransferSpeedColumn(),
+            TextColumn("{task.fields[objects]} objects"),
+            console=Console(stderr=True),
+            transient=True,
+        )
         self.bar.start()
         self.task = self.bar.add_task("", total=nbytes or None, objects=f"0/{objects}")
         self.done, self.total = 0, objects

@@ -6,6 +6,7 @@ store last saw it (its remote-tracking ref). fetch: the reverse, every object ve
 then the remote-tracking refs move. pull: fetch, then move local refs that have not changed
 since this store last saw the remote (or that do not exist yet).
 """
+
 from __future__ import annotations
 
 import json
@@ -22,9 +23,9 @@ from artifacts.remotes.backends import Backend, RefMoved, open_backend
 from artifacts.remotes.closure import bottom_up, children
 from artifacts.remotes.config import RemoteSpec, get_remote, set_promisor, store_id
 from artifacts.remotes.lazy import add_promised
-from artifacts.remotes.logsegment import KIND as LOG_KIND, next_segment
-from artifacts.remotes.transfer import (Meter, default_jobs, download_manifest, download_object,
-                                        parallel)
+from artifacts.remotes.logsegment import KIND as LOG_KIND
+from artifacts.remotes.logsegment import next_segment
+from artifacts.remotes.transfer import Meter, default_jobs, download_manifest, download_object, parallel
 from artifacts.store import Store
 
 REMOTE_CONFIG = {"format": 1, "hash": HASH_NAME, "type": "accrue-remote"}
@@ -53,7 +54,7 @@ def _local_refs(store: Store) -> dict[str, str]:
 
 def _tracking(store: Store, remote: str, space: str = TRACKING) -> dict[str, str]:
     prefix = f"{space}/{remote}/"
-    return {n[len(prefix):]: i for n, i in list_refs(store, prefix).items()}
+    return {n[len(prefix) :]: i for n, i in list_refs(store, prefix).items()}
 
 
 def _select(names: dict[str, str], wanted: list[str], where: str) -> dict[str, str]:
@@ -94,8 +95,9 @@ def check_remote_config(backend: Backend, create: bool) -> None:
     if not isinstance(cfg, dict) or cfg.get("type") != "accrue-remote":
         raise StoreError(f"{backend.describe()}: its config is not an accrue remote's")
     if cfg.get("format") != REMOTE_CONFIG["format"] or cfg.get("hash") != HASH_NAME:
-        raise StoreError(f"{backend.describe()}: unsupported remote format {cfg.get('format')!r} / "
-                         f"hash {cfg.get('hash')!r}")
+        raise StoreError(
+            f"{backend.describe()}: unsupported remote format {cfg.get('format')!r} / hash {cfg.get('hash')!r}"
+        )
 
 
 def read_pointers(store: Store, spec: RemoteSpec, backend: Backend, space: str) -> dict[str, tuple[str, str]]:
@@ -105,7 +107,7 @@ def read_pointers(store: Store, spec: RemoteSpec, backend: Backend, space: str) 
     cache = _load_json(cache_path)
     out: dict[str, tuple[str, str]] = {}
     for key, version in sorted(backend.list_versions(space).items()):
-        name = key[len(space) + 1:]
+        name = key[len(space) + 1 :]
         try:
             check_ref_name(name)
         except StoreError:
@@ -150,9 +152,9 @@ def _present_on_remote(backend: Backend, oids: list[str], jobs: int) -> set[str]
 @dataclass
 class PushReport:
     remote: str
-    moved: dict[str, list] = field(default_factory=dict)   # ref -> [old remote id, new id]
+    moved: dict[str, list] = field(default_factory=dict)  # ref -> [old remote id, new id]
     up_to_date: list[str] = field(default_factory=list)
-    behind: list[str] = field(default_factory=list)         # remote moved on; this store did not
+    behind: list[str] = field(default_factory=list)  # remote moved on; this store did not
     conflicts: list[str] = field(default_factory=list)
     objects_sent: int = 0
     bytes_sent: int = 0
@@ -165,9 +167,9 @@ class PushReport:
 
 @dataclass
 class _Plan:
-    data: dict[str, int] = field(default_factory=dict)               # id -> size
-    manifests: dict[str, list[str]] = field(default_factory=dict)    # id -> ids it names
-    absent: set[str] = field(default_factory=set)                    # reached, not in this store
+    data: dict[str, int] = field(default_factory=dict)  # id -> size
+    manifests: dict[str, list[str]] = field(default_factory=dict)  # id -> ids it names
+    absent: set[str] = field(default_factory=set)  # reached, not in this store
 
 
 def _local_closure(store: Store, roots: list[str], stop: set[str]) -> _Plan:
@@ -193,8 +195,14 @@ def _local_closure(store: Store, roots: list[str], stop: set[str]) -> _Plan:
     return plan
 
 
-def push(store: Store, remote: str, refs: list[str] | None = None, force: bool = False,
-         jobs: int | None = None, meter: Meter | None = None) -> PushReport:
+def push(
+    store: Store,
+    remote: str,
+    refs: list[str] | None = None,
+    force: bool = False,
+    jobs: int | None = None,
+    meter: Meter | None = None,
+) -> PushReport:
     spec = get_remote(store, remote)
     backend = open_backend(spec)
     jobs, meter = jobs or default_jobs(), meter or Meter()
@@ -214,8 +222,10 @@ def push(store: Store, remote: str, refs: list[str] | None = None, force: bool =
         elif oid == seen.get(name):
             report.behind.append(name)
         else:
-            report.conflicts.append(f"ref {name}: remote {spec.name} has {_short(cur)}, but this store "
-                                    f"last saw {_short(seen.get(name))} there; pull first, or push --force")
+            report.conflicts.append(
+                f"ref {name}: remote {spec.name} has {_short(cur)}, but this store "
+                f"last saw {_short(seen.get(name))} there; pull first, or push --force"
+            )
 
     # the audit-log segment written since the last push to this remote
     sid = store_id(store)
@@ -224,8 +234,7 @@ def push(store: Store, remote: str, refs: list[str] | None = None, force: bool =
     remote_log = read_pointers(store, spec, backend, "logs").get(sid)
     remote_log_id = remote_log[0] if remote_log else None
     chained = log_state.get("manifest") == remote_log_id and remote_log_id is not None
-    segment = next_segment(store, sid, remote_log_id if chained else None,
-                           log_state.get("end", 0) if chained else 0)
+    segment = next_segment(store, sid, remote_log_id if chained else None, log_state.get("end", 0) if chained else 0)
 
     # what the refs to move reach, less what the remote provably has (its refs' closures)
     stop = {oid for name, oid in seen.items() if current.get(name, (None,))[0] == oid}
@@ -237,8 +246,10 @@ def push(store: Store, remote: str, refs: list[str] | None = None, force: bool =
     lacking = [o for o in candidates if o not in present]
     for oid in lacking:
         if oid in plan.absent:
-            raise StoreError(f"object {oid[:12]} is not in this store (a partial clone) and remote "
-                             f"{spec.name} lacks it too; pull it from the remote that has it first")
+            raise StoreError(
+                f"object {oid[:12]} is not in this store (a partial clone) and remote "
+                f"{spec.name} lacks it too; pull it from the remote that has it first"
+            )
 
     data = [o for o in lacking if o in plan.data]
     groups = [[o for o in g if o not in present] for g in bottom_up(plan.manifests)]
@@ -266,11 +277,14 @@ def push(store: Store, remote: str, refs: list[str] | None = None, force: bool =
                 report.objects_sent += 1
                 report.bytes_sent += len(raw)
         try:
-            version = backend.swap(f"logs/{sid}", (segment.manifest_id + "\n").encode(),
-                                   remote_log[1] if remote_log else None)
+            version = backend.swap(
+                f"logs/{sid}", (segment.manifest_id + "\n").encode(), remote_log[1] if remote_log else None
+            )
         except RefMoved:
-            raise StoreError(f"remote {spec.name}: another store pushed with this store's id {sid[:12]} "
-                             "(a copied store?); its audit log was left as it is") from None
+            raise StoreError(
+                f"remote {spec.name}: another store pushed with this store's id {sid[:12]} "
+                "(a copied store?); its audit log was left as it is"
+            ) from None
         _remember_version(store, spec.name, "logs", sid, segment.manifest_id, version)
         _state_dir(store, spec.name).mkdir(parents=True, exist_ok=True)
         _save_json(log_state_path, {"manifest": segment.manifest_id, "end": segment.end})
@@ -282,8 +296,10 @@ def push(store: Store, remote: str, refs: list[str] | None = None, force: bool =
             version = backend.swap(f"refs/{name}", (oid + "\n").encode(), version or None)
         except RefMoved:
             now = read_pointers(store, spec, backend, "refs").get(name, (None,))[0]
-            report.conflicts.append(f"ref {name}: remote {spec.name} has {_short(now)}, but this store "
-                                    f"last saw {_short(seen.get(name))} there; pull first, or push --force")
+            report.conflicts.append(
+                f"ref {name}: remote {spec.name} has {_short(now)}, but this store "
+                f"last saw {_short(seen.get(name))} there; pull first, or push --force"
+            )
             continue
         _remember_version(store, spec.name, "refs", name, oid, version)
         report.moved[name] = [old, oid]
@@ -297,12 +313,12 @@ def push(store: Store, remote: str, refs: list[str] | None = None, force: bool =
 @dataclass
 class FetchReport:
     remote: str
-    refs: dict[str, str] = field(default_factory=dict)       # remote ref -> id fetched
-    logs: dict[str, str] = field(default_factory=dict)       # other store's id -> log segment id
+    refs: dict[str, str] = field(default_factory=dict)  # remote ref -> id fetched
+    logs: dict[str, str] = field(default_factory=dict)  # other store's id -> log segment id
     objects_received: int = 0
     bytes_received: int = 0
     promised: int = 0
-    moved: dict[str, list] = field(default_factory=dict)     # pull: local ref -> [old, new]
+    moved: dict[str, list] = field(default_factory=dict)  # pull: local ref -> [old, new]
     up_to_date: list[str] = field(default_factory=list)
     conflicts: list[str] = field(default_factory=list)
 
@@ -312,14 +328,13 @@ class FetchReport:
 
 @dataclass
 class _RemotePlan:
-    manifests: dict[str, bytes] = field(default_factory=dict)        # downloaded, not yet stored
+    manifests: dict[str, bytes] = field(default_factory=dict)  # downloaded, not yet stored
     named: dict[str, list[str]] = field(default_factory=dict)
-    data: dict[str, int] = field(default_factory=dict)               # to download
-    skipped: dict[str, int] = field(default_factory=dict)            # left on the remote (--only)
+    data: dict[str, int] = field(default_factory=dict)  # to download
+    skipped: dict[str, int] = field(default_factory=dict)  # left on the remote (--only)
 
 
-def _remote_closure(store: Store, backend: Backend, roots: list[str], only: set[str] | None,
-                    jobs: int) -> _RemotePlan:
+def _remote_closure(store: Store, backend: Backend, roots: list[str], only: set[str] | None, jobs: int) -> _RemotePlan:
     """Breadth first: each level's missing manifests arrive in parallel (verified, in memory);
     manifests already here are read locally. `only`: data of other artifact kinds stays behind."""
     plan = _RemotePlan()
@@ -328,8 +343,9 @@ def _remote_closure(store: Store, backend: Backend, roots: list[str], only: set[
     while level:
         level = [item for item in dict.fromkeys(level) if (item[0], item[2]) not in visited]
         visited.update((oid, skip) for oid, _, skip in level)
-        wanted = sorted({oid for oid, size, _ in level if size is None and oid not in plan.manifests
-                         and not store.has_object(oid)})
+        wanted = sorted(
+            {oid for oid, size, _ in level if size is None and oid not in plan.manifests and not store.has_object(oid)}
+        )
         for oid, raw in zip(wanted, parallel(lambda o: download_manifest(backend, o), wanted, jobs)):
             plan.manifests[oid] = raw
         following: list[tuple[str, int | None, bool]] = []
@@ -348,16 +364,22 @@ def _remote_closure(store: Store, backend: Backend, roots: list[str], only: set[
             plan.named[oid] = [k for k, _ in kids]
             if obj.get("type") == "artifact":
                 leave = only is not None and obj.get("kind") not in only and obj.get("kind") != LOG_KIND
-                following.append((kids[0][0], kids[0][1], leave))          # its content
-                following += [(k, s, False) for k, s in kids[1:]]          # its inputs decide alone
+                following.append((kids[0][0], kids[0][1], leave))  # its content
+                following += [(k, s, False) for k, s in kids[1:]]  # its inputs decide alone
             else:
-                following += [(k, s, skip) for k, s in kids]               # tree entries inherit
+                following += [(k, s, skip) for k, s in kids]  # tree entries inherit
         level = following
     return plan
 
 
-def fetch(store: Store, remote: str, refs: list[str] | None = None, only: set[str] | None = None,
-          jobs: int | None = None, meter: Meter | None = None) -> FetchReport:
+def fetch(
+    store: Store,
+    remote: str,
+    refs: list[str] | None = None,
+    only: set[str] | None = None,
+    jobs: int | None = None,
+    meter: Meter | None = None,
+) -> FetchReport:
     spec = get_remote(store, remote)
     backend = open_backend(spec)
     jobs, meter = jobs or default_jobs(), meter or Meter()
@@ -367,8 +389,11 @@ def fetch(store: Store, remote: str, refs: list[str] | None = None, only: set[st
     chosen = _select(current, refs or [], f"on remote {spec.name}")
     own = store.read_config().get("store_id")
     seen_logs = _tracking(store, spec.name, LOG_TRACKING)
-    logs = {sid: v[0] for sid, v in read_pointers(store, spec, backend, "logs").items()
-            if sid != own and seen_logs.get(sid) != v[0]}
+    logs = {
+        sid: v[0]
+        for sid, v in read_pointers(store, spec, backend, "logs").items()
+        if sid != own and seen_logs.get(sid) != v[0]
+    }
 
     plan = _remote_closure(store, backend, list(chosen.values()) + list(logs.values()), only, jobs)
     meter.start(f"pull ← {spec.name}", len(plan.data) + len(plan.manifests), sum(plan.data.values()))
@@ -404,8 +429,15 @@ def fetch(store: Store, remote: str, refs: list[str] | None = None, only: set[st
     return report
 
 
-def pull(store: Store, remote: str, refs: list[str] | None = None, only: set[str] | None = None,
-         force: bool = False, jobs: int | None = None, meter: Meter | None = None) -> FetchReport:
+def pull(
+    store: Store,
+    remote: str,
+    refs: list[str] | None = None,
+    only: set[str] | None = None,
+    force: bool = False,
+    jobs: int | None = None,
+    meter: Meter | None = None,
+) -> FetchReport:
     spec = get_remote(store, remote)
     before = _tracking(store, spec.name)
     report = fetch(store, spec.name, refs, only, jobs, meter)
@@ -417,9 +449,11 @@ def pull(store: Store, remote: str, refs: list[str] | None = None, only: set[str
             set_ref(store, name, oid)
             report.moved[name] = [mine, oid]
         else:
-            report.conflicts.append(f"ref {name}: this store has {_short(mine)}, remote {spec.name} has "
-                                    f"{_short(oid)} (last seen there: {_short(before.get(name))}); "
-                                    "pull --force to take the remote's")
+            report.conflicts.append(
+                f"ref {name}: this store has {_short(mine)}, remote {spec.name} has "
+                f"{_short(oid)} (last seen there: {_short(before.get(name))}); "
+                "pull --force to take the remote's"
+            )
     return report
 
 
@@ -441,8 +475,9 @@ class RemoteVerifyReport:
         return {"ok": self.ok, **self.__dict__}
 
 
-def verify_remote(store: Store, remote: str, full: bool = False, jobs: int | None = None,
-                  meter: Meter | None = None) -> RemoteVerifyReport:
+def verify_remote(
+    store: Store, remote: str, full: bool = False, jobs: int | None = None, meter: Meter | None = None
+) -> RemoteVerifyReport:
     """Does the remote hold every object its refs and log pointers reach, with the right size?
     Manifests are read from this store when it has them, else from the remote (verified). With
     full, every reachable remote object is downloaded and re-hashed (nothing is stored)."""
@@ -469,16 +504,20 @@ def verify_remote(store: Store, remote: str, full: bool = False, jobs: int | Non
             continue
         if size is not None:
             if held[oid] != size:
-                report.problems.append(f"remote object {oid[:12]} has size {held[oid]}, expected {size} "
-                                       f"(named by {where})")
+                report.problems.append(
+                    f"remote object {oid[:12]} has size {held[oid]}, expected {size} (named by {where})"
+                )
             continue
         try:
             raw = store.read_bytes(oid, verify=True) if store.has_object(oid) else download_manifest(backend, oid)
             obj = json.loads(raw)
             kids = children(oid, obj)
         except (StoreError, ValueError) as exc:
-            report.problems.append(f"{exc} (named by {where})" if isinstance(exc, StoreError)
-                                   else f"remote object {oid[:12]} is not a manifest (named by {where})")
+            report.problems.append(
+                f"{exc} (named by {where})"
+                if isinstance(exc, StoreError)
+                else f"remote object {oid[:12]} is not a manifest (named by {where})"
+            )
             continue
         here = f"{obj.get('type')} {oid[:12]}"
         stack += [(k, here, s) for k, s in kids]
@@ -523,8 +562,10 @@ def forget_remote(store: Store, remote: str, force: bool = False) -> int:
     if promised.is_file() and not force:
         lacking = [o for o in promised.read_text().split() if not store.has_object(o)]
         if lacking:
-            raise StoreError(f"remote {spec.name} still holds {len(lacking)} object(s) this partial clone "
-                             f"left there (e.g. {lacking[0][:12]}); pull them first, or remove --force")
+            raise StoreError(
+                f"remote {spec.name} still holds {len(lacking)} object(s) this partial clone "
+                f"left there (e.g. {lacking[0][:12]}); pull them first, or remove --force"
+            )
     dropped = 0
     with store_lock(store.locks_dir, "refs"):
         for space in (TRACKING, LOG_TRACKING):

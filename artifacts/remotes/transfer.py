@@ -1,5 +1,6 @@
 """Parallel transfers with progress, and verified downloads: a remote object is hashed while it
 arrives, and only bytes that hash to its id are ever linked into the store."""
+
 from __future__ import annotations
 
 import os
@@ -52,9 +53,11 @@ def parallel(fn: Callable[[T], R], items: Iterable[T], jobs: int) -> list[R]:
 
 
 def _corrupt(backend: Backend, oid: str, why: str) -> StoreError:
-    return StoreError(f"{backend.describe()}: object {oid[:12]} arrived {why} {ATTEMPTS} times; "
-                      "refused, nothing of it was stored (the remote copy is damaged: re-push it from a "
-                      "store that has it)")
+    return StoreError(
+        f"{backend.describe()}: object {oid[:12]} arrived {why} {ATTEMPTS} times; "
+        "refused, nothing of it was stored (the remote copy is damaged: re-push it from a "
+        "store that has it)"
+    )
 
 
 def download_object(store: Store, backend: Backend, oid: str, size: int | None = None) -> int:
@@ -71,7 +74,8 @@ def download_object(store: Store, backend: Backend, oid: str, size: int | None =
             finally:
                 os.close(fd)
             if got == oid and (size is None or n == size):
-                store._publish_tmp(tmp, oid)
+                with store._writing():  # a writer: gc waits until this process is done
+                    store._publish_tmp(tmp, oid)
                 return n
             why = "corrupt" if size is None or n == size else f"truncated ({n} of {size} bytes)"
         finally:
@@ -81,13 +85,16 @@ def download_object(store: Store, backend: Backend, oid: str, size: int | None =
 
 def download_manifest(backend: Backend, oid: str) -> bytes:
     """A manifest's bytes, held in memory (published later, after what it names)."""
-    from artifacts.remotes.backends import MissingOnRemote, object_key as key_of
+    from artifacts.remotes.backends import MissingOnRemote
+    from artifacts.remotes.backends import object_key as key_of
 
     for _ in range(ATTEMPTS):
         data = backend.get_bytes(key_of(oid))
         if data is None:
-            raise MissingOnRemote(f"{backend.describe()}: lacks object {oid[:12]} that its refs reach; "
-                                  "run `accrue verify --remote` and re-push from a complete store")
+            raise MissingOnRemote(
+                f"{backend.describe()}: lacks object {oid[:12]} that its refs reach; "
+                "run `accrue verify --remote` and re-push from a complete store"
+            )
         if hash_bytes(data) == oid:
             return data
     raise _corrupt(backend, oid, "corrupt")

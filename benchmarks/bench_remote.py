@@ -1,0 +1,248 @@
+"""Remote benchmarks (a script, not a test): prints
+
+1. push and pull throughput of a 1 GiB store (default) to a local S3 server (moto, in its own
+   process) against a plain parallel recursive upload / download of the same files with the same
+   library (obstore, same parallelism) — goal: >= 0.8x;
+2. the wall time of a no-op `accrue push` of a store with 10,000 objects (goal: < 2 s), run as
+   the user runs it (a fresh process, start-up included).
+
+  nice -n 10 .venv/bin/python benchmarks/bench_remote.py [--size-mb 1024] [--objects 10000]
+      [--jobs 16] [--dir DIR] [--json benchmarks/results/remote.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+from rich.console import Console
+from rich.table import Table
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+ACCRUE = (
+    [str(ROOT / ".venv" / "bin" / "accrue")]
+    if (ROOT / ".venv" / "bin" / "accrue").exists()
+    else [sys.executable, "-m", "cli.main"]
+)
+MIB = 1024 * 1024
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def start_moto(port: int) -> subprocess.Popen:
+    """moto's S3 server in its own process, so it does not share the client's interpreter."""
+    code = (
+        "import time; from moto.server import ThreadedMotoServer; "
+        f"s = ThreadedMotoServer(ip_address='127.0.0.1', port={port}, verbose=False); s.start(); "
+        "time.sleep(10**6)"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 30
+    while time.time() < deadline:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=0.2).close()
+            return proc
+        except OSError:
+            time.sleep(0.1)
+    proc.kill()
+    raise SystemExit("moto server did not start")
+
+
+def make_source(directory: Path, size: int) -> None:
+    """A store-like mix: three quarters in large files (checkpoints, replay shards), the rest in
+    1 MiB files (episodes)."""
+    directory.mkdir(parents=True)
+    big, small = 96 * MIB, 1 * MIB
+    n_big = max(1, (size * 3 // 4) // big)
+    n_small = max(1, (size - n_big * big) // small)
+    block = os.urandom(big)
+    for i in range(n_big):
+        (directory / f"shard-{i:03d}.bin").write_bytes(block[i:] + block[:i])  # distinct contents
+    for i in range(n_small):
+        (directory / "episodes").mkdir(exist_ok=True)
+        (directory / "episodes" / f"ep-{i:05d}.bin").write_bytes(os.urandom(small))
+
+
+def accrue(*args: str, store: Path, env: dict) -> subprocess.CompletedProcess:
+    proc = subprocess.run([*ACCRUE, *args, "--store", str(store)], capture_output=True, text=True, env=env)
+    if proc.returncode != 0:
+        raise SystemExit(f"accrue {' '.join(args)} failed: {proc.stderr.strip()}")
+    return proc
+
+
+def timed(fn) -> float:
+    t = time.perf_counter()
+    fn()
+    return time.perf_counter() - t
+
+
+def plain_upload(store, files: list[Path], base: Path, jobs: int) -> None:
+    import obstore
+
+    with ThreadPoolExecutor(jobs) as pool:
+        list(pool.map(lambda p: obstore.put(store, p.relative_to(base).as_posix(), p), files))
+
+
+def plain_download(store, keys: list[str], dest: Path, jobs: int) -> None:
+    import obstore
+
+    def one(key: str) -> None:
+        target = dest / key
+        target.parent.mkdir(parents=True, exist_ok=True)
+        with open(target, "wb") as f:
+            for chunk in obstore.get(store, key).stream(min_chunk_size=8 * MIB):
+                f.write(chunk)
+
+    with ThreadPoolExecutor(jobs) as pool:
+        list(pool.map(one, keys))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--size-mb", type=int, default=1024)
+    ap.add_argument("--objects", type=int, default=10_000)
+    ap.add_argument("--jobs", type=int, default=16)
+    ap.add_argument("--dir", type=Path, default=None, help="work directory (default: a temp dir)")
+    ap.add_argument("--json", type=Path, default=None, help="also write the figures here")
+    args = ap.parse_args()
+
+    import boto3
+    from obstore.store import S3Store
+
+    work = Path(tempfile.mkdtemp(prefix="bench-remote-", dir=args.dir))
+    port = free_port()
+    endpoint = f"http://127.0.0.1:{port}"
+    env = {
+        **os.environ,
+        "AWS_ENDPOINT_URL": endpoint,
+        "AWS_ACCESS_KEY_ID": "bench",
+        "AWS_SECRET_ACCESS_KEY": "bench",
+        "AWS_REGION": "us-east-1",
+        "ACCRUE_REMOTE_JOBS": str(args.jobs),
+    }
+    env.pop("AWS_PROFILE", None)
+    os.environ.update(
+        {k: env[k] for k in ("AWS_ENDPOINT_URL", "AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY", "AWS_REGION")}
+    )
+    server = start_moto(port)
+    s3 = boto3.client("s3", endpoint_url=endpoint, region_name="us-east-1")
+    for bucket in ("plain", "accrue", "many"):
+        s3.create_bucket(Bucket=bucket)
+    console = Console()
+    figures: dict = {"size_bytes": None, "jobs": args.jobs}
+    try:
+        src = work / "src"
+        console.print(f"making a {args.size_mb} MiB store in {work} …")
+        make_source(src, args.size_mb * MIB)
+        files = sorted(p for p in src.rglob("*") if p.is_file())
+        size = sum(p.stat().st_size for p in files)
+        figures["size_bytes"] = size
+        store = work / "store"
+        accrue("init", store=store, env=env)
+        accrue("add", str(src), "--kind", "replay", "--ref", "bench/data", store=store, env=env)
+        accrue("remote", "add", "origin", "s3://accrue/lab", store=store, env=env)
+
+        plain = S3Store("plain", prefix="lab", endpoint=endpoint, client_options={"allow_http": True})
+        # warm the page cache for both contenders alike
+        for p in files:
+            p.read_bytes()
+        t_plain_up = timed(lambda: plain_upload(plain, files, src, args.jobs))
+        t_push = timed(lambda: accrue("push", store=store, env=env))
+        keys = [p.relative_to(src).as_posix() for p in files]
+        t_plain_down = timed(lambda: plain_download(plain, keys, work / "plain-down", args.jobs))
+        clone = work / "clone"
+        accrue("init", store=clone, env=env)
+        accrue("remote", "add", "origin", "s3://accrue/lab", store=clone, env=env)
+        t_pull = timed(lambda: accrue("pull", store=clone, env=env))
+        accrue("verify", "--full", store=clone, env=env)
+        figures.update(
+            plain_upload_s=t_plain_up,
+            push_s=t_push,
+            plain_download_s=t_plain_down,
+            pull_s=t_pull,
+            push_mb_s=size / MIB / t_push,
+            plain_upload_mb_s=size / MIB / t_plain_up,
+            pull_mb_s=size / MIB / t_pull,
+            plain_download_mb_s=size / MIB / t_plain_down,
+            push_ratio=t_plain_up / t_push,
+            pull_ratio=t_plain_down / t_pull,
+        )
+        shutil.rmtree(src)
+        shutil.rmtree(work / "plain-down")
+
+        # a no-op push of a store with N objects (N - 2 small files, their tree, the manifest)
+        many_src = work / "many"
+        many_src.mkdir()
+        for i in range(args.objects - 2):
+            (many_src / f"{i:05d}.json").write_bytes(b'{"episode": %d}' % i)
+        many = work / "many-store"
+        accrue("init", store=many, env=env)
+        accrue("add", str(many_src), "--kind", "episodes", "--ref", "bench/many", store=many, env=env)
+        accrue("remote", "add", "origin", "s3://many/lab", store=many, env=env)
+        objects = sum(1 for _ in (many / "objects" / "blake3").rglob("*") if _.is_file())
+        t_first = timed(lambda: accrue("push", store=many, env=env))
+        noop = [timed(lambda: accrue("push", store=many, env=env)) for _ in range(3)]
+        figures.update(noop_objects=objects, first_push_many_s=t_first, noop_push_s=min(noop))
+    finally:
+        server.kill()
+        shutil.rmtree(work, ignore_errors=True)
+
+    table = Table(
+        title=f"remotes: {figures['size_bytes'] / MIB:.0f} MiB store, local moto S3 server, "
+        f"{args.jobs} parallel transfers",
+        title_justify="left",
+    )
+    for col in ("measure", "accrue", "plain obstore", "ratio", "goal"):
+        table.add_column(col)
+    table.add_row(
+        "upload",
+        f"{figures['push_mb_s']:.0f} MiB/s ({figures['push_s']:.1f} s)",
+        f"{figures['plain_upload_mb_s']:.0f} MiB/s ({figures['plain_upload_s']:.1f} s)",
+        f"{figures['push_ratio']:.2f}x",
+        ">= 0.8x",
+    )
+    table.add_row(
+        "download",
+        f"{figures['pull_mb_s']:.0f} MiB/s ({figures['pull_s']:.1f} s)",
+        f"{figures['plain_download_mb_s']:.0f} MiB/s ({figures['plain_download_s']:.1f} s)",
+        f"{figures['pull_ratio']:.2f}x",
+        ">= 0.8x",
+    )
+    table.add_row(
+        f"no-op push, {figures['noop_objects']} objects", f"{figures['noop_push_s']:.2f} s", "-", "-", "< 2 s"
+    )
+    table.add_row(
+        f"first push, {figures['noop_objects']} objects", f"{figures['first_push_many_s']:.1f} s", "-", "-", "-"
+    )
+    console.print(table)
+    console.print(
+        "accrue's push and pull include process start-up, the store walk, the existence checks, "
+        "hashing every byte, and (pull) fsync of every object; pull is followed by verify --full "
+        "(not timed)"
+    )
+    if args.json:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(
+            json.dumps(
+                {k: round(v, 3) if isinstance(v, float) else v for k, v in figures.items()}, indent=2, sort_keys=True
+            )
+            + "\n"
+        )
+
+
+if __name__ == "__main__":
+    main()
