@@ -6,8 +6,9 @@ metrics. The README's quickstart table is this script's output, not typed.
     .venv/bin/python scripts/quickstart_table.py --seeds 0 1 2 --variant old-norm \
         --set learner.obs_norm_update=every-stage --set learner.obs_norm_min_std=0 --set learner.obs_norm_clip=0
 
-Every seed runs as its own workflow (`quickstart-s<seed>[-<variant>]`) in one store, so variants of the
-learner reuse the seed's demonstrations and fine-tuned base policies through the step cache. Re-running
+Every seed runs as its own workflow (`quickstart-s<seed>-<variant>`) in its seed's store (--store, with
+{seed} in the path), so variants of the learner reuse the seed's demonstrations and fine-tuned base
+policies through the step cache. Re-running
 resumes (committed steps are skipped). Results: benchmarks/results/quickstart-<variant>.json.
 """
 from __future__ import annotations
@@ -31,7 +32,7 @@ START, END = "<!-- quickstart-table:start -->", "<!-- quickstart-table:end -->"
 def derived_workflow(base: Path, seed: int, variant: str, overrides: list[str], out_dir: Path) -> Path:
     data = yaml.safe_load(base.read_text())
     data["seed"] = seed
-    data["name"] = f"{data['name']}-s{seed}" + (f"-{variant}" if variant != "default" else "")
+    data["name"] = f"{data['name']}-s{seed}-{variant}"
     for item in overrides:
         key, _, value = item.partition("=")
         node = data
@@ -111,8 +112,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--workflow", type=Path, default=ROOT / "workflows" / "quickstart.yaml")
-    ap.add_argument("--store", type=Path, default=ROOT / "runs" / "quickstart-seeds" / "store")
-    ap.add_argument("--variant", default="default", help="a name for the overrides (part of workflow names)")
+    ap.add_argument("--store", default=str(ROOT / "runs" / "quickstart-seeds" / "store-s{seed}"),
+                    help="store directory; {seed} is replaced by the seed")
+    ap.add_argument("--variant", default="main", help="a name for the overrides (part of workflow names)")
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                     help="workflow override, dotted path, YAML value (repeatable)")
     ap.add_argument("--no-run", action="store_true", help="only tabulate what the store already has")
@@ -120,14 +122,14 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
 
-    work = args.store.parent
-    work.mkdir(parents=True, exist_ok=True)
     summaries = []
     for seed in args.seeds:
-        path = derived_workflow(args.workflow, seed, args.variant, args.overrides, work)
+        store = Path(args.store.format(seed=seed))
+        store.parent.mkdir(parents=True, exist_ok=True)
+        path = derived_workflow(args.workflow, seed, args.variant, args.overrides, store.parent)
         if not args.no_run:
-            run_workflow(path, args.store)
-        summaries.append(summarize(path, args.store))
+            run_workflow(path, store)
+        summaries.append(summarize(path, store))
     command = "python scripts/quickstart_table.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     result = {"command": command.strip(), "workflow": str(args.workflow.relative_to(ROOT)), "seeds": args.seeds,
               "variant": args.variant, "overrides": args.overrides, "aggregate": aggregate(summaries),
