@@ -26,12 +26,11 @@ from accrue.learner.agent import ChunkLearner
 from accrue.learner.config import LearnerConfig
 from accrue.learner.networks import Actor
 from accrue.learner.replay import Batch
+from accrue.learner.sac import FastSACLearner
+from accrue.learner.td3 import FastTD3Learner
 
 
 def make_learner(cfg: LearnerConfig, state_dim: int, horizon: int, action_dim: int = 6) -> ChunkLearner:
-    from accrue.learner.sac import FastSACLearner
-    from accrue.learner.td3 import FastTD3Learner
-
     cls = {"fasttd3": FastTD3Learner, "fastsac": FastSACLearner}[cfg.algo]
     return cls(cfg, state_dim, horizon, action_dim)
 
