@@ -1,0 +1,164 @@
+"""Any lerobot 0.4.4 `Robot` behind deadlines: every call to the robot runs on a worker thread and is
+given up after its timeout, so a robot that stops answering ends the episode instead of hanging it.
+
+    bridge = RobotBridge(make_robot, mapping, Timeouts(connect_s=10, observation_s=1, action_s=1))
+    bridge.connect()                     # RobotFault on failure, with the reason
+    state, done = bridge.observe()       # (STATE_DIM,) float32 via the mapping; done = robot ended the episode
+    bridge.act(a)                        # a: (6,) normalised delta -> the robot's action dict
+    bridge.reconnect()                   # a fresh Robot from make_robot, connected; False when it cannot be
+
+A call that times out leaves its worker thread behind (a driver stuck in I/O cannot be interrupted from
+Python); the bridge starts a new one and treats the robot as lost until reconnect() succeeds.
+"""
+from __future__ import annotations
+
+import concurrent.futures as cf
+import time
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from accrue.errors import AccrueError
+from accrue.robot.mapping import RobotMapping
+
+
+class RobotFault(Exception):
+    """The robot disconnected, stopped answering, or raised: the episode ends as not a success."""
+
+    def __init__(self, kind: str, message: str):
+        super().__init__(message)
+        self.kind = kind          # "disconnected" | "timeout" | "error"
+
+
+@dataclass(frozen=True)
+class Timeouts:
+    connect_s: float = 15.0
+    observation_s: float = 1.0
+    action_s: float = 1.0
+    reconnect_attempts: int = 3
+    reconnect_wait_s: float = 1.0
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> "Timeouts":
+        return cls(**{k: v for k, v in (d or {}).items() if k in cls.__dataclass_fields__})
+
+
+def robot_factory(robot_type: str, config: dict[str, Any], imports: tuple[str, ...] = ()) -> Callable[[], Any]:
+    """A function building the lerobot Robot of `robot_type` (a RobotConfig registry name) from `config`.
+
+    `imports` are modules to import first so that third-party robot types register themselves (lerobot
+    finds plugins by distribution name only in its own scripts); accrue's simulated robot is built in."""
+    import importlib
+
+    for name in ("accrue.robot.sim_robot", *imports):
+        try:
+            importlib.import_module(name)
+        except ImportError as exc:
+            raise AccrueError(f"robot.imports: cannot import {name!r} ({exc})") from None
+    from lerobot.robots.config import RobotConfig
+    from lerobot.robots.utils import make_robot_from_config
+
+    known = sorted(RobotConfig.get_known_choices())
+    if robot_type not in known:
+        raise AccrueError(f"robot.type: unknown lerobot robot type {robot_type!r} (registered: {', '.join(known)}; "
+                          "a third-party robot's module goes in robot.imports)")
+    cls = RobotConfig.get_choice_class(robot_type)
+    try:
+        import draccus
+
+        robot_config = draccus.decode(cls, dict(config))
+    except Exception as exc:  # noqa: BLE001 - draccus raises many types for a bad field
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise AccrueError(f"robot.config: not a valid {cls.__name__} ({first})") from None
+    return lambda: make_robot_from_config(robot_config)
+
+
+class RobotBridge:
+    def __init__(self, make_robot: Callable[[], Any], mapping: RobotMapping, timeouts: Timeouts = Timeouts(),
+                 report: Callable[[str], None] = lambda line: None):
+        self.make_robot, self.mapping, self.timeouts, self.report = make_robot, mapping, timeouts, report
+        self.robot = None
+        self._pool: cf.ThreadPoolExecutor | None = None
+        self.last_latency_s = 0.0
+
+    # ------------------------------------------------------------------ calls with deadlines
+    def _call(self, what: str, fn: Callable, timeout: float, *args, **kw):
+        if self._pool is None:
+            self._pool = cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="robot")
+        started = time.monotonic()
+        future = self._pool.submit(fn, *args, **kw)
+        try:
+            result = future.result(timeout=timeout)
+        except cf.TimeoutError:
+            self._pool.shutdown(wait=False)     # the stuck call keeps its thread; later calls get a new one
+            self._pool = None
+            raise RobotFault("timeout", f"robot did not answer {what} within {timeout:g} s") from None
+        except RobotFault:
+            raise
+        except Exception as exc:  # noqa: BLE001 - any driver error ends the episode, with its text
+            kind = "disconnected" if "connect" in type(exc).__name__.lower() or "connect" in str(exc).lower() \
+                else "error"
+            raise RobotFault(kind, f"robot {what} failed: {type(exc).__name__}: "
+                                   f"{str(exc).strip().splitlines()[0] if str(exc).strip() else ''}") from None
+        self.last_latency_s = time.monotonic() - started
+        return result
+
+    # ------------------------------------------------------------------ lifecycle
+    def connect(self) -> None:
+        if self.robot is None:
+            self.robot = self._call("creation", self.make_robot, self.timeouts.connect_s)
+            self.mapping.check_features(self.robot.observation_features, self.robot.action_features,
+                                        f"robot {getattr(self.robot, 'name', type(self.robot).__name__)}")
+        if not self.robot.is_connected:
+            self._call("connect", self.robot.connect, self.timeouts.connect_s, calibrate=False)
+
+    def disconnect(self) -> None:
+        robot, self.robot = self.robot, None
+        if robot is None:
+            return
+        try:
+            if robot.is_connected:
+                self._call("disconnect", robot.disconnect, self.timeouts.connect_s)
+        except RobotFault as exc:
+            self.report(f"robot: disconnect did not complete ({exc})")
+
+    def reconnect(self) -> bool:
+        """Drop the robot and connect a fresh one; False after `reconnect_attempts` failures."""
+        keep = self.robot
+        for attempt in range(1, self.timeouts.reconnect_attempts + 1):
+            try:
+                if keep is not None and not self._is_stale(keep):
+                    self.robot = keep               # same driver object: just connect it again
+                else:
+                    self.disconnect()
+                self.connect()
+                self.report(f"robot: reconnected (attempt {attempt})")
+                return True
+            except RobotFault as exc:
+                self.report(f"robot: reconnect attempt {attempt} failed: {exc}")
+                keep = None
+                time.sleep(self.timeouts.reconnect_wait_s)
+        return False
+
+    def _is_stale(self, robot) -> bool:
+        return self._pool is None   # a timed-out call left the old driver mid-call: build a new one
+
+    # ------------------------------------------------------------------ control
+    def observe(self) -> tuple[np.ndarray, bool]:
+        if self.robot is None:
+            raise RobotFault("disconnected", "robot is not connected")
+        obs = self._call("get_observation", self.robot.get_observation, self.timeouts.observation_s)
+        return self.mapping.state(obs), self.mapping.done(obs)
+
+    def act(self, normalised: np.ndarray) -> bool:
+        """Send one action; False when the robot reports it did not take it (a dropped command)."""
+        if self.robot is None:
+            raise RobotFault("disconnected", "robot is not connected")
+        action = self.mapping.action(normalised)
+        sent = self._call("send_action", self.robot.send_action, self.timeouts.action_s, action)
+        return not isinstance(sent, dict) or all(k in sent for k in action)
+
+    def hook(self, name: str):
+        """An optional extra of the robot object (the simulated robot's reset_scene / episode_success)."""
+        return getattr(self.robot, name, None) if self.robot is not None else None

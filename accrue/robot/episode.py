@@ -1,0 +1,177 @@
+"""One episode on the robot, chunk by chunk at the control rate, and the chunk transitions it leaves.
+
+    out = run_episode(bridge, settings, reference, policy, features, recorder, metadata, operator)
+
+`reference(state (1, D)) -> (1, H, 6)` is π_base's chunk, `policy(s, ref, fresh) -> (1, H, 6)` what is
+executed (the reference itself for warmup and base-policy trials, the actor's refinement in training).
+The episode ends when the robot says it is done (`mapping.done_key`), at the step limit, when the state
+leaves the safety envelope, when the operator ends it, or when the robot faults (disconnect, timeout):
+a faulted or unsafe episode is never a success. Rewards come later, from the operator's label
+(`chunk_rewards`): sparse, 1 on the last three control steps of a successful episode.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from accrue.robot.bridge import RobotBridge, RobotFault
+from accrue.robot.safety import SafetyEnvelope
+
+SUCCESS_REWARD_STEPS = 3     # the sim's convention, kept on hardware so the two are comparable
+
+
+@dataclass(frozen=True)
+class EpisodeSettings:
+    horizon: int
+    max_steps: int
+    control_hz: float
+    clock: float = 1.0               # 1: real time; k > 1: k times faster; 0: as fast as the robot answers
+    safety: SafetyEnvelope = SafetyEnvelope()
+    late_after_s: float | None = None   # an observation slower than this is noted as late (default 2 periods)
+
+
+@dataclass
+class EpisodeOutcome:
+    s: np.ndarray                     # (T + 1, D) learner states at each chunk start, and the last one
+    ref: np.ndarray                   # (T + 1, H, 6)
+    action: np.ndarray                # (T, H, 6) executed chunks
+    steps: np.ndarray                 # (T,) control steps of each chunk actually executed
+    control_steps: int
+    end: str                          # done | time-limit | safety | fault | operator | abort
+    reason: str = ""
+    faults: list[str] = field(default_factory=list)
+    wall_s: float = 0.0
+    robot_time_s: float = 0.0        # control steps / control rate: the time the robot spent acting
+
+    @property
+    def can_succeed(self) -> bool:
+        return self.end in ("done", "time-limit", "operator")
+
+
+def chunk_rewards(steps: np.ndarray, success: bool, gamma: float) -> np.ndarray:
+    """R^(H) per chunk from the label: per-step reward 1 on the last SUCCESS_REWARD_STEPS control steps."""
+    steps = np.asarray(steps, dtype=np.int64)
+    total = int(steps.sum())
+    out = np.zeros(len(steps), dtype=np.float32)
+    if not success or total == 0:
+        return out
+    t0 = 0
+    for i, n in enumerate(steps):
+        for h in range(int(n)):
+            if t0 + h >= total - SUCCESS_REWARD_STEPS:
+                out[i] += gamma ** h
+        t0 += int(n)
+    return out
+
+
+def run_episode(bridge: RobotBridge, settings: EpisodeSettings, reference: Callable, policy: Callable,
+                features: Callable, recorder, metadata: dict, poll: Callable[[], str | None] = lambda: None,
+                ) -> EpisodeOutcome:
+    """Drive one episode; never raises for a robot fault (the outcome says so)."""
+    from accrue.sim.observation import decode_state
+
+    H = settings.horizon
+    period = 0.0 if settings.clock <= 0 else 1.0 / (settings.control_hz * settings.clock)
+    late_after = settings.late_after_s or max(2.0 / settings.control_hz, 0.05)
+    S, R, A, N, faults = [], [], [], [], []
+    end, reason, t = "time-limit", "", 0
+    started = time.monotonic()
+    recorder.start(0, metadata)
+    state = None
+    try:
+        state, done = bridge.observe()
+        while True:
+            s, ref = features(state[None]), reference(state[None])
+            S.append(s[0])
+            R.append(ref[0])
+            if done:
+                end = "done"
+                break
+            if t >= settings.max_steps:
+                break
+            chunk = np.asarray(policy(s, ref, np.array([t == 0])), dtype=np.float32)[0]
+            executed = 0
+            for h in range(H):
+                tick = time.monotonic()
+                if not bridge.act(chunk[h]):
+                    faults.append(f"command dropped at step {t}")
+                state, done = bridge.observe()
+                if bridge.last_latency_s > late_after:
+                    faults.append(f"late observation at step {t}: {bridge.last_latency_s:.2f} s")
+                d = decode_state(state[None])
+                recorder.log_step(0, t, state, chunk[h], reference=ref[0] if h == 0 else None,
+                                  ee_pose=d["pos"][0], wrench=np.concatenate([d["force"][0], d["torque"][0]]))
+                executed += 1
+                t += 1
+                why = settings.safety.violation(state)
+                if why:
+                    end, reason = "safety", why
+                    break
+                if done or t >= settings.max_steps:
+                    break
+                wait = period - (time.monotonic() - tick)
+                if wait > 0:
+                    time.sleep(wait)
+            A.append(chunk)
+            N.append(executed)
+            if end == "safety":
+                break
+            command = poll()
+            if command in ("end", "abort"):
+                end, reason = ("operator", "ended by the operator") if command == "end" else ("abort", "aborted")
+                break
+    except RobotFault as exc:
+        end, reason = "fault", f"{exc.kind}: {exc}"
+        faults.append(reason)
+    if len(S) == len(A):          # ended inside a chunk (fault, safety): the last state closes the chunk
+        last = state if state is not None else np.zeros(S[0].shape if S else (0,), np.float32)
+        if len(A):
+            S.append(features(last[None])[0])
+            R.append(reference(last[None])[0])
+    return EpisodeOutcome(
+        s=np.asarray(S, dtype=np.float32), ref=np.asarray(R, dtype=np.float32).reshape(len(R), H, 6),
+        action=np.asarray(A, dtype=np.float32).reshape(len(A), H, 6), steps=np.asarray(N, dtype=np.int64),
+        control_steps=t, end=end, reason=reason, faults=faults, wall_s=time.monotonic() - started,
+        robot_time_s=t / settings.control_hz)
+
+
+def transitions(out: EpisodeOutcome, success: bool, gamma: float, episode: int) -> dict:
+    """The episode's chunk transitions as arrays (what is sealed and what the learner ingests)."""
+    T = len(out.action)
+    done = np.zeros(T, dtype=bool)
+    ended = np.zeros(T, dtype=bool)
+    if T:
+        ended[-1] = True
+        done[-1] = bool(success)       # a success terminates; a failure is a truncation (it bootstraps)
+    return {"s": out.s[:T + 1] if T else out.s[:0], "ref": out.ref[:T + 1] if T else out.ref[:0],
+            "action": out.action, "steps": out.steps, "reward": chunk_rewards(out.steps, success, gamma),
+            "done": done, "ended": ended, "episode": np.array(episode, dtype=np.int64)}
+
+
+def relabelled(arrays: dict, success: bool, gamma: float) -> dict:
+    """The same transitions under a corrected label."""
+    out = dict(arrays)
+    out["reward"] = chunk_rewards(arrays["steps"], success, gamma)
+    done = np.zeros(len(arrays["action"]), dtype=bool)
+    if len(done):
+        done[-1] = bool(success)
+    out["done"] = done
+    return out
+
+
+def replay_from_episodes(warm, episodes: list[dict], task_index: int):
+    """B^k: the warmup buffer followed by each episode's rows, in the order given."""
+    from accrue.learner import ReplayBuffer
+
+    parts = [warm]
+    for e in episodes:
+        if len(e["action"]) == 0:
+            continue
+        b = ReplayBuffer(warm.state_dim, warm.horizon)
+        b.add(e["s"][:-1], e["action"], e["ref"][:-1], e["reward"], e["s"][1:], e["ref"][1:], e["done"],
+              task_index, int(e["episode"]), ended=e["ended"])
+        parts.append(b)
+    return ReplayBuffer.concat(parts) if len(parts) > 1 else warm

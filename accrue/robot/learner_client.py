@@ -1,0 +1,169 @@
+"""The actor's side of the learner: a background thread that keeps the learner fed and the weights fresh.
+
+The actor's control loop never waits on it: `latest()` returns the newest weights it has (or None),
+`push()` only queues. The thread sends heartbeats; when the learner does not answer for `dead_after_s`
+the loss is reported (once) and, for a learner this actor started itself, the process is started again
+and re-initialised from the last sealed checkpoint and every sealed episode - so a killed learner loses
+only the updates since its last checkpoint.
+"""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import uuid
+from pathlib import Path
+from typing import Callable
+
+from accrue.robot.transport import PROTOCOL, Peer, PeerDown, untar
+
+
+class LearnerLink:
+    def __init__(self, init_payload: Callable[[], tuple[dict, bytes]],
+                 sealed_episodes: Callable[[], list[tuple[dict, bytes]]],
+                 on_snapshot: Callable[[dict, Path], None], report: Callable[[str, dict], None],
+                 address: str | None = None, heartbeat_s: float = 0.5, dead_after_s: float = 3.0,
+                 start_timeout_s: float = 120.0):
+        self.init_payload, self.sealed_episodes = init_payload, sealed_episodes
+        self.on_snapshot, self.report = on_snapshot, report
+        self.address, self.local = address, address is None
+        self.heartbeat_s, self.dead_after_s, self.start_timeout_s = heartbeat_s, dead_after_s, start_timeout_s
+        self.run_id = uuid.uuid4().hex
+        self.proc: subprocess.Popen | None = None
+        self.peer: Peer | None = None
+        self.ready = False
+        self.version = -1
+        self.updates = 0
+        self.queue: list[tuple[dict, bytes]] = []
+        self.lock = threading.Lock()
+        self.stop = threading.Event()
+        self.lost_reported = False
+        self.last_ok = time.monotonic()
+        self.tmp = Path(tempfile.mkdtemp(prefix="accrue-actor-"))
+        self.thread = threading.Thread(target=self._run, name="learner-link", daemon=True)
+
+    # ------------------------------------------------------------------ the actor's calls (never block)
+    def start(self) -> None:
+        self.thread.start()
+
+    def push(self, header: dict, blob: bytes) -> None:
+        with self.lock:
+            self.queue.append((dict(header, run_id=self.run_id), blob))
+
+    def final_snapshot(self, wait_s: float = 30.0) -> bool:
+        """At stage end: ask for the learner's current state once every queued episode is in (bounded)."""
+        deadline = time.monotonic() + wait_s
+        while time.monotonic() < deadline and (self.queue or not self.ready):
+            time.sleep(0.05)
+        if not self.ready or self.peer is None:
+            return False
+        try:
+            h, blob = self.peer.call("Pull", {"have": self.version, "fresh": True, "wait_s": 10.0}, timeout=15.0)
+        except Exception as exc:  # noqa: BLE001 - the last snapshot we hold is used instead
+            self.report(f"learner: final pull failed ({exc}); using the last weights received", {})
+            return False
+        if h.get("version") is not None:
+            self._take(h, blob)
+        return True
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(timeout=5)
+        if self.peer is not None and self.local:
+            try:
+                self.peer.call("Shutdown", {}, timeout=2.0)
+            except Exception:  # noqa: BLE001 - it may already be gone
+                pass
+        if self.proc is not None:
+            try:
+                self.proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait(timeout=5)
+        if self.peer is not None:
+            self.peer.close()
+
+    # ------------------------------------------------------------------ the thread
+    def _spawn(self) -> None:
+        import select
+
+        cmd = [sys.executable, "-m", "accrue.robot.learner_service", "--listen", "127.0.0.1:0",
+               "--parent-pid", str(os.getpid()), "--orphan-after", str(max(10.0, 4 * self.dead_after_s))]
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=None, text=True)
+        deadline = time.monotonic() + self.start_timeout_s
+        line = ""
+        while time.monotonic() < deadline and not self.stop.is_set():
+            ready, _, _ = select.select([self.proc.stdout], [], [], 0.2)
+            if ready:
+                line = self.proc.stdout.readline()
+                break
+            if self.proc.poll() is not None:
+                break
+        if "port" not in line:
+            raise PeerDown(f"learner process did not start (exit {self.proc.poll()})")
+        port = int(line.split("port")[1].split()[0])
+        self.address = f"127.0.0.1:{port}"
+        threading.Thread(target=self.proc.stdout.read, daemon=True).start()   # drain its later output
+        self.report(f"learner process started (pid {self.proc.pid}, port {port})",
+                    {"event": "robot-learner-started", "pid": self.proc.pid, "port": port})
+
+    def _connect(self) -> None:
+        if self.local and (self.proc is None or self.proc.poll() is not None):
+            if self.proc is not None:
+                self.report(f"learner process exited (code {self.proc.returncode}); starting it again",
+                            {"event": "robot-learner-lost", "code": self.proc.returncode})
+            self.ready = False
+            if self.peer is not None:
+                self.peer.close()
+                self.peer = None
+            self._spawn()
+        if self.peer is None:
+            self.peer = Peer(self.address)
+        hello, _ = self.peer.call("Hello", {"protocol": PROTOCOL}, timeout=3.0)
+        if hello.get("run_id") != self.run_id:
+            header, blob = self.init_payload()
+            self.peer.call("Init", dict(header, run_id=self.run_id), blob, timeout=120.0)
+            sealed = self.sealed_episodes()
+            with self.lock:                        # everything sealed so far, then what is queued
+                queued = [q for q in self.queue if not any(q[0]["index"] == s[0]["index"] for s in sealed)]
+                self.queue = [(dict(h, run_id=self.run_id), b) for h, b in sealed] + queued
+            self.version = -1
+        self.ready = True
+        if self.lost_reported:
+            self.report("learner is back", {"event": "robot-learner-back"})
+        self.lost_reported = False
+
+    def _take(self, h: dict, blob: bytes) -> None:
+        d = untar(blob, self.tmp / f"v{h['version']}")
+        self.version, self.updates = int(h["version"]), int(h["updates"])
+        self.on_snapshot(h, d)
+
+    def _run(self) -> None:
+        while not self.stop.is_set():
+            try:
+                if not self.ready:
+                    self._connect()
+                self.peer.call("Heartbeat", {}, timeout=2.0)
+                while self.queue and not self.stop.is_set():
+                    with self.lock:
+                        header, blob = self.queue[0]
+                    self.peer.call("Episode", header, blob, timeout=10.0)
+                    with self.lock:
+                        self.queue.pop(0)
+                h, blob = self.peer.call("Pull", {"have": self.version}, timeout=10.0)
+                if h.get("version") is not None:
+                    self._take(h, blob)
+                self.last_ok = time.monotonic()
+            except Exception as exc:  # noqa: BLE001 - any failure: the learner is unreachable for now
+                self.ready = False
+                gone = time.monotonic() - self.last_ok
+                if gone >= self.dead_after_s and not self.lost_reported:
+                    self.lost_reported = True
+                    self.report(f"learner unreachable for {gone:.1f} s ({exc}); acting with weights "
+                                f"version {self.version}", {"event": "robot-learner-lost", "error": str(exc)})
+                time.sleep(min(self.heartbeat_s, 0.5))
+                continue
+            self.stop.wait(self.heartbeat_s)

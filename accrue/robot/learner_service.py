@@ -1,0 +1,224 @@
+"""The asynchronous learner: a process that trains from the episodes the actor seals and serves weights.
+
+    python -m accrue.robot.learner_service --listen 127.0.0.1:0 [--parent-pid PID]
+    accrue robot learner --listen 0.0.0.0:50051               (the GPU box of a two-host setup)
+
+It holds nothing durable: the actor (which owns the store) sends it everything at `Init` - the learner
+to start from (the last sealed checkpoint), the warmup buffer, the prior memory and teacher targets - and
+then every sealed episode (`Episode`, idempotent by index; a re-labelled episode replaces its rows). It
+trains `utd` updates per chunk transition of the current task (like the simulated loop's one train_step
+per chunk step), publishes a snapshot every `publish_every` updates and marks one as a checkpoint every
+`checkpoint_every` updates; the actor pulls them (`Pull`). Started by an actor (--parent-pid), it exits
+when that actor dies or stops calling for `orphan_after_s`; started by hand it waits for the next actor.
+
+RPCs (accrue.robot.transport): Hello, Init, Episode, Pull, Heartbeat, Shutdown.
+"""
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import os
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+from accrue.robot.transport import PROTOCOL, serve, tar_dir, untar
+
+
+def accrue_version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("accrue")
+    except PackageNotFoundError:
+        return "0+unknown"
+
+
+def episode_npz(arrays: dict) -> bytes:
+    import numpy as np
+
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    return buf.getvalue()
+
+
+def read_npz(blob: bytes) -> dict:
+    import numpy as np
+
+    with np.load(io.BytesIO(blob)) as z:
+        return {k: z[k] for k in z.files}
+
+
+class LearnerService:
+    def __init__(self, orphan_after_s: float = 0.0):
+        self.lock = threading.Lock()
+        self.run_id: str | None = None
+        self.learner = None
+        self.tmp = Path(tempfile.mkdtemp(prefix="accrue-learner-"))
+        self.episodes: dict[int, dict] = {}        # index -> transition arrays
+        self.dirty = False                         # episodes changed since the buffer was built
+        self.updates = self.version = 0
+        self.snapshot: tuple[int, int, bool, bytes] | None = None   # version, updates, checkpoint, tar
+        self.want_snapshot = threading.Event()
+        self.last_call = time.monotonic()
+        self.orphan_after_s = orphan_after_s
+        self.stop = threading.Event()
+        self.busy = False
+
+    # ------------------------------------------------------------------ RPCs
+    def hello(self, h: dict, blob: bytes):
+        self.last_call = time.monotonic()
+        if h.get("protocol") != PROTOCOL:
+            raise RuntimeError(f"protocol mismatch: actor speaks {h.get('protocol')}, learner {PROTOCOL} "
+                               f"(accrue {accrue_version()}); run the same accrue version on both hosts")
+        return {"protocol": PROTOCOL, "accrue": accrue_version(), "run_id": self.run_id, "pid": os.getpid(),
+                "updates": self.updates, "episodes": sorted(self.episodes)}, b""
+
+    def init(self, h: dict, blob: bytes):
+        import torch
+
+        from accrue.learner import ReplayBuffer, load_learner
+
+        self.last_call = time.monotonic()
+        with self.lock:
+            d = untar(blob, Path(tempfile.mkdtemp(dir=self.tmp)))
+            info = json.loads((d / "init.json").read_text())
+            torch.set_num_threads(int(info.get("torch_threads", 1)))
+            self.learner = load_learner(d / "learner", device=info.get("device", "cpu"))
+            self.warm = ReplayBuffer.load(d / "warmup")
+            self.prior = ReplayBuffer.load(d / "prior") if (d / "prior").is_dir() else None
+            self.teacher = self.fresh_ref = None
+            if (d / "teacher.safetensors").is_file():
+                from safetensors.torch import load_file
+
+                tensors = load_file(str(d / "teacher.safetensors"))
+                self.teacher, self.fresh_ref = tensors["targets"], tensors.get("fresh_ref")
+            self.info = info
+            self.updates, self.version = int(info["updates"]), int(info["version"])
+            self.episodes, self.dirty, self.snapshot = {}, True, None
+            self.buffer = None
+            self.run_id = h["run_id"]
+        return {"ok": True}, b""
+
+    def episode(self, h: dict, blob: bytes):
+        self.last_call = time.monotonic()
+        with self.lock:
+            if h.get("run_id") != self.run_id:
+                raise RuntimeError(f"episode of run {h.get('run_id')} but this learner serves {self.run_id}")
+            new = int(h["index"]) not in self.episodes or h.get("relabel")
+            if new:
+                self.episodes[int(h["index"])] = read_npz(blob)
+                self.dirty = True
+        return {"ok": True, "episodes": len(self.episodes)}, b""
+
+    def pull(self, h: dict, blob: bytes):
+        self.last_call = time.monotonic()
+        if h.get("fresh"):                        # the actor wants the learner as it is now (stage end)
+            self.want_snapshot.set()
+            deadline = time.monotonic() + float(h.get("wait_s", 10.0))
+            while self.want_snapshot.is_set() and time.monotonic() < deadline:
+                time.sleep(0.02)
+        snap = self.snapshot
+        if snap is None or snap[0] <= int(h.get("have", -1)):
+            return {"version": None, "updates": self.updates}, b""
+        return {"version": snap[0], "updates": snap[1], "checkpoint": snap[2]}, snap[3]
+
+    def heartbeat(self, h: dict, blob: bytes):
+        self.last_call = time.monotonic()
+        return {"run_id": self.run_id, "updates": self.updates, "version": self.version,
+                "episodes": len(self.episodes), "busy": self.busy}, b""
+
+    def shutdown(self, h: dict, blob: bytes):
+        self.stop.set()
+        return {"ok": True}, b""
+
+    # ------------------------------------------------------------------ training
+    def _rebuild(self):
+        """B^k = the warmup rows + every episode's rows, in episode order (a re-label rewrites them)."""
+        from accrue.robot.episode import replay_from_episodes
+
+        self.buffer = replay_from_episodes(self.warm, [self.episodes[i] for i in sorted(self.episodes)],
+                                           int(self.info["task_index"]))
+        self.rl_rows = len(self.buffer) - len(self.warm)
+
+    def _snapshot(self, checkpoint: bool):
+        from accrue.learner import save_learner
+
+        d = Path(tempfile.mkdtemp(dir=self.tmp))
+        save_learner(self.learner, d / "learner")
+        (d / "learner.json").write_text(json.dumps({"updates": self.updates, "version": self.version + 1,
+                                                    "episodes": sorted(self.episodes)}))
+        self.version += 1
+        self.snapshot = (self.version, self.updates, checkpoint, tar_dir(d))
+
+    def train_forever(self):
+        last_publish = last_ckpt = None
+        while not self.stop.is_set():
+            if self.learner is None:
+                time.sleep(0.05)
+                continue
+            with self.lock:
+                if self.dirty:
+                    self._rebuild()
+                    self.dirty = False
+                if last_publish is None:
+                    last_publish = last_ckpt = self.updates
+                target = self.rl_rows * self.learner.cfg.utd
+                work = self.updates < target and len(self.buffer) > 0
+                if work:
+                    self.busy = True
+                    if self.fresh_ref is not None:
+                        self.learner.train_step(self.buffer, self.prior, self.teacher, self.fresh_ref)
+                    else:
+                        self.learner.train_step(self.buffer, self.prior, self.teacher)
+                    self.updates += self.learner.cfg.utd
+                    self.busy = False
+                every, ck = int(self.info["publish_every"]), int(self.info["checkpoint_every"])
+                checkpoint = self.updates - last_ckpt >= ck
+                if self.updates - last_publish >= every or checkpoint or self.want_snapshot.is_set() \
+                        or self.snapshot is None:
+                    self._snapshot(checkpoint)
+                    last_publish = self.updates
+                    if checkpoint:
+                        last_ckpt = self.updates
+                    self.want_snapshot.clear()
+            if not work:
+                time.sleep(0.02)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="accrue-learner")
+    parser.add_argument("--listen", default="127.0.0.1:0")
+    parser.add_argument("--parent-pid", type=int, default=0)
+    parser.add_argument("--orphan-after", type=float, default=10.0)
+    args = parser.parse_args(argv)
+    import torch
+
+    import accrue.learner  # noqa: F401
+
+    # torch's optimisers import torch._dynamo on first use (tens of seconds on a busy CPU): pay it before
+    # the port is announced, so that Init answers at once
+    torch.optim.AdamW([torch.nn.Parameter(torch.zeros(1))])
+
+    service = LearnerService(args.orphan_after)
+    handlers = {"Hello": service.hello, "Init": service.init, "Episode": service.episode, "Pull": service.pull,
+                "Heartbeat": service.heartbeat, "Shutdown": service.shutdown}
+    server, port = serve(handlers, args.listen)
+    print(f"accrue learner listening on port {port} (pid {os.getpid()})", flush=True)
+    trainer = threading.Thread(target=service.train_forever, daemon=True)
+    trainer.start()
+    while not service.stop.is_set():
+        time.sleep(0.2)
+        if args.parent_pid and (os.getppid() != args.parent_pid
+                                or time.monotonic() - service.last_call > args.orphan_after):
+            print("accrue learner: the actor that started it is gone; exiting", flush=True)
+            break
+    server.stop(grace=0.5)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,322 @@
+"""What the hardware steps share: the robot, the operator, and sealing every labelled episode at once.
+
+A hardware step (hw_warmup, hw_train, hw_evaluate) is a sequence of operator-labelled robot episodes.
+Each finished, labelled episode is sealed immediately as an intra-step checkpoint artifact (fsynced by
+the store) holding every episode sealed so far - `episodes/<index>/` with `episode.json` (label with
+who/when, re-labels, robot time, faults, weights version, session), `transitions.npz` and
+`episode.mcap` - plus the learner's last checkpoint and `sessions.json`. Unchanged files are the same
+objects, so each seal writes only the new episode. `--continue` after any interruption materialises the
+newest such checkpoint: every sealed episode comes back exactly once; an episode that was started and
+not sealed is discarded, and the audit log says so.
+
+Settings that do not change what a step computes (the operator, the learner's address, fault injection,
+the clock) are session settings: bound to the step body, outside its cache key, so a resumed session
+may use another operator or host.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import socket
+import uuid
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from stages.errors import StageError
+from stages.runner_context import StepContext
+from stages.steps.common import copy_tree, read_json, write_json
+
+SESSIONS_FILE = "sessions.json"
+EPISODES_DIR = "episodes"
+
+
+@dataclass
+class SessionSettings:
+    """The unkeyed part of a workflow's robot section (see stages.workflow.RobotSpec)."""
+    operator: str = "terminal"              # terminal | scripted
+    operator_name: str = ""
+    scripted: dict = field(default_factory=dict)   # delay_s, mistakes, corrects, abort_before
+    learner_address: str | None = None       # host:port of `accrue robot learner`; None: a local process
+    clock: float = 1.0
+    faults: dict = field(default_factory=dict)     # accrue_sim fault fields
+    timeouts: dict = field(default_factory=dict)
+    heartbeat_s: float = 0.5
+    dead_after_s: float = 3.0
+
+
+def make_bridge(c: dict, settings: SessionSettings, task: str, report):
+    """The robot of the workflow behind deadlines; accrue_sim gets the task, seed and faults injected."""
+    from accrue.robot.bridge import RobotBridge, Timeouts, robot_factory
+    from accrue.robot.mapping import RobotMapping
+
+    r = c["robot"]
+    config = dict(r["config"])
+    if r["type"] == "accrue_sim":
+        config.update(task=task, **settings.faults)
+        config.setdefault("seed", c["seed"] * 1000 + c["stage"] * 10 + {"warmup": 1, "train": 2}.get(c["phase"], 3))
+    return RobotBridge(robot_factory(r["type"], config, tuple(r.get("imports", ()))), RobotMapping.from_dict(r),
+                       Timeouts.from_dict(settings.timeouts), report=report)
+
+
+def make_operator(settings: SessionSettings, bridge, console):
+    from accrue.robot.operator import ScriptedOperator, TerminalOperator
+
+    name = settings.operator_name or os.environ.get("USER", "operator")
+    if settings.operator == "scripted":
+        s = settings.scripted
+        return ScriptedOperator(oracle=lambda: bool(bridge.hook("episode_success")()),
+                                reset_scene=lambda: bridge.hook("reset_scene") and bridge.hook("reset_scene")(),
+                                name=settings.operator_name or "scripted", delay_s=float(s.get("delay_s", 0.0)),
+                                mistakes=set(s.get("mistakes", ())), corrects=bool(s.get("corrects", False)),
+                                abort_before=s.get("abort_before"))
+    return TerminalOperator(name, console=console)
+
+
+class HardwareSession:
+    def __init__(self, ctx: StepContext, settings: SessionSettings):
+        self.ctx, self.settings = ctx, settings
+        c = ctx.config
+        self.where = {"workflow": c["workflow"], "stage": c["stage"], "phase": c["phase"]}
+        self.dir = ctx.scratch_dir("sealed")
+        resume = ctx.last_checkpoint()
+        if resume is not None:
+            copy_tree(resume[0], self.dir)
+        self.episodes: dict[int, dict] = {}
+        for p in sorted((self.dir / EPISODES_DIR).glob("*/episode.json")):
+            e = read_json(p)
+            self.episodes[e["index"]] = e
+        self.sessions: list[dict] = read_json(self.dir / SESSIONS_FILE) if (self.dir / SESSIONS_FILE).is_file() else []
+        # the chain: this step's sessions since it last started from scratch (a --rerun starts a new one)
+        self.chain = self.sessions[0]["chain"] if self.sessions else uuid.uuid4().hex[:16]
+        self.where["chain"] = self.chain
+        for s in self.sessions:
+            if s["ended"] == "running":
+                s["ended"] = "interrupted (process ended without closing the session)"
+        self._discard_unsealed()
+        self.session = {"id": len(self.sessions) + 1, "chain": self.chain, "started": _now(), "last": _now(), "host": socket.gethostname(),
+                        "pid": os.getpid(), "operator": settings.operator_name or settings.operator,
+                        "episodes": 0, "robot_time_s": 0.0, "ended": "running"}
+        self.sessions.append(self.session)
+        self._log("robot-session-started", session=self.session["id"], host=self.session["host"],
+                  operator=self.session["operator"], sealed=len(self.episodes))
+        self._save()       # the session is on record before its first episode starts
+        if resume is not None:
+            ctx.console.print(f"{ctx.step}: resumed with {len(self.episodes)} sealed episodes, "
+                              f"robot time {self.robot_time_s():.1f} s (session {self.session['id']})")
+
+    # ------------------------------------------------------------------ queries
+    def ordered(self, phase: str | None = None) -> list[dict]:
+        return [self.episodes[i] for i in sorted(self.episodes) if phase is None or self.episodes[i]["phase"] == phase]
+
+    def robot_time_s(self) -> float:
+        return float(sum(e["robot_time_s"] for e in self.episodes.values()))
+
+    def next_index(self, base: int) -> int:
+        used = list(self.episodes) + self._started_indices()
+        return max([base - 1, *used]) + 1
+
+    def arrays(self, index: int) -> dict:
+        import numpy as np
+
+        with np.load(self.dir / EPISODES_DIR / f"{index:06d}" / "transitions.npz") as z:
+            return {k: z[k] for k in z.files}
+
+    def window(self, size: int, phase: str = "train") -> tuple[int, int]:
+        """(successes, episodes) over the last `size` episodes of `phase`."""
+        last = self.ordered(phase)[-size:]
+        return sum(bool(e["label"]["success"]) for e in last), len(last)
+
+    # ------------------------------------------------------------------ sealing
+    def seal_episode(self, index: int, record: dict, arrays: dict, mcap: Path | None) -> None:
+        import numpy as np
+
+        d = self.dir / EPISODES_DIR / f"{index:06d}"
+        d.mkdir(parents=True, exist_ok=True)
+        np.savez(d / "transitions.npz", **arrays)
+        if mcap is not None and mcap.is_file():
+            shutil.copyfile(mcap, d / "episode.mcap")
+        record = dict(record, index=index, session=self.session["id"], relabels=[])
+        write_json(d / "episode.json", record)
+        self.episodes[index] = record
+        self.session["episodes"] += 1
+        self.session["robot_time_s"] = round(self.session["robot_time_s"] + record["robot_time_s"], 6)
+        cid = self._save()
+        self._log("robot-episode-sealed", index=index, success=record["label"]["success"],
+                  label_by=record["label"]["by"], label_at=record["label"]["at"], end=record["end"],
+                  faults=record["faults"] or None, robot_time_s=round(record["robot_time_s"], 3),
+                  weights_version=record.get("weights_version"), checkpoint=cid)
+
+    def relabel(self, index: int, label: dict, gamma: float) -> dict:
+        from accrue.robot.episode import relabelled
+
+        import numpy as np
+
+        e = self.episodes[index]
+        arrays = relabelled(self.arrays(index), bool(label["success"]), gamma)
+        d = self.dir / EPISODES_DIR / f"{index:06d}"
+        np.savez(d / "transitions.npz", **arrays)
+        e["relabels"] = e.get("relabels", []) + [e["label"]]
+        e["label"] = label
+        write_json(d / "episode.json", e)
+        cid = self._save()
+        self._log("robot-episode-relabelled", index=index, success=label["success"], label_by=label["by"],
+                  label_at=label["at"], was=e["relabels"][-1]["success"], checkpoint=cid)
+        return arrays
+
+    def seal_learner(self, snapshot: Path) -> None:
+        if (self.dir / "learner").exists():
+            shutil.rmtree(self.dir / "learner")
+        copy_tree(snapshot / "learner", self.dir / "learner")
+        shutil.copyfile(snapshot / "learner.json", self.dir / "learner.json")
+        info = read_json(self.dir / "learner.json")
+        cid = self._save()
+        self._log("robot-learner-checkpoint", updates=info["updates"], version=info["version"], checkpoint=cid)
+
+    def close(self, how: str) -> None:
+        self.session["ended"] = how
+        self._save()
+        self._log("robot-session-ended", session=self.session["id"], how=how, episodes=self.session["episodes"],
+                  robot_time_s=round(self.session["robot_time_s"], 3))
+
+    def started(self, index: int) -> None:
+        self._log("robot-episode-started", index=index, session=self.session["id"])
+
+    def discard(self, index: int, why: str) -> None:
+        self._log("robot-episode-discarded", index=index, reason=why)
+
+    # ------------------------------------------------------------------ internals
+    def _save(self) -> str:
+        self.session["last"] = _now()
+        write_json(self.dir / SESSIONS_FILE, self.sessions)
+        c = self.ctx.config
+        succ, n = self.window(c.get("stop_window", 20)) if c["phase"] == "train" else (
+            sum(bool(e["label"]["success"]) for e in self.episodes.values()), len(self.episodes))
+        progress = {"episodes": len(self.episodes), "success": f"{succ}/{n}",
+                    "robot_time_s": round(self.robot_time_s(), 1), "session": self.session["id"]}
+        if (self.dir / "learner.json").is_file():
+            progress["updates"] = read_json(self.dir / "learner.json")["updates"]
+        return self.ctx.save_checkpoint(self.dir, progress)
+
+    def _log(self, event: str, **fields: Any) -> None:
+        self.ctx.log_event(event, **self.where, **fields)
+
+    def _events(self, name: str) -> list[dict]:
+        from artifacts.auditlog import iter_events
+
+        return [e for e in iter_events(self.ctx.store) if e.get("event") == name and e.get("step") == self.ctx.step
+                and all(e.get(k) == v for k, v in self.where.items())]
+
+    def _started_indices(self) -> list[int]:
+        return [int(e["index"]) for e in self._events("robot-episode-started")]
+
+    def _discard_unsealed(self) -> None:
+        """Episodes started by an earlier session and never sealed died with it: say so, once each."""
+        told = {int(e["index"]) for e in self._events("robot-episode-discarded")}
+        for index in sorted(set(self._started_indices()) - set(self.episodes) - told):
+            self.discard(index, "in progress when the session ended; not sealed, so not counted")
+            self.ctx.console.print(f"{self.ctx.step}: episode {index} was in progress when the last session "
+                                   "ended: discarded (it was never sealed)")
+
+
+def _now() -> str:
+    import datetime as dt
+
+    return dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds")
+
+
+
+def episode_loop(ctx: StepContext, session: HardwareSession, operator, bridge, *, task: str, done, policy_now,
+                 reference, features, settings, gamma: float, index_base: int, metadata: dict,
+                 on_sealed=lambda index, arrays, relabel=False: None, between=lambda: None) -> None:
+    """Operator-labelled episodes on `task` until done() says enough; each sealed at once.
+
+    policy_now() -> (policy(s, ref, fresh) -> chunk, weights version or None), asked at each episode start
+    (the actor acts with the newest weights it has). A robot fault ends the episode as a failure labelled
+    by "system"; the robot is reconnected, or the step stops with one line (everything sealed stays)."""
+    import tempfile
+
+    from accrue.logs.mcap_episodes import EpisodeRecorder
+    from accrue.robot.bridge import RobotFault
+    from accrue.robot.episode import run_episode, transitions
+    from accrue.robot.operator import Label, now_iso
+    from accrue.sim import STATE_NAMES
+
+    def lost(why: str):
+        session.close(f"robot lost: {why}")
+        raise StageError(f"robot not reachable ({why}); {len(session.episodes)} episodes are sealed: fix the robot "
+                         f"and resume with `accrue stage run ... --step {ctx.step} --continue`")
+
+    try:
+        bridge.connect()
+    except RobotFault as exc:
+        if not bridge.reconnect():
+            lost(str(exc))
+    feat = lambda st: features({"state": st})      # noqa: E731
+    ref = lambda st: reference({"state": st})      # noqa: E731
+    sealed = session.ordered()
+    last = sealed[-1]["index"] if sealed else None
+    logs = Path(tempfile.mkdtemp(dir=ctx.scratch_dir("mcap")))
+    while not done():
+        between()
+        if done():
+            break
+        index = session.next_index(index_base)
+        answer = operator.wait_reset(index, task, last)
+        if answer.relabel is not None and last is not None:
+            arrays = session.relabel(last, answer.relabel.to_json(), gamma)
+            on_sealed(last, arrays, relabel=True)
+        if not answer.go:
+            session.close("aborted by the operator")
+            raise StageError(f"aborted by the operator; {len(session.episodes)} episodes are sealed "
+                             f"(resume with --continue)")
+        policy, version = policy_now()
+        session.started(index)
+        recorder = EpisodeRecorder(logs, control_hz=settings.control_hz, state_names=list(STATE_NAMES))
+        meta = {**metadata, "index": index, "weights_version": version, "session": session.session["id"]}
+        out = run_episode(bridge, settings, ref, policy, feat, recorder, meta, poll=operator.poll)
+        if out.end == "abort":
+            recorder.abort(0)
+            session.discard(index, "aborted by the operator")
+            session.close("aborted by the operator")
+            raise StageError(f"aborted by the operator; episode {index} discarded, {len(session.episodes)} sealed")
+        if out.can_succeed:
+            label = operator.label(index, f"{out.end}, {out.control_steps} steps")
+            if label is None:
+                recorder.abort(0)
+                session.discard(index, "the operator aborted instead of labelling")
+                session.close("aborted by the operator")
+                raise StageError(f"aborted by the operator; episode {index} discarded, {len(session.episodes)} sealed")
+        else:
+            label = Label(success=False, by="system", at=now_iso(), note=out.reason)
+            operator.tell(f"episode {index} ended: {out.reason} (not a success)")
+        mcap = recorder.end(0, success=label.success, truncated=out.end == "time-limit",
+                            metadata={"label_by": label.by, "label_at": label.at, "end": out.end, "reason": out.reason})
+        arrays = transitions(out, label.success, gamma, index)
+        record = {"phase": ctx.config["phase"], "task": task, "label": label.to_json(), "end": out.end,
+                  "reason": out.reason, "faults": out.faults, "control_steps": out.control_steps,
+                  "chunks": int(len(out.action)), "robot_time_s": out.robot_time_s, "wall_s": round(out.wall_s, 3),
+                  "weights_version": version, "ended_at": now_iso()}
+        session.seal_episode(index, record, arrays, mcap)
+        on_sealed(index, arrays, relabel=False)
+        last = index
+        if out.end == "fault":
+            if not bridge.reconnect():
+                lost(out.reason)
+    recorder_dir = logs
+    shutil.rmtree(recorder_dir, ignore_errors=True)
+
+
+def episodes_output(ctx: StepContext, session: HardwareSession, phase: str | None = None) -> Path:
+    """The step's `episodes` output: every sealed episode (json + mcap, no transitions) and the sessions."""
+    out = ctx.new_output("episodes", "episodes")
+    for e in session.ordered(phase):
+        src = session.dir / EPISODES_DIR / f"{e['index']:06d}"
+        dst = out / f"{e['index']:06d}"
+        dst.mkdir(parents=True)
+        shutil.copyfile(src / "episode.json", dst / "episode.json")
+        if (src / "episode.mcap").is_file():
+            shutil.copyfile(src / "episode.mcap", dst / "episode.mcap")
+    write_json(out / SESSIONS_FILE, session.sessions)
+    return out
