@@ -1,5 +1,6 @@
 """Small filesystems for the fault tests: a tmpfs of a few MiB (a full disk on demand) that can be
 remounted read-only. Needs root; tests that use them are skipped otherwise."""
+
 from __future__ import annotations
 
 import contextlib
@@ -48,7 +49,7 @@ def fill(where: Path, leave: int = 0) -> Path:
         todo = max(0, free - leave)
         try:
             while todo > 0:
-                todo -= f.write(chunk[:min(len(chunk), todo)])
+                todo -= f.write(chunk[: min(len(chunk), todo)])
             f.flush()
         except OSError:
             pass

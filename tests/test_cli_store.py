@@ -1,5 +1,6 @@
 """The store and stage CLI, run as the user runs it: human output, --json, exit codes, and
 one-line errors (never a traceback) for user mistakes."""
+
 from __future__ import annotations
 
 import json
@@ -144,7 +145,7 @@ def test_verify_exits_non_zero_on_a_flipped_byte(store, tmp_path):
     data = bytearray(obj.read_bytes())
     data[1234] ^= 0xFF
     obj.write_bytes(bytes(data))
-    assert accrue("verify", "--store", str(store)).returncode == 0   # quick: sizes still match
+    assert accrue("verify", "--store", str(store)).returncode == 0  # quick: sizes still match
     full = accrue("verify", "--full", "--json", "--store", str(store))
     report = json.loads(full.stdout)
     assert full.returncode == 1 and report["quarantined"] == [content]
@@ -179,16 +180,19 @@ def test_lineage_goes_down_to_demos_and_shows_seeds(store, tmp_path):
     assert nested["inputs"]["seed"]["id"] == demos and nested["inputs"]["seed"]["kind"] == "demos"
 
 
-@pytest.mark.parametrize("args, pattern", [
-    (("show", "abcd"), r"no accrue store|no object or ref"),
-    (("show", "zz"), r"neither a ref nor an id"),
-    (("show", "workflow/none/stage/1/train:out"), r"no object or ref|neither a ref"),
-    (("gc", "--grace", "soon"), r"--grace: not a duration"),
-    (("add", "/does/not/exist", "--kind", "demos"), r"no such file or directory"),
-    (("add", ".", "--kind", "Not A Kind"), r"bad artifact kind"),
-    (("log", "-n", "0"), r"-n|--lines"),
-    (("verify", "--bogus"), r"No such option"),
-])
+@pytest.mark.parametrize(
+    "args, pattern",
+    [
+        (("show", "abcd"), r"no accrue store|no object or ref"),
+        (("show", "zz"), r"neither a ref nor an id"),
+        (("show", "workflow/none/stage/1/train:out"), r"no object or ref|neither a ref"),
+        (("gc", "--grace", "soon"), r"--grace: not a duration"),
+        (("add", "/does/not/exist", "--kind", "demos"), r"no such file or directory"),
+        (("add", ".", "--kind", "Not A Kind"), r"bad artifact kind"),
+        (("log", "-n", "0"), r"-n|--lines"),
+        (("verify", "--bogus"), r"No such option"),
+    ],
+)
 def test_user_mistakes_are_one_line_errors(store, args, pattern):
     line = one_line_error(accrue(*args, store=store))
     assert re.search(pattern, line), line
@@ -200,24 +204,33 @@ def test_commands_without_a_store_say_how_to_make_one(tmp_path):
 
 
 def workflow_file(tmp_path: Path, **changes) -> Path:
-    data = {"name": "wf", "tasks": ["a/x", "a/y"], "method": "accrue",
-            "budgets": {"env_steps": 100, "eval_every": 50}, **changes}
+    data = {
+        "name": "wf",
+        "tasks": ["a/x", "a/y"],
+        "method": "accrue",
+        "budgets": {"env_steps": 100, "eval_every": 50},
+        **changes,
+    }
     path = tmp_path / "wf.yaml"
     path.write_text(yaml.safe_dump(data))
     return path
 
 
 def test_stage_run_without_step_bodies_says_so(store, tmp_path):
-    line = one_line_error(accrue("stage", "run", str(workflow_file(tmp_path)), "--stage", "1",
-                                 store=store, hide_plan=True))
+    line = one_line_error(
+        accrue("stage", "run", str(workflow_file(tmp_path)), "--stage", "1", store=store, hide_plan=True)
+    )
     assert "step bodies are not installed" in line
 
 
-@pytest.mark.parametrize("extra, pattern", [
-    (("--stage", "3"), r"has stages 1\.\.2 \(got --stage 3\)"),
-    (("--stage", "1", "--continue", "--rerun"), r"--continue and --rerun exclude each other"),
-    ((), r"Missing option '--stage'"),
-])
+@pytest.mark.parametrize(
+    "extra, pattern",
+    [
+        (("--stage", "3"), r"has stages 1\.\.2 \(got --stage 3\)"),
+        (("--stage", "1", "--continue", "--rerun"), r"--continue and --rerun exclude each other"),
+        ((), r"Missing option '--stage'"),
+    ],
+)
 def test_stage_run_argument_mistakes(store, tmp_path, extra, pattern):
     line = one_line_error(accrue("stage", "run", str(workflow_file(tmp_path)), *extra, store=store))
     assert re.search(pattern, line), line

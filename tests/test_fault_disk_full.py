@@ -1,6 +1,7 @@
 """Issue 13: a full disk during every kind of publish (objects, manifests, attempt records, refs, the
 log) is one clean StoreError; the store still verifies, nothing partial is left behind, and the same
 write succeeds once there is room. Runs on a small tmpfs (root only; skipped otherwise)."""
+
 from __future__ import annotations
 
 import os
@@ -44,8 +45,10 @@ def _manifest(store, tmp):
 
 
 def _record(store, tmp):
-    write_attempt(store, {"cache_key": "ef" * 32, "attempt": 1, "step": "train", "state": "running",
-                          "inputs": {}, "checkpoints": []})
+    write_attempt(
+        store,
+        {"cache_key": "ef" * 32, "attempt": 1, "step": "train", "state": "running", "inputs": {}, "checkpoints": []},
+    )
 
 
 def _ref(store, tmp):
@@ -57,8 +60,11 @@ def _log(store, tmp):
         append_event(store, "custom", i=i, pad="p" * 200)
 
 
-@pytest.mark.parametrize("publish", [_object, _ingest, _manifest, _record, _ref, _log],
-                         ids=["objects", "ingest", "manifests", "records", "refs", "log"])
+@pytest.mark.parametrize(
+    "publish",
+    [_object, _ingest, _manifest, _record, _ref, _log],
+    ids=["objects", "ingest", "manifests", "records", "refs", "log"],
+)
 def test_disk_full_during_publish_is_clean(tmp_path, publish):
     outside = tmp_path / "big.bin"
     outside.write_bytes(os.urandom(300_000))
@@ -77,7 +83,7 @@ def test_disk_full_during_publish_is_clean(tmp_path, publish):
         assert report.ok, report.problems
         assert read_ref(store, "demos/one") == aid
         filler.unlink()
-        publish(store, ctx)                                   # with room, the same write succeeds
+        publish(store, ctx)  # with room, the same write succeeds
         assert verify_store(store, full=True).ok
         if publish is _record:
             assert [a["state"] for a in list_attempts(store)] == ["running"]
@@ -90,8 +96,9 @@ def test_disk_full_during_cli_add_is_one_line_and_leaves_nothing(tmp_path):
         store = Store.init(fs / "store")[0]
         store.close()
         fill(fs, leave=100_000)
-        line = one_line_error(accrue("add", str(outside), "--kind", "demos", "--ref", "big", "--store",
-                                     str(store.root)))
+        line = one_line_error(
+            accrue("add", str(outside), "--kind", "demos", "--ref", "big", "--store", str(store.root))
+        )
         assert "No space left on device" in line and str(store.root) in line
         assert leftovers(store) == [] and not (store.refs_dir / "big").exists()
         assert accrue("verify", "--full", "--store", str(store.root)).returncode == 0

@@ -1,6 +1,7 @@
 """Issue 13, clean errors everywhere: every bad input or hostile machine state the issue lists gives
 one `error:` line naming the path or field and exit 2 (1 when verify or lineage found problems),
 never a traceback — one case per class of error."""
+
 from __future__ import annotations
 
 import json
@@ -17,8 +18,12 @@ from test_cli_store import accrue, one_line_error  # noqa: E402
 from artifacts.ingest import add_path  # noqa: E402
 from artifacts.store import Store  # noqa: E402
 
-WORKFLOW = {"name": "wf", "tasks": ["nist/rect_peg"], "method": "accrue",
-            "budgets": {"env_steps": 100, "eval_every": 50}}
+WORKFLOW = {
+    "name": "wf",
+    "tasks": ["nist/rect_peg"],
+    "method": "accrue",
+    "budgets": {"env_steps": 100, "eval_every": 50},
+}
 
 
 @pytest.fixture
@@ -57,15 +62,20 @@ def test_non_utf8_file_names_are_refused_by_name(store, tmp_path):
 
 
 def test_a_path_too_long_is_one_short_line(store, tmp_path):
-    line = short(one_line_error(accrue("add", str(tmp_path / ("x" * 5000)), "--kind", "demos", "--store",
-                                       str(store))))
+    line = short(one_line_error(accrue("add", str(tmp_path / ("x" * 5000)), "--kind", "demos", "--store", str(store))))
     assert "File name too long" in line
 
 
-@pytest.mark.parametrize("where, pattern", [
-    (lambda tmp: Path("/proc/accrue-store"), r"cannot create a store at /proc/accrue-store"),
-    (lambda tmp: (tmp / "file").write_text("x") and tmp / "file" / "store", r"cannot create a store at .*Not a directory"),
-])
+@pytest.mark.parametrize(
+    "where, pattern",
+    [
+        (lambda tmp: Path("/proc/accrue-store"), r"cannot create a store at /proc/accrue-store"),
+        (
+            lambda tmp: (tmp / "file").write_text("x") and tmp / "file" / "store",
+            r"cannot create a store at .*Not a directory",
+        ),
+    ],
+)
 def test_init_where_no_store_can_be(tmp_path, where, pattern):
     import re
 
@@ -82,7 +92,7 @@ def test_read_only_filesystem_init_add_gc_and_verify(tmp_path):
         content = Store.open(st.root).read_json(aid)["content"]
         obj = st.object_path(content)
         os.chmod(obj, 0o644)
-        obj.write_bytes(b"Y" * 3000)                          # corrupt, same size
+        obj.write_bytes(b"Y" * 3000)  # corrupt, same size
         st.close()
         remount(fs, read_only=True)
         try:
@@ -90,8 +100,9 @@ def test_read_only_filesystem_init_add_gc_and_verify(tmp_path):
             line = one_line_error(accrue("add", str(src), "--kind", "base-policy", "--store", str(st.root)))
             assert "Read-only file system" in line
             assert "cannot be written: gc can only report" in one_line_error(
-                accrue("gc", "--yes", "--grace", "0", "--store", str(st.root)))
-            assert accrue("gc", "--grace", "0", "--store", str(st.root)).returncode == 0   # a dry run reports
+                accrue("gc", "--yes", "--grace", "0", "--store", str(st.root))
+            )
+            assert accrue("gc", "--grace", "0", "--store", str(st.root)).returncode == 0  # a dry run reports
             full = accrue("verify", "--full", "--json", "--store", str(st.root))
             report = json.loads(full.stdout)
             assert full.returncode == 1 and report["quarantined"] == []
@@ -138,8 +149,17 @@ def test_lineage_of_a_corrupt_or_missing_target_fails(store, tmp_path):
     manifest.unlink()
     assert "missing" in one_line_error(accrue("lineage", aid, "--store", str(store)))
     # an input that cannot be read: the tree is shown, and the exit code says it is incomplete
-    parent = st.put_json({"type": "artifact", "kind": "eval", "layout": "file", "content": "cd" * 32, "size": 1,
-                          "inputs": {"demos": aid}, "producer": {"step": "x"}})
+    parent = st.put_json(
+        {
+            "type": "artifact",
+            "kind": "eval",
+            "layout": "file",
+            "content": "cd" * 32,
+            "size": 1,
+            "inputs": {"demos": aid},
+            "producer": {"step": "x"},
+        }
+    )
     out = accrue("lineage", parent, "--store", str(store))
     assert out.returncode == 1 and "lineage incomplete: 1 input" in out.stderr
 
@@ -152,25 +172,30 @@ def test_metrics_on_deeply_nested_json(tmp_path):
 
 
 def test_sim_negative_seed_and_watch_into_a_directory(tmp_path):
-    assert "--seed" in one_line_error(accrue("sim", "demos", "nist/rect_peg", "-n", "1", "-o",
-                                             str(tmp_path / "d"), "--seed", "-1"))
+    assert "--seed" in one_line_error(
+        accrue("sim", "demos", "nist/rect_peg", "-n", "1", "-o", str(tmp_path / "d"), "--seed", "-1")
+    )
     assert "is a directory" in one_line_error(accrue("sim", "watch", "nist/rect_peg", "-o", str(tmp_path)))
 
 
-@pytest.mark.parametrize("extra, pattern", [
-    ("learner: {beta: .inf}", r"learner\.beta: must be a finite number \(got inf\)"),
-    ("learner: {lam: .nan}", r"learner\.lam: must be a finite number"),
-    ("learner: {actor_lr: -.inf}", r"learner\.actor_lr: must be a finite number"),
-    ("base_policy: {lr: .inf}", r"base_policy\.lr: input should be a finite number"),
-    ("seed: true", r"seed: must be a number, not true"),
-    ("horizon: false", r"horizon: must be a number, not false"),
-    ("method: accrue", r"duplicate key 'method'"),
-])
+@pytest.mark.parametrize(
+    "extra, pattern",
+    [
+        ("learner: {beta: .inf}", r"learner\.beta: must be a finite number \(got inf\)"),
+        ("learner: {lam: .nan}", r"learner\.lam: must be a finite number"),
+        ("learner: {actor_lr: -.inf}", r"learner\.actor_lr: must be a finite number"),
+        ("base_policy: {lr: .inf}", r"base_policy\.lr: input should be a finite number"),
+        ("seed: true", r"seed: must be a number, not true"),
+        ("horizon: false", r"horizon: must be a number, not false"),
+        ("method: accrue", r"duplicate key 'method'"),
+    ],
+)
 def test_workflow_values_that_used_to_pass(store, tmp_path, extra, pattern):
     import re
 
-    text = ("name: wf\ntasks: [nist/rect_peg]\nmethod: accrue\nbudgets: {env_steps: 100, eval_every: 50}\n"
-            + extra + "\n")
+    text = (
+        "name: wf\ntasks: [nist/rect_peg]\nmethod: accrue\nbudgets: {env_steps: 100, eval_every: 50}\n" + extra + "\n"
+    )
     line = one_line_error(accrue("stage", "status", str(workflow(tmp_path, text)), "--store", str(store)))
     assert re.search(pattern, line), line
 
@@ -211,8 +236,11 @@ def test_an_oserror_of_any_command_is_one_line_naming_the_path(tmp_path, monkeyp
         raise ValueError("x" * 5000)
 
     try:
-        for name, pattern in (("boom-os", "No such file or directory"), ("boom-unicode", "not valid utf-8"),
-                              ("boom-value", "xxx")):
+        for name, pattern in (
+            ("boom-os", "No such file or directory"),
+            ("boom-unicode", "not valid utf-8"),
+            ("boom-value", "xxx"),
+        ):
             monkeypatch.setattr(sys, "argv", ["accrue", name])
             with pytest.raises(SystemExit) as done:
                 cli_main.main()

@@ -2,6 +2,7 @@
 parsing (whatever is typed or found on disk resolves or gives one short StoreError) and workflow
 validation (any YAML-shaped value parses or gives one short StageError naming a field; numbers
 refuse true/false, inf and nan)."""
+
 from __future__ import annotations
 
 import math
@@ -55,8 +56,9 @@ def test_ref_names_are_valid_or_refused_in_one_short_line(name):
     except StoreError as exc:
         one_short_line(exc)
         return
-    assert all(part and part not in (".", "..") and "/" not in part and not part.startswith(".")
-               for part in name.split("/"))
+    assert all(
+        part and part not in (".", "..") and "/" not in part and not part.startswith(".") for part in name.split("/")
+    )
 
 
 @FAST
@@ -106,15 +108,26 @@ def test_an_unambiguous_prefix_resolves_to_its_object(store, k):
 
 
 # ----------------------------------------------------------------------------- workflow validation
-BASE = {"name": "wf", "tasks": ["nist/rect_peg"], "method": "accrue",
-        "budgets": {"env_steps": 100, "eval_every": 50}}
+BASE = {"name": "wf", "tasks": ["nist/rect_peg"], "method": "accrue", "budgets": {"env_steps": 100, "eval_every": 50}}
 YAMLISH = st.recursive(
     st.one_of(st.none(), st.booleans(), st.integers(), st.floats(allow_nan=True), st.text(max_size=20)),
     lambda inner: st.one_of(st.lists(inner, max_size=4), st.dictionaries(st.text(max_size=10), inner, max_size=4)),
-    max_leaves=20)
-FIELDS = [("seed",), ("horizon",), ("task_features",), ("budgets", "env_steps"), ("budgets", "eval_every"),
-          ("budgets", "num_envs"), ("base_policy", "lr"), ("base_policy", "finetune_steps"),
-          ("base_policy", "demo_quality"), ("learner", "beta"), ("learner", "lam"), ("learner", "actor_lr")]
+    max_leaves=20,
+)
+FIELDS = [
+    ("seed",),
+    ("horizon",),
+    ("task_features",),
+    ("budgets", "env_steps"),
+    ("budgets", "eval_every"),
+    ("budgets", "num_envs"),
+    ("base_policy", "lr"),
+    ("base_policy", "finetune_steps"),
+    ("base_policy", "demo_quality"),
+    ("learner", "beta"),
+    ("learner", "lam"),
+    ("learner", "actor_lr"),
+]
 
 
 def with_value(path: tuple[str, ...], value) -> dict:

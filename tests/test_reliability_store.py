@@ -2,6 +2,7 @@
 cut, edited or deleted unseen, and `verify --repair` seals such damage; gc logs before it deletes;
 foreign files under refs/ are reported, not fatal; add refuses symlinked directories and a source
 that shrinks meanwhile."""
+
 from __future__ import annotations
 
 import json
@@ -70,23 +71,33 @@ def test_gc_cannot_sweep_objects_a_live_writer_is_reusing(store, tmp_path):
     src = dataset(tmp_path)
     first, _ = add_path(store, src, "demos")
     content = read_artifact(store, first)
-    for p in store.refs_dir.rglob("*"):           # unroot everything: the objects are now garbage…
+    for p in store.refs_dir.rglob("*"):  # unroot everything: the objects are now garbage…
         if p.is_file():
             p.unlink()
     for oid in store.iter_object_ids():
-        old(store, oid)                            # …and older than any grace period
+        old(store, oid)  # …and older than any grace period
     store.close()
     named, go = tmp_path / "named", tmp_path / "go"
-    writer = subprocess.Popen([sys.executable, "-c", WRITER, str(store.root), str(src), str(named), str(go)],
-                              cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    writer = subprocess.Popen(
+        [sys.executable, "-c", WRITER, str(store.root), str(src), str(named), str(go)],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         deadline = time.monotonic() + 60
         while not named.exists():
             assert writer.poll() is None, writer.stderr.read()
             assert time.monotonic() < deadline
             time.sleep(0.02)
-        gc = subprocess.run([sys.executable, "-m", "cli.main", "gc", "--yes", "--grace", "0", "--store",
-                             str(store.root)], cwd=ROOT, capture_output=True, text=True, timeout=60)
+        gc = subprocess.run(
+            [sys.executable, "-m", "cli.main", "gc", "--yes", "--grace", "0", "--store", str(store.root)],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
         assert gc.returncode == 2 and gc.stderr.count("\n") == 1, gc.stderr
         assert "gc needs the store to itself" in gc.stderr and f"pid {writer.pid}" in gc.stderr
         assert store.has_object(content["content"])  # nothing was swept
@@ -106,31 +117,54 @@ def test_gc_wait_lets_a_writer_finish_then_sweeps(store, tmp_path):
     loose = store.put_bytes(b"garbage")
     old(store, loose)
     store.close()
-    holder = subprocess.Popen([sys.executable, "-c", "import sys, time\nfrom artifacts.store import Store\n"
-                               "s = Store.open(sys.argv[1]); s.put_bytes(b'x'); print('held', flush=True)\n"
-                               "time.sleep(1.5)", str(store.root)], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    holder = subprocess.Popen(
+        [
+            sys.executable,
+            "-c",
+            "import sys, time\nfrom artifacts.store import Store\n"
+            "s = Store.open(sys.argv[1]); s.put_bytes(b'x'); print('held', flush=True)\n"
+            "time.sleep(1.5)",
+            str(store.root),
+        ],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     assert holder.stdout.readline().strip() == "held"
     with pytest.raises(StoreError, match="gc needs the store to itself"):
         collect_garbage(store, dry_run=False, grace_s=0)
     assert store.has_object(loose)
-    report = collect_garbage(store, dry_run=False, grace_s=0, wait_s=30)   # waits for the writer's exit
+    report = collect_garbage(store, dry_run=False, grace_s=0, wait_s=30)  # waits for the writer's exit
     holder.wait(timeout=30)
     assert loose in [o for o, _ in report.removed] and not store.has_object(loose)
 
 
 def test_gc_in_a_process_that_wrote_converts_its_own_lock(store):
-    loose = store.put_bytes(b"mine")                    # this handle is a writer now
+    loose = store.put_bytes(b"mine")  # this handle is a writer now
     old(store, loose)
     assert collect_garbage(store, dry_run=False, grace_s=0).removed
-    other = Store.open(store.root)                       # still a writer afterwards: gc elsewhere waits
+    other = Store.open(store.root)  # still a writer afterwards: gc elsewhere waits
     assert other.put_bytes(b"again")
-    probe = subprocess.run([sys.executable, "-m", "cli.main", "gc", "--store", str(store.root)], cwd=ROOT,
-                           capture_output=True, text=True, timeout=60)
+    probe = subprocess.run(
+        [sys.executable, "-m", "cli.main", "gc", "--store", str(store.root)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert probe.returncode == 2 and "gc needs the store to itself" in probe.stderr
     store.close()
     other.close()
-    assert subprocess.run([sys.executable, "-m", "cli.main", "gc", "--store", str(store.root)], cwd=ROOT,
-                          capture_output=True, text=True, timeout=60).returncode == 0
+    assert (
+        subprocess.run(
+            [sys.executable, "-m", "cli.main", "gc", "--store", str(store.root)],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=60,
+        ).returncode
+        == 0
+    )
 
 
 def test_writers_and_gc_racing_never_lose_a_rooted_object(store, tmp_path):
@@ -143,15 +177,29 @@ def test_writers_and_gc_racing_never_lose_a_rooted_object(store, tmp_path):
     for oid in store.iter_object_ids():
         old(store, oid)
     store.close()
-    script = ("import sys\nfrom pathlib import Path\nfrom artifacts.ingest import add_path\n"
-              "from artifacts.store import Store\ns = Store.open(Path(sys.argv[1]))\n"
-              "for i in range(6):\n    add_path(s, Path(sys.argv[2]), 'demos', ref=f'r/{sys.argv[3]}-{i}')\n")
-    adders = [subprocess.Popen([sys.executable, "-c", script, str(store.root), str(src), str(n)], cwd=ROOT,
-                               stderr=subprocess.PIPE, text=True) for n in range(2)]
+    script = (
+        "import sys\nfrom pathlib import Path\nfrom artifacts.ingest import add_path\n"
+        "from artifacts.store import Store\ns = Store.open(Path(sys.argv[1]))\n"
+        "for i in range(6):\n    add_path(s, Path(sys.argv[2]), 'demos', ref=f'r/{sys.argv[3]}-{i}')\n"
+    )
+    adders = [
+        subprocess.Popen(
+            [sys.executable, "-c", script, str(store.root), str(src), str(n)],
+            cwd=ROOT,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for n in range(2)
+    ]
     swept = 0
     while any(a.poll() is None for a in adders):
-        proc = subprocess.run([sys.executable, "-m", "cli.main", "gc", "--yes", "--grace", "0", "--store",
-                               str(store.root)], cwd=ROOT, capture_output=True, text=True, timeout=60)
+        proc = subprocess.run(
+            [sys.executable, "-m", "cli.main", "gc", "--yes", "--grace", "0", "--store", str(store.root)],
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
         assert proc.returncode in (0, 2) and "Traceback" not in proc.stderr, proc.stderr
         swept += proc.returncode == 0
     for a in adders:
@@ -195,12 +243,15 @@ def half_write(store: Store) -> None:
         f.write(b'{"seq":4,"event":"cut-')
 
 
-@pytest.mark.parametrize("damage, pattern", [
-    (drop_last_line, "tail was cut"),
-    (edit_last_line, "edited"),
-    (delete_log, "missing"),
-    (half_write, "incomplete"),
-])
+@pytest.mark.parametrize(
+    "damage, pattern",
+    [
+        (drop_last_line, "tail was cut"),
+        (edit_last_line, "edited"),
+        (delete_log, "missing"),
+        (half_write, "incomplete"),
+    ],
+)
 def test_log_damage_is_seen_blocks_writes_and_repair_seals_it(store, tmp_path, damage, pattern):
     events_store(store)
     set_ref(store, "x", empty_tree(store, "x"))
@@ -210,14 +261,14 @@ def test_log_damage_is_seen_blocks_writes_and_repair_seals_it(store, tmp_path, d
     assert not report.ok and any(pattern in p for p in report.problems), report.problems
     with pytest.raises(StoreError, match=r"verify --repair"):
         append_event(store, "after-damage")
-    with pytest.raises(StoreError, match=r"verify --repair"):   # a ref move the log cannot record is not made
+    with pytest.raises(StoreError, match=r"verify --repair"):  # a ref move the log cannot record is not made
         set_ref(store, "y", empty_tree(store, "y"))
     assert read_ref(store, "y") is None
     repaired = verify_store(store, repair=True)
     assert repaired.ok and repaired.repaired["event"] == "log-repaired", repaired.problems
     assert any(pattern in p for p in repaired.repaired["problems"])
     assert any("log-repaired" in n for n in repaired.notes)
-    set_ref(store, "y", empty_tree(store, "y"))                  # writes go on
+    set_ref(store, "y", empty_tree(store, "y"))  # writes go on
     after = verify_store(store, full=True)
     assert after.ok and any("sealed" in n for n in after.notes), after.problems
     assert [e["event"] for e in iter_events(store)][-2:] == ["log-repaired", "ref-moved"]
@@ -225,15 +276,21 @@ def test_log_damage_is_seen_blocks_writes_and_repair_seals_it(store, tmp_path, d
 
 def test_attempt_records_anchor_the_log_even_without_its_head(store):
     events_store(store)
-    attempt = {"cache_key": "ab" * 32, "attempt": 1, "step": "train", "state": "running", "inputs": {},
-               "checkpoints": []}
+    attempt = {
+        "cache_key": "ab" * 32,
+        "attempt": 1,
+        "step": "train",
+        "state": "running",
+        "inputs": {},
+        "checkpoints": [],
+    }
     write_attempt(store, attempt)
     events_store(store, 2)
     [saved] = list_attempts(store)
     assert saved["log_anchor"]["seq"] == 3
     lines = log_lines(store)
-    store.log_path.write_bytes(b"".join(lines[:2]))     # cut back before the anchored event…
-    head_path(store).unlink()                            # …and remove the head as well
+    store.log_path.write_bytes(b"".join(lines[:2]))  # cut back before the anchored event…
+    head_path(store).unlink()  # …and remove the head as well
     problems = verify_store(store).problems
     assert any("attempt abababababab/0001 (train) was written after log event seq 3" in p for p in problems)
     assert any("log/head is missing" in p for p in problems)
@@ -245,7 +302,7 @@ def test_a_crash_between_the_line_and_the_head_is_not_damage(store):
     events_store(store, 2)
     head_before = head_path(store).read_bytes()
     append_event(store, "custom", i=9)
-    head_path(store).write_bytes(head_before)             # as if killed before the head was replaced
+    head_path(store).write_bytes(head_before)  # as if killed before the head was replaced
     assert verify_store(store).ok
     append_event(store, "custom", i=10)
     assert verify_store(store).ok and json.loads(head_path(store).read_bytes())["seq"] == 3
@@ -257,7 +314,7 @@ def test_a_legacy_log_without_head_still_appends(store):
     head_path(store).unlink()
     from artifacts.hashing import canonical_json, hash_bytes
 
-    prev, raw = "0" * 64, []                             # rewrite as a pre-head (format 1) log
+    prev, raw = "0" * 64, []  # rewrite as a pre-head (format 1) log
     for e in lines:
         e.pop("log_format")
         e["prev"] = prev
@@ -326,13 +383,13 @@ def test_add_refuses_a_symlinked_subdirectory_like_a_symlinked_file(store, tmp_p
 
 def test_a_source_that_shrinks_during_add_is_refused_cleanly(store, tmp_path, monkeypatch):
     big = tmp_path / "big.bin"
-    big.write_bytes(os.urandom(40 * 1024 * 1024))        # large enough for the pipelined copy
+    big.write_bytes(os.urandom(40 * 1024 * 1024))  # large enough for the pipelined copy
     import artifacts.store as store_module
 
     real = store_module.copy_hashing
 
     def shrink_then_copy(src, fd, size_hint):
-        os.truncate(big, 5 * 1024 * 1024)               # another process truncates it mid-add
+        os.truncate(big, 5 * 1024 * 1024)  # another process truncates it mid-add
         return real(src, fd, size_hint)
 
     monkeypatch.setattr(store_module, "copy_hashing", shrink_then_copy)

@@ -1,5 +1,6 @@
 """Atomic publish under kill -9: a writer process (ingest, refs, log, step runs with checkpoints)
 is killed at random moments; afterwards `verify --full` passes and no lock is left held."""
+
 from __future__ import annotations
 
 import os
@@ -38,8 +39,11 @@ def test_kill_9_at_random_points_leaves_a_verifiable_store(tmp_path):
     rng = random.Random(1234)
     for trial in range(TRIALS):
         before = _log_size(store)
-        proc = subprocess.Popen([sys.executable, str(SUPPORT), "writer", str(store.root), str(trial)],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+        proc = subprocess.Popen(
+            [sys.executable, str(SUPPORT), "writer", str(store.root), str(trial)],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
+        )
         _wait_for_log(store, proc, before)
         time.sleep(rng.uniform(0.0, 0.6))
         assert proc.poll() is None, proc.stderr.read().decode()
@@ -52,8 +56,12 @@ def test_kill_9_at_random_points_leaves_a_verifiable_store(tmp_path):
             lock.acquire(timeout=0)  # raises Timeout if a dead writer still held it
             lock.release()
     # the dead writers' attempts are reaped as abandoned on the next look, and the store works on
-    proc = subprocess.run([sys.executable, str(SUPPORT), "count", str(store.root), "normal", "4", "0"],
-                          capture_output=True, text=True, timeout=60)
+    proc = subprocess.run(
+        [sys.executable, str(SUPPORT), "count", str(store.root), "normal", "4", "0"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert proc.returncode == 0, proc.stderr
     from stages.runner import reap_abandoned
 

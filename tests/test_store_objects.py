@@ -1,4 +1,5 @@
 """Hashing, objects, trees, manifests, refs, id resolution and the audit log."""
+
 from __future__ import annotations
 
 import json
@@ -13,8 +14,7 @@ from artifacts.auditlog import append_event, check_chain, iter_events
 from artifacts.errors import StoreError
 from artifacts.hashing import canonical_json, copy_hashing, hash_file, hash_json
 from artifacts.ingest import add_path
-from artifacts.manifests import (materialize, publish_artifact, put_tree, read_artifact, read_tree,
-                                 verify_artifact)
+from artifacts.manifests import materialize, publish_artifact, put_tree, read_artifact, read_tree, verify_artifact
 from artifacts.refs import list_refs, read_ref, set_ref
 from artifacts.resolve import resolve
 from artifacts.store import Store
@@ -107,8 +107,15 @@ def test_symlinks_are_refused(store, tmp_path):
 def test_artifact_manifest_records_provenance_and_sizes(store, tmp_path):
     seed = publish_artifact(store, make_tree(tmp_path / "s", {"x": b"12"}), "demos", producer={"step": "add"})
     d = make_tree(tmp_path / "d", {"w.bin": b"abc", "sub/v.bin": b"defg"})
-    aid = publish_artifact(store, d, "checkpoint", producer={"step": "train", "attempt": 1},
-                           inputs={"demos": seed}, config={"seed": 3}, code_version="v1")
+    aid = publish_artifact(
+        store,
+        d,
+        "checkpoint",
+        producer={"step": "train", "attempt": 1},
+        inputs={"demos": seed},
+        config={"seed": 3},
+        code_version="v1",
+    )
     m = read_artifact(store, aid)
     assert m["kind"] == "checkpoint" and m["layout"] == "dir" and m["size"] == 7 and m["files"] == 2
     assert m["inputs"] == {"demos": seed} and m["config"] == {"seed": 3} and m["code_version"] == "v1"
@@ -119,12 +126,22 @@ def test_artifact_manifest_records_provenance_and_sizes(store, tmp_path):
 
 def test_adopting_files_that_already_exist_does_not_rewrite_them(store, tmp_path):
     shard = b"sealed replay shard" * 10000
-    first = publish_artifact(store, make_tree(tmp_path / "c1", {"shard-0.bin": shard, "s.json": b"1"}),
-                             "checkpoint", producer={}, how="checked")
+    first = publish_artifact(
+        store,
+        make_tree(tmp_path / "c1", {"shard-0.bin": shard, "s.json": b"1"}),
+        "checkpoint",
+        producer={},
+        how="checked",
+    )
     oid = {e["path"]: e["id"] for e in read_tree(store, read_artifact(store, first)["content"])}["shard-0.bin"]
     before = store.object_path(oid).stat()
-    second = publish_artifact(store, make_tree(tmp_path / "c2", {"shard-0.bin": shard, "s.json": b"2"}),
-                              "checkpoint", producer={}, how="adopt")
+    second = publish_artifact(
+        store,
+        make_tree(tmp_path / "c2", {"shard-0.bin": shard, "s.json": b"2"}),
+        "checkpoint",
+        producer={},
+        how="adopt",
+    )
     after = store.object_path(oid).stat()
     assert (after.st_ino, after.st_mtime_ns) == (before.st_ino, before.st_mtime_ns)
     assert {e["path"]: e["id"] for e in read_tree(store, read_artifact(store, second)["content"])}["shard-0.bin"] == oid

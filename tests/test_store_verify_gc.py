@@ -1,4 +1,5 @@
 """verify (quick/full, quarantine) and gc (roots, dry run, grace period, lock)."""
+
 from __future__ import annotations
 
 import os
@@ -8,6 +9,7 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from rich.console import Console
 from test_runner_support import count_invocation  # noqa: E402
 
 from artifacts.errors import StoreError
@@ -19,7 +21,6 @@ from artifacts.records import list_attempts
 from artifacts.refs import set_ref
 from artifacts.store import Store
 from artifacts.verify import verify_store
-from rich.console import Console
 from stages.runner import Runner
 
 
@@ -132,18 +133,19 @@ def test_gc_refuses_while_another_gc_holds_the_lock(populated):
 
 
 def test_gc_refuses_to_delete_from_a_damaged_store(populated):
-    some_ref_target = populated.put_json({"type": "artifact", "layout": "file", "content": "ab" * 32,
-                                          "size": 1, "inputs": {}})
+    some_ref_target = populated.put_json(
+        {"type": "artifact", "layout": "file", "content": "ab" * 32, "size": 1, "inputs": {}}
+    )
     set_ref(populated, "broken", some_ref_target)
     with pytest.raises(StoreError, match="gc refused"):
         collect_garbage(populated, dry_run=False, grace_s=0)
 
 
 def test_gc_never_sweeps_a_live_writers_staging_area(populated):
-    live = populated.new_tmp_dir("attempt-live")          # carries this (live) process's pid
+    live = populated.new_tmp_dir("attempt-live")  # carries this (live) process's pid
     dead = populated.tmp_dir / "attempt-dead-999999999-abcd"
     dead.mkdir()
-    stray = populated.refs_dir / ".tmp-999999999-00ff"      # a ref update cut off before its rename
+    stray = populated.refs_dir / ".tmp-999999999-00ff"  # a ref update cut off before its rename
     stray.write_text("x")
     report = collect_garbage(populated, dry_run=False, grace_s=0)
     assert live.exists() and not dead.exists() and not stray.exists()
