@@ -9,8 +9,14 @@ import typer
 from typer.testing import CliRunner
 
 from accrue.errors import AccrueError
-from accrue.metrics import (BOOTSTRAP_RESAMPLES, aggregate_runs, bootstrap_ci, load_metrics_file, run_record,
-                            summarize_values)
+from accrue.metrics import (
+    BOOTSTRAP_RESAMPLES,
+    aggregate_runs,
+    bootstrap_ci,
+    load_metrics_file,
+    run_record,
+    summarize_values,
+)
 from cli.metrics_cmds import register
 
 A, B, C = "nist/rect_peg", "nist/round_peg", "nist/gear"

@@ -21,8 +21,15 @@ from stages.bench.state import cell_states
 from stages.errors import StageError
 from stages.report.data import load_run
 from stages.report.summary import curve_tensor
-from stages.report.tables import (METHOD_HEADER, ORDERING_HEADER, TABLE_METRICS, markdown_table, method_rows,
-                                  ordering_rows, summary_csv)
+from stages.report.tables import (
+    METHOD_HEADER,
+    ORDERING_HEADER,
+    TABLE_METRICS,
+    markdown_table,
+    method_rows,
+    ordering_rows,
+    summary_csv,
+)
 
 FILES = {"markdown": "report.md", "summary_csv": "summary.csv", "cells_csv": "cells.csv", "json": "report.json",
          "metric_bars": "metrics.png", "stage_curves": "stage_curves.png"}
