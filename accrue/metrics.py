@@ -173,6 +173,26 @@ def aggregate_runs(records: list[dict]) -> dict:
     return {"methods": out, "confidence": CONFIDENCE, "resamples": BOOTSTRAP_RESAMPLES, "bootstrap_seed": 0}
 
 
+def paired_differences(records: list[dict], reference: str, methods: list[str] | None = None) -> list[dict]:
+    """Per method other than `reference`: per metric, the mean and bootstrap CI of (method − reference)
+    over the runs both have for the same (ordering, seed) — paired, since such runs share their demos,
+    base policies and evaluation episodes. [{"method", "pairs", "metrics": {name: summarize_values(...)}}];
+    a method of `methods` without any pair keeps its row (pairs 0, every metric undefined)."""
+    ref = {(r["ordering"], r["seed"]): r for r in records if r["method"] == reference}
+    order = list(methods or []) + [r["method"] for r in records]
+    out = []
+    for method in dict.fromkeys(m for m in order if m != reference):     # `methods` first, then any other
+        pairs = [(r, ref[(r["ordering"], r["seed"])]) for r in records
+                 if r["method"] == method and (r["ordering"], r["seed"]) in ref]
+        metrics = {}
+        for name in METRICS:
+            diffs = [None if a["metrics"][name] is None or b["metrics"][name] is None
+                     else a["metrics"][name] - b["metrics"][name] for a, b in pairs]
+            metrics[name] = summarize_values(diffs)
+        out.append({"method": method, "pairs": len(pairs), "metrics": metrics})
+    return out
+
+
 def load_metrics_file(path: str | Path) -> list[dict]:
     """Parse FILE.json: one run {"tasks", "grid", "curves"} or a list of them, each optionally labelled
     with "method", "ordering" and "seed". Runs may have different task lists (orderings). Returns one

@@ -116,6 +116,9 @@ def test_aggregates_equal_a_hand_computation(bench):
     assert seq["mean"] == seq["ci_low"] == seq["ci_high"] == pytest.approx(0.6)
     s2 = next(o for o in agg["accrue"]["orderings"] if o["ordering"] == "S2")
     assert s2["seeds"] == [0] and s2["metrics"]["FWT"]["mean"] == pytest.approx(hand_metrics(1.0, 0.9, 0.8)["FWT"])
+    [diff] = report["differences"]                       # sequential − accrue, paired by ordering and seed
+    assert diff["method"] == "sequential" and diff["pairs"] == 3            # accrue S2 seed 1 has no result
+    assert diff["metrics"]["NBT"]["mean"] == pytest.approx(((0.6 - 0.1) + (0.6 - 0.0) + (0.6 - 0.1)) / 3)
     assert [m["cell"] for m in report["missing"]] == [spec.cell("accrue", "S2", 1).name]
     assert report["missing"][0]["state"] == "failed" and report["missing"][0]["error"] == "step train: boom"
     assert len(curves["accrue"]) == 3 and curves["accrue"][0][1]["earlier"] == [0.7, 0.7]
@@ -128,6 +131,7 @@ def test_markdown_csv_and_plots_show_missing_cells(bench, tmp_path):
     assert "| accrue | 3 of 4 |" in text and "| sequential | 4 |" in text
     assert "| accrue | S2 | 0 (1 of 2) |" in text
     assert "accrue · S2 · seed 1 — failed (stages done: 1): step train: boom" in text
+    assert "Difference from `accrue`" in text and "| sequential | 3 | +0.533 [+0.500, +0.600] |" in text
     assert "seeds 0, 1" in text and "S2 = nist/gear → nist/rect_peg" in text and "4000 resamples" in text
     files = write_report(report, curves, tmp_path / "out")
     for path in files.values():
@@ -148,7 +152,9 @@ def test_a_method_with_no_finished_run_keeps_its_row(bench, tmp_path):
     data["methods"]["ewc"] = {}
     path.write_text(yaml.safe_dump(data))
     report, _ = build_report(store, load_spec(path))
-    assert "| ewc | 0 of 4 | — | — | — | — | — |" in markdown(report)
+    text = markdown(report)
+    assert "| ewc | 0 of 4 | — | — | — | — | — |" in text
+    assert "| ewc | 0 | — | — | — | — | — |" in text                  # and its row of differences
     assert sum(m["method"] == "ewc" for m in report["missing"]) == 4
 
 

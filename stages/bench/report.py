@@ -13,7 +13,7 @@ import io
 import json
 from pathlib import Path
 
-from accrue.metrics import aggregate_runs, run_record
+from accrue.metrics import aggregate_runs, paired_differences, run_record
 from artifacts.errors import StoreError
 from artifacts.store import Store
 from stages.bench.spec import BenchSpec
@@ -25,6 +25,7 @@ from stages.report.tables import (
     METHOD_HEADER,
     ORDERING_HEADER,
     TABLE_METRICS,
+    fmt_ci,
     markdown_table,
     method_rows,
     ordering_rows,
@@ -83,11 +84,12 @@ def build_report(store: Store, spec: BenchSpec) -> tuple[dict, dict]:
                 name: {"mean": None, "ci_low": None, "ci_high": None, "n": 0, "undefined": 0} for name in TABLE_METRICS}})
     agg["methods"].sort(key=lambda m: spec.methods.index(m["method"]))
     expected = {m: sum(1 for c in spec.cells if c.method == m) for m in spec.methods}
+    differences = paired_differences(records, spec.reference, spec.methods) if spec.reference else []
     report = {
         "spec": spec.name, "spec_file": str(spec.path), "description": spec.description, "base": str(spec.base),
         "methods": spec.methods, "orderings": spec.orderings, "seeds": spec.seeds, "reference": spec.reference,
         "cells_total": len(spec.cells), "cells_done": len(records), "cells": cells, "missing": missing,
-        "expected_runs": expected, "aggregate": agg,
+        "expected_runs": expected, "aggregate": agg, "differences": differences,
     }
     return report, curves
 
@@ -128,6 +130,14 @@ def markdown(report: dict, command: str | None = None, heading_level: int = 3) -
         "",
         markdown_table(ORDERING_HEADER, ordering_rows(agg, expected_o)),
     ]
+    if report.get("differences"):
+        ref = report["reference"]
+        lines += [f"Difference from `{ref}`, paired by ordering and seed (mean [CI] of method − {ref}; "
+                  f"for NBT and F_final a positive difference is worse, for the others better):", "",
+                  markdown_table(["method", "pairs", *(f"Δ{m}" for m in TABLE_METRICS)],
+                                 [[d["method"], str(d["pairs"]), *(fmt_ci(d["metrics"][m], signed=True)
+                                                                  for m in TABLE_METRICS)]
+                                  for d in report["differences"]])]
     if report["missing"]:
         lines += [f"Missing cells ({len(report['missing'])}):", ""]
         for m in report["missing"]:

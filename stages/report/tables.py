@@ -22,17 +22,18 @@ METHOD_HEADER = ["method", "runs", *(f"{m} {ARROWS[m]}" for m in TABLE_METRICS)]
 ORDERING_HEADER = ["method", "ordering", "seeds", *(f"{m} {ARROWS[m]}" for m in TABLE_METRICS)]
 
 
-def fmt(value: float | None, digits: int = 3) -> str:
-    return "—" if value is None else f"{value:.{digits}f}"
+def fmt(value: float | None, digits: int = 3, signed: bool = False) -> str:
+    return "—" if value is None else f"{value:+.{digits}f}" if signed else f"{value:.{digits}f}"
 
 
-def fmt_ci(summary: dict, digits: int = 3) -> str:
-    """'mean [low, high]'; a lone run (or identical runs) has no interval to show; '—' when undefined."""
+def fmt_ci(summary: dict, digits: int = 3, signed: bool = False) -> str:
+    """'mean [low, high]'; a lone run has no interval to show; '—' when undefined."""
     if summary["mean"] is None:
         return "—"
+    mean = fmt(summary["mean"], digits, signed)
     if summary["n"] < 2:
-        return fmt(summary["mean"], digits)
-    return f"{fmt(summary['mean'], digits)} [{fmt(summary['ci_low'], digits)}, {fmt(summary['ci_high'], digits)}]"
+        return mean
+    return f"{mean} [{fmt(summary['ci_low'], digits, signed)}, {fmt(summary['ci_high'], digits, signed)}]"
 
 
 def _runs_text(found: int, expected: int | None) -> str:
@@ -60,7 +61,7 @@ def markdown_table(header: list[str], rows: list[list[str]]) -> str:
     def line(cells):
         return "| " + " | ".join(str(c).replace("|", "\\|") for c in cells) + " |"
 
-    align = ["---:" if h.split()[0] in METRICS else "---" for h in header]
+    align = ["---:" if h.split()[0].lstrip("Δ") in METRICS or h in ("runs", "pairs") else "---" for h in header]
     return "\n".join([line(header), "| " + " | ".join(align) + " |", *(line(r) for r in rows)]) + "\n"
 
 
