@@ -105,3 +105,5 @@ class BenchProgress:
         with Live(self, console=self.console, refresh_per_second=2, redirect_stdout=False, redirect_stderr=False,
                   transient=False):
             yield self
+        if not self.console.is_terminal:      # the final frame of a non-terminal Live ends without a newline
+            self.console.file.write("\n")
