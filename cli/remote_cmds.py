@@ -134,14 +134,13 @@ def push(
     report = do_push(st, spec.name, refs, force=force, jobs=jobs, meter=_meter(as_json))
     if as_json:
         print_json(report.as_dict())
-    else:
-        out = console()
+    else:  # plain echo, not rich: a no-op push should cost little more than start-up
         for name, (old, new) in report.moved.items():
-            out.print(f"  {name}: {old[:12] if old else '(new)'} → {new[:12]}")
+            typer.echo(f"  {name}: {old[:12] if old else '(new)'} -> {new[:12]}")
         for name in report.behind:
-            out.print(f"  [yellow]{name}: the remote has moved on; `accrue pull {spec.name} {name}` to get it[/]")
-        out.print(
-            f"push → {spec.name}: sent {report.objects_sent} objects ({human_size(report.bytes_sent)}), "
+            typer.echo(f"  {name}: the remote has moved on; `accrue pull {spec.name} {name}` to get it")
+        typer.echo(
+            f"push -> {spec.name}: sent {report.objects_sent} objects ({human_size(report.bytes_sent)}), "
             f"moved {len(report.moved)} refs, {len(report.up_to_date)} up to date"
             + (f", {len(report.conflicts)} refused" if report.conflicts else "")
         )
@@ -152,13 +151,12 @@ def _print_fetch(report, verb: str, as_json: bool) -> None:
     if as_json:
         print_json(report.as_dict())
         return
-    out = console()
     for name, (old, new) in report.moved.items():
-        out.print(f"  {name}: {old[:12] if old else '(new)'} → {new[:12]}")
+        typer.echo(f"  {name}: {old[:12] if old else '(new)'} -> {new[:12]}")
     tail = f"; {report.promised} objects left on the remote until needed" if report.promised else ""
     moved = f", moved {len(report.moved)} local refs" if verb == "pull" else ""
-    out.print(
-        f"{verb} ← {report.remote}: received {report.objects_received} objects "
+    typer.echo(
+        f"{verb} <- {report.remote}: received {report.objects_received} objects "
         f"({human_size(report.bytes_received)}) for {len(report.refs)} refs{moved}{tail}"
     )
 

@@ -25,7 +25,14 @@ from artifacts.remotes.config import RemoteSpec, get_remote, set_promisor, store
 from artifacts.remotes.lazy import add_promised
 from artifacts.remotes.logsegment import KIND as LOG_KIND
 from artifacts.remotes.logsegment import next_segment
-from artifacts.remotes.transfer import Meter, default_jobs, download_manifest, download_object, parallel
+from artifacts.remotes.transfer import (
+    Meter,
+    default_jobs,
+    download_manifest,
+    download_object,
+    flush_dirs,
+    parallel,
+)
 from artifacts.store import Store
 
 REMOTE_CONFIG = {"format": 1, "hash": HASH_NAME, "type": "accrue-remote"}
@@ -112,6 +119,8 @@ def read_pointers(store: Store, spec: RemoteSpec, backend: Backend, space: str) 
             check_ref_name(name)
         except StoreError:
             continue  # not a ref (e.g. an editor's backup file)
+        if name.startswith(RESERVED):
+            continue  # another store's tracking refs are its own business
         cached = cache.get(name)
         if cached and version and cached[0] == version:
             out[name] = (cached[1], version)
@@ -398,12 +407,17 @@ def fetch(
     plan = _remote_closure(store, backend, list(chosen.values()) + list(logs.values()), only, jobs)
     meter.start(f"pull ← {spec.name}", len(plan.data) + len(plan.manifests), sum(plan.data.values()))
 
+    new_dirs: set[Path] = set()
+
     def get(item: tuple[str, int]) -> None:
-        download_object(store, backend, item[0], item[1])
+        download_object(store, backend, item[0], item[1], new_dirs)
         meter.advance(item[1])
 
     try:
-        parallel(get, sorted(plan.data.items()), jobs)
+        try:
+            parallel(get, sorted(plan.data.items()), jobs)
+        finally:
+            flush_dirs(new_dirs, jobs)  # what arrived is kept (durably) even if the rest failed
         for group in bottom_up(plan.named):  # manifests after everything they name
             for oid in group:
                 if oid in plan.manifests:

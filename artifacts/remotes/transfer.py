@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import os
 from concurrent.futures import FIRST_EXCEPTION, ThreadPoolExecutor, wait
+from pathlib import Path
 from typing import Callable, Iterable, TypeVar
 
-from artifacts.atomic import temp_name
+from artifacts.atomic import fsync_dir, temp_name
 from artifacts.errors import StoreError
 from artifacts.hashing import hash_bytes
 from artifacts.remotes.backends import Backend, object_key
@@ -36,20 +37,21 @@ class Meter:
 
 
 def parallel(fn: Callable[[T], R], items: Iterable[T], jobs: int) -> list[R]:
-    """fn over items on `jobs` threads (obstore and file I/O release the GIL). The first failure
-    cancels what has not started and is raised once the running ones end."""
+    """fn over items on `jobs` threads (obstore and file I/O release the GIL). The first failure,
+    or Ctrl-C, cancels what has not started; it is raised once the running transfers end."""
     items = list(items)
     if len(items) <= 1 or jobs <= 1:
         return [fn(i) for i in items]
-    with ThreadPoolExecutor(max_workers=min(jobs, len(items)), thread_name_prefix="accrue-remote") as pool:
+    pool = ThreadPoolExecutor(max_workers=min(jobs, len(items)), thread_name_prefix="accrue-remote")
+    try:
         futures = [pool.submit(fn, i) for i in items]
-        done, pending = wait(futures, return_when=FIRST_EXCEPTION)
-        for f in pending:
-            f.cancel()
+        wait(futures, return_when=FIRST_EXCEPTION)
         for f in futures:
             if f.done() and not f.cancelled() and f.exception() is not None:
                 raise f.exception()
         return [f.result() for f in futures]
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _corrupt(backend: Backend, oid: str, why: str) -> StoreError:
@@ -60,8 +62,13 @@ def _corrupt(backend: Backend, oid: str, why: str) -> StoreError:
     )
 
 
-def download_object(store: Store, backend: Backend, oid: str, size: int | None = None) -> int:
-    """Fetch one object into the store, verified. Returns its size."""
+def download_object(
+    store: Store, backend: Backend, oid: str, size: int | None = None, new_dirs: set[Path] | None = None
+) -> int:
+    """Fetch one object into the store, verified: its bytes are hashed as they arrive and fsynced
+    before the object is linked in. Returns its size. With new_dirs, the fan-out directory is not
+    fsynced here but added to the set for flush_dirs (a crash before that loses the link, never
+    the bytes: the object is then merely missing and comes again on the next pull)."""
     why = "corrupt"
     for _ in range(ATTEMPTS):
         tmp = temp_name(store.tmp_dir, "dl-")
@@ -75,12 +82,31 @@ def download_object(store: Store, backend: Backend, oid: str, size: int | None =
                 os.close(fd)
             if got == oid and (size is None or n == size):
                 with store._writing():  # a writer: gc waits until this process is done
-                    store._publish_tmp(tmp, oid)
+                    if new_dirs is None:
+                        store._publish_tmp(tmp, oid)
+                    else:
+                        _link_unsynced(store, tmp, oid, new_dirs)
                 return n
             why = "corrupt" if size is None or n == size else f"truncated ({n} of {size} bytes)"
         finally:
             tmp.unlink(missing_ok=True)
     raise _corrupt(backend, oid, why)
+
+
+def _link_unsynced(store: Store, tmp: Path, oid: str, new_dirs: set[Path]) -> None:
+    final = store.object_path(oid)
+    os.chmod(tmp, 0o444)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        os.link(tmp, final)
+    except FileExistsError:
+        return  # same id, same bytes
+    new_dirs.add(final.parent)
+
+
+def flush_dirs(dirs: set[Path], jobs: int) -> None:
+    """fsync the directories that gained objects (once each, not once per object)."""
+    parallel(fsync_dir, sorted(dirs) + ([next(iter(dirs)).parent] if dirs else []), jobs)
 
 
 def download_manifest(backend: Backend, oid: str) -> bytes:
