@@ -104,24 +104,42 @@ def _run_serial(spec, store, todo, logs, finish, progress) -> None:
 
 
 # ------------------------------------------------------------------------- on Ray
+START_ATTEMPTS = 3
+
+
+def start_ray(address: str | None, num_cpus: int | None, attempts: int = START_ATTEMPTS) -> None:
+    """Join the cluster at `address`, or start a quiet local instance sized to this machine (no dashboard,
+    worker output kept in Ray's log files). Ray gives a local node 30 s to register, which an overloaded
+    machine can miss: the start is tried `attempts` times before it becomes a one-line StageError."""
+    import ray
+
+    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+    for attempt in range(1, attempts + 1):
+        try:
+            if address:
+                ray.init(address=address, log_to_driver=False, logging_level=logging.ERROR)
+            else:
+                ray.init(num_cpus=num_cpus or os.cpu_count() or 1, include_dashboard=False, log_to_driver=False,
+                         logging_level=logging.ERROR)
+            return
+        except Exception as exc:  # noqa: BLE001 - Ray raises bare Exception for a node that timed out
+            with contextlib.suppress(Exception):
+                ray.shutdown()
+            if address or attempt == attempts:
+                where = f"join Ray at {address}" if address else f"start a local Ray instance ({attempts} tries)"
+                raise StageError(f"cannot {where}: {one_line(exc)}; on a busy machine try again, or run the "
+                                 "cells one after another with --serial") from None
+
+
 @contextlib.contextmanager
 def ray_session(address: str | None, num_cpus: int | None):
-    """Join the cluster at `address`, or start a quiet local instance sized to this machine (no
-    dashboard, worker output kept in Ray's log files). An already initialised session is reused."""
+    """Ray for the bench's lifetime (start_ray); an already initialised session is reused, not shut down."""
     import ray
 
     if ray.is_initialized():
         yield ray
         return
-    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    try:
-        if address:
-            ray.init(address=address, log_to_driver=False, logging_level=logging.ERROR)
-        else:
-            ray.init(num_cpus=num_cpus or os.cpu_count() or 1, include_dashboard=False, log_to_driver=False,
-                     logging_level=logging.ERROR)
-    except (ConnectionError, RuntimeError, ValueError) as exc:
-        raise StageError(f"cannot start or join Ray{f' at {address}' if address else ''}: {one_line(exc)}") from None
+    start_ray(address, num_cpus)
     try:
         yield ray
     finally:
@@ -173,4 +191,4 @@ def summary_rows(results: list[CellResult]) -> list[dict]:
              "steps_run": r.steps_run, "steps_cached": r.steps_cached} for r in results]
 
 
-__all__ = ["run_bench", "ray_session", "CellResult", "EXECUTORS", "cell_states", "summary_rows"]
+__all__ = ["run_bench", "ray_session", "start_ray", "CellResult", "EXECUTORS", "cell_states", "summary_rows"]
