@@ -126,6 +126,17 @@ def pull_into(path: Path, env: dict, cli: bool) -> None:
         pull(Store.open(path), "origin")
 
 
+def push_fresh_in_process(store_path: Path, url: str) -> None:
+    """The same push to an empty bucket, inside this process (no interpreter start-up)."""
+    from artifacts.remotes.config import add_remote
+    from artifacts.remotes.sync import push
+    from artifacts.store import Store
+
+    store = Store.open(store_path)
+    add_remote(store, "api", url)
+    push(store, "api")
+
+
 def push_in_process(store_path: Path) -> None:
     from artifacts.remotes.sync import push
     from artifacts.store import Store
@@ -163,7 +174,7 @@ def main() -> None:
     )
     server = start_moto(port)
     s3 = boto3.client("s3", endpoint_url=endpoint, region_name="us-east-1")
-    for bucket in ("plain", "accrue", "many"):
+    for bucket in ("plain", "accrue", "accrue-api", "many"):
         s3.create_bucket(Bucket=bucket)
     console = Console()
     figures: dict = {"size_bytes": None, "jobs": args.jobs}
@@ -185,6 +196,7 @@ def main() -> None:
             p.read_bytes()
         t_plain_up = timed(lambda: plain_upload(plain, files, src, args.jobs))
         t_push = timed(lambda: accrue("push", store=store, env=env))
+        t_push_api = timed(lambda: push_fresh_in_process(store, "s3://accrue-api/lab"))
         keys = [p.relative_to(src).as_posix() for p in files]
         t_plain_down = timed(lambda: plain_download(plain, keys, work / "plain-down", args.jobs))
         shutil.rmtree(work / "plain-down")
@@ -203,6 +215,8 @@ def main() -> None:
             pull_s=t_pull,
             pull_in_process_s=t_pull_api,
             push_ratio=t_plain_up / t_push,
+            push_in_process_s=t_push_api,
+            push_in_process_ratio=t_plain_up / t_push_api,
             pull_ratio=t_plain_down / t_pull,
             pull_in_process_ratio=t_plain_down / t_pull_api,
             pull_in_process_ratio_vs_fsynced=t_plain_sync / t_pull_api,
@@ -246,6 +260,9 @@ def main() -> None:
         return f"{f[key.replace('_s', '_mib_s')]:.0f} MiB/s ({f[key]:.1f} s)"
 
     table.add_row("upload (accrue push)", rate("push_s"), rate("plain_upload_s"), f"{f['push_ratio']:.2f}x", ">= 0.8x")
+    table.add_row(
+        "  same, in-process", rate("push_in_process_s"), "", f"{f['push_in_process_ratio']:.2f}x", "(context)"
+    )
     table.add_row(
         "download (accrue pull)", rate("pull_s"), rate("plain_download_s"), f"{f['pull_ratio']:.2f}x", ">= 0.8x"
     )

@@ -286,7 +286,7 @@ class S3Backend(Backend):
                 raise _local_corrupt(oid)
 
         with self._errors():
-            obstore.put(self.store, key, chunks(), chunk_size=CHUNK_SIZE, max_concurrency=8)
+            obstore.put(self.store, key, chunks())  # multipart: 5 MiB parts, 12 at a time
 
     def download_to(self, key: str, fd: int) -> tuple[str, int]:
         import obstore
