@@ -46,8 +46,11 @@ def test_push_then_pull_into_an_empty_store_gives_the_same_refs(tmp_path, remote
     with_remote(a, remote_url)
     pushed = json.loads(cli(a, "push", "--json").stdout)
     assert pushed["conflicts"] == [] and pushed["objects_sent"] == len(list(store_a.iter_object_ids())) + 2
-    again = json.loads(cli(a, "push", "--json").stdout)  # nothing new: nothing sent, no log segment
-    assert again["objects_sent"] == 0 and again["moved"] == {} and again["log_segment"] is None
+    again = json.loads(cli(a, "push", "--json").stdout)  # only the log line of the push itself
+    assert again["objects_sent"] == 2 and again["moved"] == {} and again["log_segment"]
+    noop = json.loads(cli(a, "push", "--json").stdout)  # nothing new: nothing sent, nothing logged
+    assert noop["objects_sent"] == 0 and noop["moved"] == {} and noop["log_segment"] is None
+    assert [e["event"] for e in map(json.loads, (a / "log" / "events.jsonl").read_bytes().splitlines())][-1] == "pushed"
 
     b = tmp_path / "learner"
     assert cli(b, "init").returncode == 0
@@ -63,13 +66,16 @@ def test_push_then_pull_into_an_empty_store_gives_the_same_refs(tmp_path, remote
     assert json.loads(cli(b, "show", "team/handoff", "--json").stdout) == json.loads(
         cli(a, "show", "team/handoff", "--json").stdout
     )
-    # the robot's audit log came along as a segment (an artifact) under remote-logs/
-    logs = {n: i for n, i in json.loads(cli(b, "refs", "remote-logs/", "--json").stdout).items()}
-    [log_id] = logs.values()
-    segment = json.loads(cli(b, "show", log_id, "--json").stdout)
-    assert segment["kind"] == "audit-log" and segment["meta"]["events"] == len(
-        (a / "log" / "events.jsonl").read_bytes().splitlines()
-    )
+    # the robot's audit log came along as chained segments (artifacts) under remote-logs/: put
+    # together they are its log, byte for byte
+    [log_id] = json.loads(cli(b, "refs", "remote-logs/", "--json").stdout).values()
+    parts, segment_id = [], log_id
+    while segment_id:
+        segment = json.loads(cli(b, "show", segment_id, "--json").stdout)
+        assert segment["kind"] == "audit-log"
+        parts.insert(0, Store.open(b).read_bytes(segment["content"]))
+        segment_id = segment["inputs"].get("previous")
+    assert len(parts) == 2 and b"".join(parts) == (a / "log" / "events.jsonl").read_bytes()
     # a second pull finds nothing to do
     assert json.loads(cli(b, "pull", "--json").stdout)["objects_received"] == 0
 
@@ -237,3 +243,21 @@ def test_verify_remote_reports_an_object_the_remote_lost(tmp_path, remote_url):
     delete_remote_key(remote_url, f"objects/blake3/{replay[:2]}/{replay[2:]}")
     out = cli(a, "verify", "--remote", "origin")
     assert out.returncode == 1 and f"lacks object {replay[:12]}" in out.stdout
+
+
+def test_fetch_moves_only_tracking_refs_and_a_wiped_remote_is_filled_again(tmp_path, remote_url):
+    a, b = tmp_path / "a", tmp_path / "b"
+    make_store(a)
+    with_remote(a, remote_url)
+    cli(a, "push")
+    cli(b, "init")
+    with_remote(b, remote_url)
+    fetched = json.loads(cli(b, "fetch", "--json").stdout)
+    assert fetched["moved"] == {} and user_refs(b) == {}
+    tracking = json.loads(cli(b, "refs", "remotes/origin/", "--json").stdout)
+    assert {n.removeprefix("remotes/origin/"): i for n, i in tracking.items()} == user_refs(a)
+    assert cli(b, "verify", "--full").returncode == 0  # tracking refs keep what they reach
+    for key in remote_file_keys(remote_url, "refs/"):
+        delete_remote_key(remote_url, key)
+    again = json.loads(cli(a, "push", "--json").stdout)
+    assert sorted(again["moved"]) == sorted(user_refs(a)) and again["objects_sent"] == 2  # a log segment

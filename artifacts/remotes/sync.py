@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from artifacts.atomic import write_replace
+from artifacts.auditlog import append_event
 from artifacts.errors import StoreError
 from artifacts.hashing import HASH_NAME, canonical_json, is_full_id
 from artifacts.locks import store_lock
@@ -226,7 +227,7 @@ def push(
         cur = current.get(name, (None, ""))[0]
         if cur == oid:
             report.up_to_date.append(name)
-        elif force or cur == seen.get(name):
+        elif force or cur == seen.get(name) or cur is None:  # (a wiped remote gets it again)
             to_move[name] = oid
         elif oid == seen.get(name):
             report.behind.append(name)
@@ -312,9 +313,11 @@ def push(
             continue
         _remember_version(store, spec.name, "refs", name, oid, version)
         report.moved[name] = [old, oid]
-    for name in report.up_to_date + list(report.moved):
-        if seen.get(name) != local[name]:
-            set_ref(store, f"{TRACKING}/{spec.name}/{name}", local[name], log=False)
+    tracked = {n: local[n] for n in report.up_to_date + list(report.moved) if seen.get(n) != local[n]}
+    for name, oid in tracked.items():
+        set_ref(store, f"{TRACKING}/{spec.name}/{name}", oid, log=False)
+    if tracked:  # one event for what was shared (the next push carries it; a no-op push logs nothing)
+        append_event(store, "pushed", remote=spec.name, refs=tracked)
     return report
 
 
@@ -434,11 +437,13 @@ def fetch(
         report.promised = len(plan.skipped)
 
     seen = _tracking(store, spec.name)
-    for name, oid in chosen.items():
-        if seen.get(name) != oid:
-            set_ref(store, f"{TRACKING}/{spec.name}/{name}", oid, log=False)
+    tracked = {n: oid for n, oid in chosen.items() if seen.get(n) != oid}
+    for name, oid in tracked.items():
+        set_ref(store, f"{TRACKING}/{spec.name}/{name}", oid, log=False)
     for sid, oid in logs.items():
         set_ref(store, f"{LOG_TRACKING}/{spec.name}/{sid}", oid, log=False)
+    if tracked or logs:
+        append_event(store, "fetched", remote=spec.name, refs=tracked, logs=logs)
     report.refs, report.logs = chosen, logs
     return report
 
