@@ -21,12 +21,26 @@ def report(workflow: Annotated[Path, typer.Argument(metavar="WORKFLOW", help="Wo
            out: Annotated[Optional[Path], typer.Option(
                "--out", help="Directory for the figures, recording and report.json "
                              "(default: runs/<workflow-name>/report/).", show_default=False)] = None,
+           single_task: Annotated[Optional[Path], typer.Option(
+               "--single-task", help="Hardware workflows: a Single-task workflow of the same tasks to compare "
+                                     "robot time against (Fig. 4).", show_default=False)] = None,
            store: StoreOpt = None, as_json: JsonOpt = False) -> None:
-    """Metrics (FWT, NBT, AUC, ACC_final, F_final), per-task base vs after-RL success, plots and a .rrd."""
+    """Metrics (FWT, NBT, AUC, ACC_final, F_final), per-task base vs after-RL success, plots and a .rrd.
+    A workflow with a robot gets the paper's Fig. 4 and Table III instead."""
     from stages.report.build import write_report
     from stages.workflow import load_workflow
 
     wf = load_workflow(workflow)
+    if wf.robot is not None:
+        from stages.report.hardware import write_hardware_report
+
+        other = load_workflow(single_task) if single_task is not None else None
+        summary = write_hardware_report(open_store(store), wf, out, other)
+        if as_json:
+            print_json(summary)
+        else:
+            _print_hardware(summary)
+        return
     summary = write_report(open_store(store), wf, out)
     if as_json:
         print_json(summary)
@@ -94,3 +108,16 @@ def _print_summary(s: dict) -> None:
 
 def register(app: typer.Typer) -> None:
     app.command("report")(report)
+
+
+def _print_hardware(summary: dict) -> None:
+    for k, st in summary["stages"].items():
+        reached = st["reached_robot_time_s"]
+        typer.echo(f"stage {k}: warmup {st['warmup_robot_time_s']:.1f} s, RL {st['rl_robot_time_s']:.1f} s over "
+                   f"{st['episodes']} episodes; " + (f"19/20 reached at {reached:.1f} s of RL robot time"
+                                                      if reached is not None else f"not reached ({st['stopped']})"))
+    for k, row in summary.get("single_task", {}).get("time_saved", {}).items():
+        typer.echo(f"stage {k}: Single-task needed {row['single_task_s']:.1f} s, {summary['workflow']} "
+                   f"{row['accrue_s']:.1f} s: {row['saved_s']:.1f} s saved ({row['saved_percent']}%)")
+    for name, path in summary["files"].items():
+        typer.echo(f"{name}: {path}")

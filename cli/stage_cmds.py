@@ -81,7 +81,12 @@ def status(workflow: WorkflowArg, store: StoreOpt = None, as_json: JsonOpt = Fal
     wf = load_workflow(workflow)
     rows = workflow_status(open_store(store), wf)
     if as_json:
-        print_json(rows)
+        if wf.robot is not None:   # a hardware workflow: {"steps": [...], "hardware": sessions per step}
+            from stages.steps.hw_status import hardware_status
+
+            print_json({"steps": rows, "hardware": hardware_status(open_store(store), wf)})
+        else:
+            print_json(rows)
         return
     table = Table(title=f"workflow {wf.name} ({wf.method}, {wf.num_stages} stages)", title_justify="left")
     for col in ("stage", "task", "step", "state", "record / detail"):
@@ -92,6 +97,10 @@ def status(workflow: WorkflowArg, store: StoreOpt = None, as_json: JsonOpt = Fal
         table.add_row(str(r["stage"]), r["task"], r["step"],
                       f"[{colours.get(r['state'], 'white')}]{r['state']}[/]", r["detail"])
     console().print(table)
+    if wf.robot is not None:      # a hardware workflow: sessions, running success, robot time, stop rule
+        from cli.hw_status_view import print_hardware_status
+
+        print_hardware_status(open_store(store), wf)
 
 
 def register(app: typer.Typer) -> None:

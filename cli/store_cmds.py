@@ -76,6 +76,9 @@ def add(
     path: Annotated[Path, typer.Argument(help="File or directory to ingest.", show_default=False)],
     kind: Annotated[str, typer.Option("--kind", help="Artifact kind, e.g. demos, episodes, base-policy.")],
     ref: Annotated[Optional[str], typer.Option("--ref", help="Also point this ref at it.")] = None,
+    workflow: Annotated[Optional[Path], typer.Option(
+        "--workflow", help="With --kind demos: a lerobot-record dataset is checked against this workflow's "
+                           "robot mapping first.", show_default=False)] = None,
     store: StoreOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
@@ -85,6 +88,10 @@ def add(
 
     if not path.exists():
         raise StoreError(f"{path}: no such file or directory")
+    if workflow is not None:       # demonstrations for a robot: their features must fit its mapping
+        from cli.hw_demos import check_demos_for_workflow
+
+        check_demos_for_workflow(path, kind, workflow)
     st = open_store(store)
     artifact_id, created = add_path(st, path, kind, ref=ref)
     if as_json:

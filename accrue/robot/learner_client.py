@@ -53,7 +53,7 @@ class LearnerLink:
         with self.lock:
             self.queue.append((dict(header, run_id=self.run_id), blob))
 
-    def final_snapshot(self, wait_s: float = 30.0) -> bool:
+    def final_snapshot(self, wait_s: float = 15.0) -> bool:
         """At stage end: ask for the learner's current state once every queued episode is in (bounded)."""
         deadline = time.monotonic() + wait_s
         while time.monotonic() < deadline and (self.queue or not self.ready):

@@ -59,13 +59,14 @@ class Operator:
 @dataclass
 class ScriptedOperator(Operator):
     """Labels from the simulated robot's own success (what a person would see), `delay_s` to answer, and
-    a wrong label on the episodes listed in `mistakes`, corrected at the next reset when `corrects`."""
+    a wrong label on the episodes listed in `mistakes`; those also in `corrects` are re-labelled at the
+    next reset (as a person who notices the slip would)."""
     oracle: Callable[[], bool] | None = None
     reset_scene: Callable[[], None] | None = None
     name: str = "scripted"
     delay_s: float = 0.0
     mistakes: set[int] = field(default_factory=set)
-    corrects: bool = False
+    corrects: set[int] = field(default_factory=set)
     abort_before: int | None = None       # abort the session before this episode index
     told: list[str] = field(default_factory=list)
     _pending: Label | None = None
@@ -88,8 +89,9 @@ class ScriptedOperator(Operator):
         time.sleep(self.delay_s)
         truth = bool(self.oracle())
         wrong = episode in self.mistakes
-        label = Label(success=truth != wrong, by=self.name, at=now_iso())
-        if wrong and self.corrects:
+        label = Label(success=truth != wrong, by=self.name, at=now_iso(),
+                      note="deliberate mistake (scripted)" if wrong else "")
+        if wrong and episode in self.corrects:
             self._pending = Label(success=truth, by=self.name, at=now_iso(), note=f"corrects episode {episode}")
         return label
 

@@ -5,8 +5,14 @@ from __future__ import annotations
 from stages.runner_context import StepContext
 from stages.runner_types import StepDef
 from stages.steps.common import deterministic, load_base_policy, per_task_features, reference_fn, write_json
-from stages.steps.hw_session import (HardwareSession, SessionSettings, episode_loop, episodes_output, make_bridge,
-                                     make_operator)
+from stages.steps.hw_session import (
+    HardwareSession,
+    SessionSettings,
+    episode_loop,
+    episodes_output,
+    make_bridge,
+    make_operator,
+)
 from stages.steps.hw_train import episode_settings
 
 
@@ -29,7 +35,7 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
         operator = make_operator(settings, bridge, ctx.console)
         operator.tell(f"retention trials on task {i + 1} ({task}): set up its parts")
         try:
-            episode_loop(ctx, session, operator, bridge, task=task, done=lambda: len(mine()) >= n,
+            episode_loop(ctx, session, operator, bridge, task=task, done=lambda mine=mine: len(mine()) >= n,
                          policy_now=lambda: (act, None), reference=reference_fn(policy, task, horizon),
                          features=features[task], settings=episode_settings(c, task, settings.clock),
                          gamma=c["gamma"], index_base=0,

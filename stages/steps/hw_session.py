@@ -15,7 +15,6 @@ may use another operator or host.
 """
 from __future__ import annotations
 
-import json
 import os
 import shutil
 import socket
@@ -69,7 +68,7 @@ def make_operator(settings: SessionSettings, bridge, console):
         return ScriptedOperator(oracle=lambda: bool(bridge.hook("episode_success")()),
                                 reset_scene=lambda: bridge.hook("reset_scene") and bridge.hook("reset_scene")(),
                                 name=settings.operator_name or "scripted", delay_s=float(s.get("delay_s", 0.0)),
-                                mistakes=set(s.get("mistakes", ())), corrects=bool(s.get("corrects", False)),
+                                mistakes=set(s.get("mistakes", ())), corrects=set(s.get("corrects", ())),
                                 abort_before=s.get("abort_before"))
     return TerminalOperator(name, console=console)
 
@@ -149,9 +148,9 @@ class HardwareSession:
                   weights_version=record.get("weights_version"), checkpoint=cid)
 
     def relabel(self, index: int, label: dict, gamma: float) -> dict:
-        from accrue.robot.episode import relabelled
-
         import numpy as np
+
+        from accrue.robot.episode import relabelled
 
         e = self.episodes[index]
         arrays = relabelled(self.arrays(index), bool(label["success"]), gamma)

@@ -12,7 +12,6 @@ from __future__ import annotations
 import time
 
 import numpy as np
-
 from lerobot.robots.robot import Robot
 from lerobot.utils.errors import DeviceNotConnectedError
 
@@ -20,6 +19,10 @@ from accrue.robot.sim_robot.config_accrue_sim import AccrueSimConfig
 from accrue.sim.observation import ACTION_NAMES, STATE_NAMES
 
 DONE_KEY = "episode.done"
+
+# Fault schedules count the steps of the simulated *arm*, not of one driver object: a bridge that rebuilds
+# the driver after a timeout talks to the same arm, whose faults do not fire again. Keyed by the config.
+_ARM_STEPS: dict[int, list] = {}
 
 
 class AccrueSim(Robot):
@@ -31,8 +34,8 @@ class AccrueSim(Robot):
         self.config = config
         self._env = None
         self._connected = False
-        self._steps = 0                 # send_action calls, for fault injection
-        self._late_fired: set[int] = set()
+        # [send_action calls, late observations already served] of this arm, for fault injection
+        self._arm = _ARM_STEPS.setdefault(id(config), [0, set()])
         self._obs: np.ndarray | None = None
         self._done = False
         self._success = False
@@ -85,8 +88,9 @@ class AccrueSim(Robot):
 
     def get_observation(self) -> dict:
         self._check()
-        if self._steps in self.config.late_observation_steps and self._steps not in self._late_fired:
-            self._late_fired.add(self._steps)
+        steps, fired = self._arm
+        if steps in self.config.late_observation_steps and steps not in fired:
+            fired.add(steps)
             time.sleep(self.config.late_by_s)
         out = {n: float(v) for n, v in zip(STATE_NAMES, self._obs)}
         out[DONE_KEY] = 1.0 if self._done else 0.0
@@ -94,11 +98,12 @@ class AccrueSim(Robot):
 
     def send_action(self, action: dict) -> dict:
         self._check()
-        self._steps += 1
-        if self.config.disconnect_after_steps and self._steps == self.config.disconnect_after_steps:
+        self._arm[0] += 1
+        steps = self._arm[0]
+        if self.config.disconnect_after_steps and steps == self.config.disconnect_after_steps:
             self._connected = False
-            raise DeviceNotConnectedError(f"{self}: link lost (injected fault at step {self._steps})")
-        if self._steps in self.config.drop_command_steps:
+            raise DeviceNotConnectedError(f"{self}: link lost (injected fault at step {steps})")
+        if steps in self.config.drop_command_steps:
             return {}                           # the command never reached the controller
         if not self._done:
             a = np.array([[float(action[n]) for n in ACTION_NAMES]], dtype=np.float64)

@@ -1,0 +1,141 @@
+"""The report of a hardware workflow (paper Sec. V-C): Fig. 4 and Table III.
+
+    summary = write_hardware_report(store, wf, out_dir, single_task=None)
+
+Fig. 4 (`fig4.png`): per stage, the running success over the last `stop_window` episodes against the
+cumulative robot interaction time for RL (demonstration collection excluded), warmup rollouts of the base
+policy shaded grey at the left, dashed while fewer than `stop_window` episodes exist, the 95% line and a
+dotted line where the stop rule was reached. With `single_task` (a Single-task workflow of the same task
+sequence, run in the same store) its curves are drawn too, and the robot time saved is shaded and given.
+Table III (`table3.md`): successes over the retention trials on each earlier task after each later stage.
+`report.json` holds every number shown.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from artifacts.store import Store
+from stages.errors import StageError
+from stages.report.data import read_step_file
+from stages.runner import step_ref
+from stages.workflow import Workflow
+
+
+def stage_curves(store: Store, wf: Workflow) -> dict[int, dict]:
+    """stage -> the committed hardware train curve (curve.json with "hardware": true)."""
+    out = {}
+    for k in range(1, wf.num_stages + 1):
+        found = read_step_file(store, step_ref(wf.name, k, "train"), "train")
+        if found is None:
+            break
+        data = found[0]
+        if not data.get("hardware"):
+            raise StageError(f"workflow {wf.name}: stage {k}'s train record is not a hardware run")
+        out[k] = data
+    return out
+
+
+def retention_table(store: Store, wf: Workflow) -> dict[int, dict[str, list[bool]]]:
+    """after stage k -> {earlier task: trial labels}."""
+    out = {}
+    for k in range(2, wf.num_stages + 1):
+        found = read_step_file(store, step_ref(wf.name, k, "evaluate-all"), "evaluate-all")
+        if found is not None:
+            out[k] = found[0].get("trials", {})
+    return out
+
+
+def running_success(curve: dict) -> tuple[list[float], list[float], list[bool]]:
+    """(x = warmup time + cumulative RL robot time, running success, full window?) per RL episode."""
+    t0 = float(curve.get("warmup_robot_time_s", 0.0))
+    xs, ys, full = [t0], [0.0], [False]
+    for e in curve["episodes"]:
+        xs.append(t0 + e["cum_robot_time_s"])
+        ys.append(e["window_success"] / e["window_size"])
+        full.append(e["window_size"] >= curve["stop_window"])
+    return xs, ys, full
+
+
+def stage_summary(curve: dict) -> dict:
+    return {"warmup_robot_time_s": curve.get("warmup_robot_time_s", 0.0), "rl_robot_time_s": curve["rl_robot_time_s"],
+            "reached_robot_time_s": curve["reached_robot_time_s"], "episodes": curve["train_episodes"],
+            "successes": curve["train_successes"], "stopped": curve["stopped"], "updates": curve.get("updates")}
+
+
+def plot_fig4(curves: dict[int, dict], wf: Workflow, path: Path, other: dict[int, dict] | None = None) -> Path:
+    from stages.report.plots import _figure, _save
+
+    n = max(len(curves), 1)
+    fig = _figure(4.2 * n, 3.4)
+    axes = fig.subplots(1, n, squeeze=False)[0]
+    for ax, (k, curve) in zip(axes, sorted(curves.items())):
+        runs = [("ACCRUE" if wf.method == "accrue" else wf.method, curve, "tab:blue")]
+        if other and k in other and k > 1:           # stage 1 is shared by both conditions
+            runs.append(("Single-task", other[k], "tab:orange"))
+        ax.axvspan(0, curve.get("warmup_robot_time_s", 0.0), color="0.85", label="warmup (base policy)")
+        for name, c, colour in runs:
+            xs, ys, full = running_success(c)
+            split = next((i for i, f in enumerate(full) if f), len(xs))
+            ax.plot(xs[:split + 1], ys[:split + 1], "--", color=colour, lw=1)
+            ax.plot(xs[split:], ys[split:], "-", color=colour, lw=1.5, label=name)
+            if c["reached_robot_time_s"] is not None:
+                ax.axvline(c.get("warmup_robot_time_s", 0.0) + c["reached_robot_time_s"], color=colour, ls=":", lw=1)
+        if len(runs) == 2 and all(c["reached_robot_time_s"] is not None for _, c, _ in runs):
+            a = curve.get("warmup_robot_time_s", 0.0) + curve["reached_robot_time_s"]
+            b = other[k].get("warmup_robot_time_s", 0.0) + other[k]["reached_robot_time_s"]
+            if b > a:
+                ax.axvspan(a, b, color="tab:green", alpha=0.15, label=f"saved {b - a:.0f} s")
+        ax.axhline(0.95, color="k", lw=0.8, ls="-.")
+        ax.set_title(f"stage {k}: {curve['task_ids'][-1]}", fontsize=9)
+        ax.set_xlabel("robot interaction time for RL (s)")
+        ax.set_ylim(-0.02, 1.02)
+        ax.legend(fontsize=6, loc="lower right")
+    axes[0].set_ylabel(f"running success (last {next(iter(curves.values()))['stop_window']} episodes)"
+                       if curves else "running success")
+    return _save(fig, path)
+
+
+def table3_markdown(table: dict[int, dict[str, list[bool]]], wf: Workflow) -> str:
+    stages = sorted(table)
+    lines = ["| task | " + " | ".join(f"after stage {k}" for k in stages) + " |",
+             "|---|" + "---|" * len(stages)]
+    for i, task in enumerate(wf.tasks[:-1], 1):
+        cells = [f"{sum(table[k][task])}/{len(table[k][task])}" if task in table[k] else "–" for k in stages]
+        lines.append(f"| stage {i} ({task}) | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def write_hardware_report(store: Store, wf: Workflow, out_dir: Path | None = None,
+                          single_task: Workflow | None = None) -> dict:
+    curves = stage_curves(store, wf)
+    if not curves:
+        raise StageError(f"workflow {wf.name}: no hardware train step has committed yet "
+                         f"(run `accrue stage run ... --stage 1`)")
+    other = stage_curves(store, single_task) if single_task is not None else None
+    if single_task is not None and single_task.tasks != wf.tasks:
+        raise StageError(f"--single-task {single_task.name}: its tasks differ from {wf.name}'s")
+    out = Path(out_dir) if out_dir is not None else Path("runs") / wf.name / "report"
+    out.mkdir(parents=True, exist_ok=True)
+    table = retention_table(store, wf)
+    summary = {"workflow": wf.name, "method": wf.method, "hardware": True,
+               "stages": {k: stage_summary(c) for k, c in curves.items()},
+               "retention": {k: {t: {"successes": sum(v), "trials": len(v)} for t, v in row.items()}
+                             for k, row in table.items()}}
+    if other:
+        saved = {}
+        for k, c in curves.items():
+            if k in other and k > 1 and c["reached_robot_time_s"] is not None \
+                    and other[k]["reached_robot_time_s"] is not None:
+                a, b = c["reached_robot_time_s"], other[k]["reached_robot_time_s"]
+                saved[k] = {"accrue_s": a, "single_task_s": b, "saved_s": round(b - a, 3),
+                            "saved_percent": round(100 * (b - a) / b, 1) if b > 0 else None}
+        summary["single_task"] = {"workflow": single_task.name, "stages": {k: stage_summary(c) for k, c in other.items()},
+                                  "time_saved": saved}
+    files = {"fig4": str(plot_fig4(curves, wf, out / "fig4.png", other))}
+    (out / "table3.md").write_text(table3_markdown(table, wf))
+    files["table3"] = str(out / "table3.md")
+    summary["files"] = files
+    summary["out_dir"] = str(out)
+    (out / "report.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
+    return summary
