@@ -70,7 +70,10 @@ def run(spec_path: Path, store_dir: Path, executor: str, num_cpus: int) -> dict:
     if failed:
         raise SystemExit(f"{executor}: cells failed: {failed}")
     n = len(results)
+    per_cell = sorted(r.seconds for r in results)
     return {"executor": executor, "cells": n, "seconds_cells": round(cells_s, 2), "ray_init_s": round(init_s, 2),
+            "cell_seconds_median": round(per_cell[n // 2], 2), "cell_seconds_sum": round(sum(per_cell), 2),
+            "load_average_after": round(os.getloadavg()[0], 2),
             "cells_per_hour": round(n / cells_s * 3600, 1),
             "cells_per_hour_incl_startup": round(n / (cells_s + init_s) * 3600, 1)}
 
@@ -93,10 +96,12 @@ def main() -> None:
     speedup_all = ray_run["cells_per_hour_incl_startup"] / serial["cells_per_hour"]
     print(f"{serial['cells']} tiny cells (2 stages, {args.env_steps} env steps each), {args.num_cpus} CPUs, "
           f"load average at the end {os.getloadavg()[0]:.1f}")
-    print(f"  serial (one process): {serial['seconds_cells']:7.1f} s  {serial['cells_per_hour']:7.1f} cells/hour")
+    print(f"  serial (one process): {serial['seconds_cells']:7.1f} s  {serial['cells_per_hour']:7.1f} cells/hour"
+          f"  (median cell {serial['cell_seconds_median']:.1f} s)")
     print(f"  Ray (local):          {ray_run['seconds_cells']:7.1f} s  {ray_run['cells_per_hour']:7.1f} cells/hour"
           f"  (x{speedup:.2f}); with Ray's start-up ({ray_run['ray_init_s']:.1f} s): "
-          f"{ray_run['cells_per_hour_incl_startup']:.1f} cells/hour (x{speedup_all:.2f})")
+          f"{ray_run['cells_per_hour_incl_startup']:.1f} cells/hour (x{speedup_all:.2f}); median cell "
+          f"{ray_run['cell_seconds_median']:.1f} s")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({
         "command": "nice -n 10 .venv/bin/python benchmarks/bench_grid.py " + " ".join(sys.argv[1:]),
