@@ -1,6 +1,7 @@
 """Bench scheduler benchmark (a script, not a test): cells per hour of a tiny bench spec run on local
 Ray (one cell per core) vs the same cells run one after another in one process (`--serial`), each in a
-fresh store, so neither finds the other's cached steps. Prints both rates, Ray's start-up time, and the
+fresh store, so neither finds the other's cached steps; then Ray with one CPU (one cell at a time, like
+serial), whose difference from serial is the scheduler's own cost. Prints both rates, Ray's start-up time, and the
 rate with and without it; writes the figures as JSON (default benchmarks/results/bench_grid.json).
 
     nice -n 10 .venv/bin/python benchmarks/bench_grid.py [--seeds 3] [--env-steps 192] [--num-cpus N]
@@ -92,6 +93,8 @@ def main() -> None:
         spec = write_spec(root, args.seeds, args.env_steps)
         serial = run(spec, root / "store-serial", "serial", args.num_cpus)
         ray_run = run(spec, root / "store-ray", "ray", args.num_cpus)
+        # Ray with one CPU runs one cell at a time, like serial: the difference is the scheduler's own cost
+        ray_one = run(spec, root / "store-ray-1", "ray", 1) if args.num_cpus > 1 else None
     speedup = ray_run["cells_per_hour"] / serial["cells_per_hour"]
     speedup_all = ray_run["cells_per_hour_incl_startup"] / serial["cells_per_hour"]
     print(f"{serial['cells']} tiny cells (2 stages, {args.env_steps} env steps each), {args.num_cpus} CPUs, "
@@ -102,12 +105,16 @@ def main() -> None:
           f"  (x{speedup:.2f}); with Ray's start-up ({ray_run['ray_init_s']:.1f} s): "
           f"{ray_run['cells_per_hour_incl_startup']:.1f} cells/hour (x{speedup_all:.2f}); median cell "
           f"{ray_run['cell_seconds_median']:.1f} s")
+    if ray_one is not None:
+        print(f"  Ray, 1 CPU:           {ray_one['seconds_cells']:7.1f} s  {ray_one['cells_per_hour']:7.1f} cells/hour"
+              f"  (x{ray_one['cells_per_hour'] / serial['cells_per_hour']:.2f}: the scheduler's own cost, "
+              f"no parallelism)")
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({
         "command": "nice -n 10 .venv/bin/python benchmarks/bench_grid.py " + " ".join(sys.argv[1:]),
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "load_average_end": os.getloadavg()},
         "seeds": args.seeds, "env_steps": args.env_steps, "num_cpus": args.num_cpus,
-        "serial": serial, "ray": ray_run, "speedup": round(speedup, 3), "speedup_incl_startup": round(speedup_all, 3),
+        "serial": serial, "ray": ray_run, "ray_one_cpu": ray_one, "speedup": round(speedup, 3), "speedup_incl_startup": round(speedup_all, 3),
     }, indent=2) + "\n")
     print(f"wrote {args.out}")
 
