@@ -160,7 +160,6 @@ def _check_feasible(ray, todo: list[Cell]) -> None:
 def _run_ray(spec, store, todo, logs, finish, progress, address, num_cpus) -> None:
     with ray_session(address, num_cpus) as ray:
         _check_feasible(ray, todo)
-        progress.set_slots(int(ray.cluster_resources().get("CPU", 1) // max(c.resources.num_cpus for c in todo)))
         remote = ray.remote(max_retries=0)(run_cell)
         flight: dict = {}
 

@@ -35,20 +35,16 @@ class BenchProgress:
         self.done = self.failed = 0
         self.flight: dict[str, Cell] = {}           # submitted (Ray) or started (serial), not finished
         self.running: dict[str, str] = {}           # cell name -> what it runs now (from the store)
-        self.slots = 1
         self.started_at = time.monotonic()
         self._polled = 0.0
 
     # ---- events
-    def set_slots(self, n: int) -> None:
-        self.slots = max(1, n)
-
     def submitted(self, cell: Cell) -> None:
         self.flight[cell.name] = cell
 
     def started(self, cell: Cell) -> None:
         self.flight[cell.name] = cell
-        self.running[cell.name] = "starting"
+        self.running[cell.name] = "in this process"
 
     def retrying(self, cell: Cell, tries: int, allowed: int, error: str) -> None:
         self.console.print(f"[yellow]✗ {cell.label}: try {tries}/{allowed} failed: {error} — trying again[/]")
