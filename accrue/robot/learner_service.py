@@ -210,12 +210,17 @@ def main(argv: list[str] | None = None) -> int:
     print(f"accrue learner listening on port {port} (pid {os.getpid()})", flush=True)
     trainer = threading.Thread(target=service.train_forever, daemon=True)
     trainer.start()
+    silent = False
     while not service.stop.is_set():
         time.sleep(0.2)
-        if args.parent_pid and (os.getppid() != args.parent_pid
-                                or time.monotonic() - service.last_call > args.orphan_after):
+        quiet = time.monotonic() - service.last_call > args.orphan_after
+        if args.parent_pid and (os.getppid() != args.parent_pid or quiet):
             print("accrue learner: the actor that started it is gone; exiting", flush=True)
             break
+        if quiet != silent and service.run_id is not None:    # a standalone learner waits for its actor
+            print("accrue learner: " + (f"no call from the actor for {args.orphan_after:g} s; waiting for it"
+                                        if quiet else "the actor is back"), flush=True)
+            silent = quiet
     server.stop(grace=0.5)
     return 0
 

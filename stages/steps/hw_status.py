@@ -4,6 +4,8 @@ far training is from the stop rule. Read from the step's newest sealed checkpoin
 or interrupted) or its committed `episodes` output, without materialising transitions or logs."""
 from __future__ import annotations
 
+import json
+
 from artifacts.errors import StoreError
 from artifacts.manifests import read_artifact, read_tree
 from artifacts.records import list_attempts
@@ -20,9 +22,9 @@ def _sealed(store: Store, artifact_id: str) -> tuple[list[dict], list[dict]]:
     for entry in read_tree(store, manifest["content"]):
         path = entry["path"]
         if path == "sessions.json":
-            sessions = store.read_json(entry["id"])
+            sessions = json.loads(store.read_bytes(entry["id"]))
         elif path.endswith("episode.json"):
-            episodes.append(store.read_json(entry["id"]))
+            episodes.append(json.loads(store.read_bytes(entry["id"])))
     return sessions, sorted(episodes, key=lambda e: e["index"])
 
 

@@ -1,0 +1,169 @@
+"""Resume after any interruption of a hardware train step (simulated robot, scripted operator): `kill -9` of
+the actor mid-episode, of the learner mid-update, and of both, each followed by `--continue` (or, for the
+learner alone, by the actor restarting it): no sealed episode is lost or counted twice, the half-finished
+episode is discarded and the log says so, and robot time, the 20-episode window and the sessions continue."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from hw_workflow import robot_events, run_stage, write_hw_workflow
+
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    try:                              # a zombie child of ours counts as gone
+        return os.waitpid(pid, os.WNOHANG) == (0, 0)
+    except ChildProcessError:
+        return True
+
+
+def wait_for(check, timeout: float, what: str):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = check()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+def start_actor(store: Path, wf: Path, stage: int) -> subprocess.Popen:
+    env = {**os.environ, "ACCRUE_STORE": str(store), "OMP_NUM_THREADS": "1"}
+    return subprocess.Popen([sys.executable, "-m", "cli.main", "stage", "run", str(wf), "--stage", str(stage),
+                             "--step", "train"], cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+
+
+def mid_episode(store: Path, stage: int, after: int) -> int:
+    """Wait until a train episode has started and is not sealed yet (at least `after` sealed); its index."""
+    def check():
+        sealed = {e["index"] for e in robot_events(store, "robot-episode-sealed")
+                  if e["stage"] == stage and e["phase"] == "train"}
+        started = [e["index"] for e in robot_events(store, "robot-episode-started")
+                   if e["stage"] == stage and e["phase"] == "train"]
+        if len(sealed) >= after and started and started[-1] not in sealed:
+            return started[-1]
+        return None
+    return wait_for(check, 400, f"a train episode of stage {stage} in progress")
+
+
+def learner_pids(store: Path, stage: int) -> list[int]:
+    return [e["pid"] for e in robot_events(store, "robot-learner-started") if e["stage"] == stage]
+
+
+def sealed_train(store: Path, stage: int) -> dict[int, dict]:
+    return {e["index"]: e for e in robot_events(store, "robot-episode-sealed")
+            if e["stage"] == stage and e["phase"] == "train"}
+
+
+def curve_of(store: Path, result) -> dict:
+    from artifacts.manifests import read_artifact, read_tree
+    from artifacts.store import Store
+
+    st = Store.open(store)
+    entries = {e["path"]: e["id"] for e in read_tree(st, read_artifact(st, result.outputs["curve"])["content"])}
+    return json.loads(st.read_bytes(entries["curve.json"]))
+
+
+def check_resumed(store: Path, stage: int, before: dict[int, dict], killed: int, result) -> dict:
+    curve = curve_of(store, result)
+    indices = [e["index"] for e in curve["episodes"]]
+    assert len(indices) == len(set(indices)) == len(sealed_train(store, stage))    # none counted twice
+    assert set(before) <= set(indices)                                             # none lost
+    for e in curve["episodes"]:
+        if e["index"] in before:
+            assert e["robot_time_s"] == pytest.approx(before[e["index"]]["robot_time_s"], abs=1e-3)
+            assert e["success"] == before[e["index"]]["success"]
+    assert curve["rl_robot_time_s"] == pytest.approx(sum(e["robot_time_s"] for e in curve["episodes"]))
+    # the window runs over the sealed episodes of both sessions, in order
+    labels = [e["success"] for e in curve["episodes"]]
+    assert [e["window_success"] for e in curve["episodes"]] == [sum(labels[max(0, i - 19):i + 1])
+                                                                  for i in range(len(labels))]
+    assert killed not in indices
+    discarded = [e for e in robot_events(store, "robot-episode-discarded") if e["stage"] == stage]
+    assert [e["index"] for e in discarded] == [killed]
+    assert curve["sessions"][0]["ended"].startswith("interrupted") and curve["sessions"][-1]["ended"].startswith("stop")
+    return curve
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    from artifacts.store import Store
+
+    root = tmp_path_factory.mktemp("hwk")
+    Store.init(root / "store")
+    fast = write_hw_workflow(root / "fast.yaml", root / "calib", name="hwk")
+    # the same workflow (same cache keys): only session settings differ - real time x4, a slower operator
+    slow = write_hw_workflow(root / "slow.yaml", root / "calib", name="hwk", clock=4, scripted="{delay_s: 0.2}")
+    return root / "store", fast, slow
+
+
+def test_kill_actor_mid_episode_then_learner_mid_update(setup):
+    store, fast, slow = setup
+    run_stage(store, fast, 1, step="warmup")
+    actor = start_actor(store, slow, 1)
+    killed = mid_episode(store, 1, after=3)
+    time.sleep(0.1)
+    actor.send_signal(signal.SIGKILL)
+    actor.wait(timeout=30)
+    before = sealed_train(store, 1)
+    assert killed not in before
+    for pid in learner_pids(store, 1):                      # its learner notices and exits
+        wait_for(lambda pid=pid: not alive(pid), 30, f"learner {pid} to exit after its actor died")
+
+    old = set(learner_pids(store, 1))
+    killed_learner = {}
+
+    since = max([e["seq"] for e in robot_events(store)], default=0)
+
+    def kill_learner_mid_update():
+        def updating():      # the restarted learner has sealed a checkpoint: it is training
+            new = [p for p in learner_pids(store, 1) if p not in old]
+            trained = [e for e in robot_events(store, "robot-learner-checkpoint")
+                       if e["stage"] == 1 and e["seq"] > since and e["updates"] > 0]
+            return new[-1] if new and trained else None
+        pid = wait_for(updating, 300, "the restarted learner to train")
+        os.kill(pid, signal.SIGKILL)
+        killed_learner["pid"] = pid
+    thread = threading.Thread(target=kill_learner_mid_update, daemon=True)
+    thread.start()
+    result = run_stage(store, fast, 1, step="train", mode="continue")["train"]
+    thread.join(timeout=5)
+    curve = check_resumed(store, 1, before, killed, result)
+    assert curve["stopped"].startswith("stop rule")
+    if killed_learner:                                      # the stage may have ended before the learner trained
+        lost = [e for e in robot_events(store, "robot-learner-lost") if e["stage"] == 1]
+        assert lost, "the dead learner was not reported"
+        restarted = [p for p in learner_pids(store, 1) if p not in old and p != killed_learner["pid"]]
+        assert restarted, "the learner was not started again"
+
+
+def test_kill_both_then_continue(setup):
+    store, fast, slow = setup
+    run_stage(store, fast, 1)                               # the rest of stage 1 (its train step is done)
+    run_stage(store, fast, 2, step="warmup")
+    actor = start_actor(store, slow, 2)
+    killed = mid_episode(store, 2, after=2)
+    pids = learner_pids(store, 2)
+    for pid in pids:
+        if alive(pid):
+            os.kill(pid, signal.SIGKILL)
+    actor.send_signal(signal.SIGKILL)
+    actor.wait(timeout=30)
+    before = sealed_train(store, 2)
+    result = run_stage(store, fast, 2, step="train", mode="continue")["train"]
+    check_resumed(store, 2, before, killed, result)
