@@ -49,7 +49,7 @@ def retention_table(store: Store, wf: Workflow) -> dict[int, dict[str, list[bool
 def running_success(curve: dict) -> tuple[list[float], list[float], list[bool]]:
     """(x = warmup time + cumulative RL robot time, running success, full window?) per RL episode."""
     t0 = float(curve.get("warmup_robot_time_s", 0.0))
-    xs, ys, full = [t0], [0.0], [False]
+    xs, ys, full = [], [], []
     for e in curve["episodes"]:
         xs.append(t0 + e["cum_robot_time_s"])
         ys.append(e["window_success"] / e["window_size"])
