@@ -12,15 +12,21 @@ every episode's label and robot time, the stop rule and when it was reached) and
 """
 from __future__ import annotations
 
+import shutil
 import threading
 from pathlib import Path
 
 from stages.runner_context import StepContext
 from stages.runner_types import StepDef
-from stages.steps.common import (deterministic, load_base_policy, per_task_features, read_json, reference_fn,
-                                 write_json)
-from stages.steps.hw_session import (HardwareSession, SessionSettings, episode_loop, episodes_output, make_bridge,
-                                     make_operator)
+from stages.steps.common import deterministic, load_base_policy, per_task_features, read_json, reference_fn, write_json
+from stages.steps.hw_session import (
+    HardwareSession,
+    SessionSettings,
+    episode_loop,
+    episodes_output,
+    make_bridge,
+    make_operator,
+)
 
 
 def episode_settings(c: dict, task: str, clock: float):
@@ -51,9 +57,9 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
     import torch
 
     from accrue.learner import ReplayBuffer, begin_stage, end_stage, load_learner, save_learner
+    from accrue.robot.episode import replay_from_episodes
     from accrue.robot.learner_client import LearnerLink
     from accrue.robot.learner_service import episode_npz
-    from accrue.robot.episode import replay_from_episodes
     from accrue.robot.transport import tar_dir
     from stages.steps.common import copy_tree, learner_config
 
@@ -84,28 +90,20 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
 
     def init_payload():
         tmp = ctx.scratch_dir("init")
-        for name in ("learner", "warmup", "prior"):
+        for name in ("learner", "warmup", "prior"):       # a re-init after a learner restart starts clean
             if (tmp / name).exists():
-                import shutil
-
                 shutil.rmtree(tmp / name)
         copy_tree(session.dir / "learner", tmp / "learner")
         copy_tree(warm_dir, tmp / "warmup")
         if handoff is not None:
             copy_tree(handoff / "memory", tmp / "prior")
         if ctx.has_input("teacher") and (ctx.input_path("teacher") / "teacher.safetensors").is_file():
-            import shutil
-
             shutil.copyfile(ctx.input_path("teacher") / "teacher.safetensors", tmp / "teacher.safetensors")
         info = read_json(session.dir / "learner.json")
         write_json(tmp / "init.json", {"updates": info["updates"], "version": info["version"],
                                        "publish_every": c["publish_every"], "checkpoint_every": c["checkpoint_every"],
                                        "task_index": k - 1, "device": cfg.device, "torch_threads": 1})
-        blob = tar_dir(tmp)
-        import os
-        if os.environ.get("ACCRUE_DEBUG_INIT"):
-            Path(os.environ["ACCRUE_DEBUG_INIT"]).write_bytes(blob)
-        return {}, blob
+        return {}, tar_dir(tmp)
 
     def sealed_episodes():
         return [({"index": e["index"], "relabel": True}, episode_npz(session.arrays(e["index"])))

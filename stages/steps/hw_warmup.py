@@ -6,8 +6,14 @@ from __future__ import annotations
 from stages.runner_context import StepContext
 from stages.runner_types import StepDef
 from stages.steps.common import deterministic, load_base_policy, per_task_features, reference_fn, write_json
-from stages.steps.hw_session import (HardwareSession, SessionSettings, episode_loop, episodes_output, make_bridge,
-                                     make_operator)
+from stages.steps.hw_session import (
+    HardwareSession,
+    SessionSettings,
+    episode_loop,
+    episodes_output,
+    make_bridge,
+    make_operator,
+)
 from stages.steps.hw_train import episode_settings
 
 
