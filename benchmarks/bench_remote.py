@@ -120,7 +120,7 @@ def pull_into(path: Path, env: dict, cli: bool) -> None:
     if cli:
         accrue("pull", store=path, env=env)
     else:
-        from artifacts.remotes.sync import pull
+        from artifacts.remotes.pull import pull
         from artifacts.store import Store
 
         pull(Store.open(path), "origin")
@@ -129,7 +129,7 @@ def pull_into(path: Path, env: dict, cli: bool) -> None:
 def push_fresh_in_process(store_path: Path, url: str, name: str) -> None:
     """The same push to an empty bucket, inside this process (no interpreter start-up)."""
     from artifacts.remotes.config import add_remote
-    from artifacts.remotes.sync import push
+    from artifacts.remotes.push import push
     from artifacts.store import Store
 
     store = Store.open(store_path)
@@ -138,7 +138,7 @@ def push_fresh_in_process(store_path: Path, url: str, name: str) -> None:
 
 
 def push_in_process(store_path: Path) -> None:
-    from artifacts.remotes.sync import push
+    from artifacts.remotes.push import push
     from artifacts.store import Store
 
     report = push(Store.open(store_path), "origin")

@@ -110,7 +110,7 @@ def remote_remove(
     as_json: JsonOpt = False,
 ) -> None:
     """Forget a remote and its remote-tracking refs (nothing on the remote changes)."""
-    from artifacts.remotes.sync import forget_remote
+    from artifacts.remotes.forget import forget_remote
 
     dropped = forget_remote(open_store(store), name, force=force)
     if as_json:
@@ -128,7 +128,7 @@ def push(
     as_json: JsonOpt = False,
 ) -> None:
     """Upload what the refs reach and the remote lacks, then move the remote's refs (compare-and-swap)."""
-    from artifacts.remotes.sync import push as do_push
+    from artifacts.remotes.push import push as do_push
 
     st, spec, refs = _pick(store, words)
     report = do_push(st, spec.name, refs, force=force, jobs=jobs, meter=_meter(as_json))
@@ -165,7 +165,7 @@ def fetch(
     words: WordsArg = None, only: OnlyOpt = None, jobs: JobsOpt = None, store: StoreOpt = None, as_json: JsonOpt = False
 ) -> None:
     """Download what the remote's refs reach (verified) and update the remote-tracking refs only."""
-    from artifacts.remotes.sync import fetch as do_fetch
+    from artifacts.remotes.pull import fetch as do_fetch
 
     st, spec, refs = _pick(store, words)
     report = do_fetch(st, spec.name, refs, only=_kinds(only), jobs=jobs, meter=_meter(as_json))
@@ -181,7 +181,7 @@ def pull(
     as_json: JsonOpt = False,
 ) -> None:
     """fetch, then move the local refs that have not changed since this store last saw the remote."""
-    from artifacts.remotes.sync import pull as do_pull
+    from artifacts.remotes.pull import pull as do_pull
 
     st, spec, refs = _pick(store, words)
     report = do_pull(st, spec.name, refs, only=_kinds(only), force=force, jobs=jobs, meter=_meter(as_json))
@@ -191,7 +191,7 @@ def pull(
 
 def verify_remote_command(name: str, full: bool, store, as_json: bool) -> None:
     """`accrue verify --remote NAME` (called from cli.store_cmds.verify)."""
-    from artifacts.remotes.sync import verify_remote
+    from artifacts.remotes.check import verify_remote
 
     report = verify_remote(open_store(store), name, full=full, meter=_meter(as_json))
     if as_json:

@@ -26,7 +26,7 @@ from remote_support import (  # noqa: E402,F401
 )
 from test_cli_store import accrue, one_line_error  # noqa: E402
 
-from artifacts.remotes.sync import push  # noqa: E402
+from artifacts.remotes.push import push  # noqa: E402
 from artifacts.store import Store  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -107,9 +107,9 @@ def test_a_later_push_sends_only_the_new_objects_and_a_chained_log_segment(tmp_p
 _KILLER = """
 import os, signal, sys, threading
 sys.path.insert(0, {root!r})
-from artifacts.remotes import backends
+from artifacts.remotes import directory, s3
 after, lock, sent = int(sys.argv[2]), threading.Lock(), [0]
-for cls in (backends.S3Backend, backends.DirBackend):
+for cls in (s3.S3Backend, directory.DirBackend):
     def wrapped(self, oid, path, size, _orig=cls.upload_object):
         _orig(self, oid, path, size)
         with lock:
@@ -118,7 +118,7 @@ for cls in (backends.S3Backend, backends.DirBackend):
                 os.kill(os.getpid(), signal.SIGKILL)
     cls.upload_object = wrapped
 from artifacts.store import Store
-from artifacts.remotes.sync import push
+from artifacts.remotes.push import push
 push(Store.open(sys.argv[1]), "origin", jobs=1)
 """
 

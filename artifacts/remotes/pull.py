@@ -1,0 +1,181 @@
+"""fetch: download what the remote's refs reach, every object verified on arrival, then move the
+remote-tracking refs. pull: fetch, then move the local refs that have not changed since this store
+last saw the remote (or that do not exist yet). --only leaves other kinds' data on the remote."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from artifacts.auditlog import append_event
+from artifacts.refs import read_ref, set_ref
+from artifacts.remotes import LOG_TRACKING, TRACKING
+from artifacts.remotes.backends import Backend, open_backend
+from artifacts.remotes.closure import bottom_up, children
+from artifacts.remotes.config import get_remote, set_promisor
+from artifacts.remotes.lazy import add_promised
+from artifacts.remotes.logsegment import KIND as LOG_KIND
+from artifacts.remotes.pointers import (
+    check_remote_config,
+    read_pointers,
+    select_refs,
+    short,
+    tracking_refs,
+)
+from artifacts.remotes.transfer import Meter, default_jobs, download_manifest, download_object, flush_dirs, parallel
+from artifacts.store import Store
+
+
+@dataclass
+class FetchReport:
+    remote: str
+    refs: dict[str, str] = field(default_factory=dict)  # remote ref -> id fetched
+    logs: dict[str, str] = field(default_factory=dict)  # other store's id -> log segment id
+    objects_received: int = 0
+    bytes_received: int = 0
+    promised: int = 0
+    moved: dict[str, list] = field(default_factory=dict)  # pull: local ref -> [old, new]
+    up_to_date: list[str] = field(default_factory=list)
+    conflicts: list[str] = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+@dataclass
+class _RemotePlan:
+    manifests: dict[str, bytes] = field(default_factory=dict)  # downloaded, not yet stored
+    named: dict[str, list[str]] = field(default_factory=dict)
+    data: dict[str, int] = field(default_factory=dict)  # to download
+    skipped: dict[str, int] = field(default_factory=dict)  # left on the remote (--only)
+
+
+def _remote_closure(store: Store, backend: Backend, roots: list[str], only: set[str] | None, jobs: int) -> _RemotePlan:
+    """Breadth first: each level's missing manifests arrive in parallel (verified, in memory);
+    manifests already here are read locally. `only`: data of other artifact kinds stays behind."""
+    plan = _RemotePlan()
+    visited: set[tuple[str, bool]] = set()
+    level: list[tuple[str, int | None, bool]] = [(r, None, False) for r in roots]
+    while level:
+        level = [item for item in dict.fromkeys(level) if (item[0], item[2]) not in visited]
+        visited.update((oid, skip) for oid, _, skip in level)
+        wanted = sorted(
+            {oid for oid, size, _ in level if size is None and oid not in plan.manifests and not store.has_object(oid)}
+        )
+        for oid, raw in zip(wanted, parallel(lambda o: download_manifest(backend, o), wanted, jobs)):
+            plan.manifests[oid] = raw
+        following: list[tuple[str, int | None, bool]] = []
+        for oid, size, skip in level:
+            if size is not None:
+                if store.has_object(oid) or oid in plan.data:
+                    continue
+                if skip:
+                    plan.skipped[oid] = size
+                else:
+                    plan.data[oid] = size
+                    plan.skipped.pop(oid, None)
+                continue
+            obj = json.loads(plan.manifests[oid]) if oid in plan.manifests else store.read_json(oid)
+            kids = children(oid, obj)
+            plan.named[oid] = [k for k, _ in kids]
+            if obj.get("type") == "artifact":
+                leave = only is not None and obj.get("kind") not in only and obj.get("kind") != LOG_KIND
+                following.append((kids[0][0], kids[0][1], leave))  # its content
+                following += [(k, s, False) for k, s in kids[1:]]  # its inputs decide alone
+            else:
+                following += [(k, s, skip) for k, s in kids]  # tree entries inherit
+        level = following
+    return plan
+
+
+def fetch(
+    store: Store,
+    remote: str,
+    refs: list[str] | None = None,
+    only: set[str] | None = None,
+    jobs: int | None = None,
+    meter: Meter | None = None,
+) -> FetchReport:
+    spec = get_remote(store, remote)
+    backend = open_backend(spec)
+    jobs, meter = jobs or default_jobs(), meter or Meter()
+    report = FetchReport(remote=spec.name)
+    check_remote_config(backend, create=False)
+    current = {n: v[0] for n, v in read_pointers(store, spec, backend, "refs").items()}
+    chosen = select_refs(current, refs or [], f"on remote {spec.name}")
+    own = store.read_config().get("store_id")
+    seen_logs = tracking_refs(store, spec.name, LOG_TRACKING)
+    logs = {
+        sid: v[0]
+        for sid, v in read_pointers(store, spec, backend, "logs").items()
+        if sid != own and seen_logs.get(sid) != v[0]
+    }
+
+    plan = _remote_closure(store, backend, list(chosen.values()) + list(logs.values()), only, jobs)
+    meter.start(f"pull ← {spec.name}", len(plan.data) + len(plan.manifests), sum(plan.data.values()))
+
+    new_dirs: set[Path] = set()
+
+    def get(item: tuple[str, int]) -> None:
+        download_object(store, backend, item[0], item[1], new_dirs)
+        meter.advance(item[1])
+
+    try:
+        try:
+            parallel(get, sorted(plan.data.items()), jobs)
+        finally:
+            flush_dirs(new_dirs, jobs)  # what arrived is kept (durably) even if the rest failed
+        for group in bottom_up(plan.named):  # manifests after everything they name
+            for oid in group:
+                if oid in plan.manifests:
+                    store.put_bytes(plan.manifests[oid])
+                    meter.advance(0)
+    finally:
+        meter.stop()
+    report.objects_received = len(plan.data) + len(plan.manifests)
+    report.bytes_received = sum(plan.data.values()) + sum(len(m) for m in plan.manifests.values())
+    if plan.skipped:
+        add_promised(store, spec.name, sorted(plan.skipped))
+        if not spec.promisor:
+            set_promisor(store, spec.name)
+        report.promised = len(plan.skipped)
+
+    seen = tracking_refs(store, spec.name)
+    tracked = {n: oid for n, oid in chosen.items() if seen.get(n) != oid}
+    for name, oid in tracked.items():
+        set_ref(store, f"{TRACKING}/{spec.name}/{name}", oid, log=False)
+    for sid, oid in logs.items():
+        set_ref(store, f"{LOG_TRACKING}/{spec.name}/{sid}", oid, log=False)
+    if tracked or logs:
+        append_event(store, "fetched", remote=spec.name, refs=tracked, logs=logs)
+    report.refs, report.logs = chosen, logs
+    return report
+
+
+def pull(
+    store: Store,
+    remote: str,
+    refs: list[str] | None = None,
+    only: set[str] | None = None,
+    force: bool = False,
+    jobs: int | None = None,
+    meter: Meter | None = None,
+) -> FetchReport:
+    spec = get_remote(store, remote)
+    before = tracking_refs(store, spec.name)
+    report = fetch(store, spec.name, refs, only, jobs, meter)
+    for name, oid in report.refs.items():
+        mine = read_ref(store, name)
+        if mine == oid:
+            report.up_to_date.append(name)
+        elif mine is None or mine == before.get(name) or force:
+            set_ref(store, name, oid)
+            report.moved[name] = [mine, oid]
+        else:
+            report.conflicts.append(
+                f"ref {name}: this store has {short(mine)}, remote {spec.name} has "
+                f"{short(oid)} (last seen there: {short(before.get(name))}); "
+                "pull --force to take the remote's"
+            )
+    return report

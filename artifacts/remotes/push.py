@@ -1,0 +1,193 @@
+"""push: upload what the chosen refs reach and the remote lacks (data first, then manifests bottom
+up, then the audit-log segment), then move each remote ref by compare-and-swap from where this
+store last saw it (its remote-tracking ref)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from artifacts.auditlog import append_event
+from artifacts.errors import StoreError
+from artifacts.refs import set_ref
+from artifacts.remotes import TRACKING
+from artifacts.remotes.backends import RefMoved, open_backend
+from artifacts.remotes.closure import bottom_up, children
+from artifacts.remotes.config import get_remote, store_id
+from artifacts.remotes.logsegment import next_segment
+from artifacts.remotes.pointers import (
+    check_remote_config,
+    load_json,
+    local_refs,
+    present_on_remote,
+    read_pointers,
+    remember_version,
+    save_json,
+    select_refs,
+    short,
+    state_dir,
+    tracking_refs,
+)
+from artifacts.remotes.transfer import Meter, default_jobs, parallel
+from artifacts.store import Store
+
+
+@dataclass
+class PushReport:
+    remote: str
+    moved: dict[str, list] = field(default_factory=dict)  # ref -> [old remote id, new id]
+    up_to_date: list[str] = field(default_factory=list)
+    behind: list[str] = field(default_factory=list)  # remote moved on; this store did not
+    conflicts: list[str] = field(default_factory=list)
+    objects_sent: int = 0
+    bytes_sent: int = 0
+    objects_checked: int = 0
+    log_segment: str | None = None
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+@dataclass
+class _Plan:
+    data: dict[str, int] = field(default_factory=dict)  # id -> size
+    manifests: dict[str, list[str]] = field(default_factory=dict)  # id -> ids it names
+    absent: set[str] = field(default_factory=set)  # reached, not in this store
+
+
+def _local_closure(store: Store, roots: list[str], stop: set[str]) -> _Plan:
+    plan = _Plan()
+    stack: list[tuple[str, int | None]] = [(r, None) for r in roots]
+    seen: set[str] = set()
+    while stack:
+        oid, size = stack.pop()
+        if oid in seen or oid in stop:
+            continue
+        seen.add(oid)
+        if not store.has_object(oid):
+            plan.absent.add(oid)  # a partial clone's: the remote must have it already
+            if size is not None:
+                plan.data[oid] = size
+            continue
+        if size is not None:
+            plan.data[oid] = size
+            continue
+        kids = children(oid, store.read_json(oid))
+        plan.manifests[oid] = [k for k, _ in kids]
+        stack += kids
+    return plan
+
+
+def push(
+    store: Store,
+    remote: str,
+    refs: list[str] | None = None,
+    force: bool = False,
+    jobs: int | None = None,
+    meter: Meter | None = None,
+) -> PushReport:
+    spec = get_remote(store, remote)
+    backend = open_backend(spec)
+    jobs, meter = jobs or default_jobs(), meter or Meter()
+    report = PushReport(remote=spec.name)
+    check_remote_config(backend, create=True)
+    local = select_refs(local_refs(store), refs or [], "in this store")
+    current = read_pointers(store, spec, backend, "refs")
+    seen = tracking_refs(store, spec.name)
+
+    to_move: dict[str, str] = {}
+    for name, oid in local.items():
+        cur = current.get(name, (None, ""))[0]
+        if cur == oid:
+            report.up_to_date.append(name)
+        elif force or cur == seen.get(name) or cur is None:  # (a wiped remote gets it again)
+            to_move[name] = oid
+        elif oid == seen.get(name):
+            report.behind.append(name)
+        else:
+            report.conflicts.append(
+                f"ref {name}: remote {spec.name} has {short(cur)}, but this store "
+                f"last saw {short(seen.get(name))} there; pull first, or push --force"
+            )
+
+    # the audit-log segment written since the last push to this remote
+    sid = store_id(store)
+    log_state_path = state_dir(store, spec.name) / "log.json"
+    log_state = load_json(log_state_path)
+    remote_log = read_pointers(store, spec, backend, "logs").get(sid)
+    remote_log_id = remote_log[0] if remote_log else None
+    chained = log_state.get("manifest") == remote_log_id and remote_log_id is not None
+    segment = next_segment(store, sid, remote_log_id if chained else None, log_state.get("end", 0) if chained else 0)
+
+    # what the refs to move reach, less what the remote provably has (its refs' closures)
+    stop = {oid for name, oid in seen.items() if current.get(name, (None,))[0] == oid}
+    plan = _local_closure(store, list(to_move.values()), stop)
+    candidates = sorted(set(plan.data) | set(plan.manifests) | plan.absent)
+    seg_ids = [segment.data_id, segment.manifest_id] if segment else []
+    present = present_on_remote(backend, candidates + seg_ids, jobs)
+    report.objects_checked = len(candidates) + len(seg_ids)
+    lacking = [o for o in candidates if o not in present]
+    for oid in lacking:
+        if oid in plan.absent:
+            raise StoreError(
+                f"object {oid[:12]} is not in this store (a partial clone) and remote "
+                f"{spec.name} lacks it too; pull it from the remote that has it first"
+            )
+
+    data = [o for o in lacking if o in plan.data]
+    groups = [[o for o in g if o not in present] for g in bottom_up(plan.manifests)]
+    sizes = {o: store.object_size(o) or 0 for o in lacking}
+    meter.start(f"push → {spec.name}", len(lacking), sum(sizes.values()))
+
+    def send(oid: str) -> None:
+        backend.upload_object(oid, store.object_path(oid), sizes[oid])
+        meter.advance(sizes[oid])
+
+    try:
+        parallel(send, data, jobs)
+        for group in groups:
+            parallel(send, group, jobs)
+    finally:
+        meter.stop()
+    report.objects_sent, report.bytes_sent = len(lacking), sum(sizes.values())
+
+    if segment:
+        from artifacts.remotes.backends import object_key
+
+        for oid, raw in ((segment.data_id, segment.data), (segment.manifest_id, segment.manifest)):
+            if oid not in present:
+                backend.put_bytes(object_key(oid), raw)
+                report.objects_sent += 1
+                report.bytes_sent += len(raw)
+        try:
+            version = backend.swap(
+                f"logs/{sid}", (segment.manifest_id + "\n").encode(), remote_log[1] if remote_log else None
+            )
+        except RefMoved:
+            raise StoreError(
+                f"remote {spec.name}: another store pushed with this store's id {sid[:12]} "
+                "(a copied store?); its audit log was left as it is"
+            ) from None
+        remember_version(store, spec.name, "logs", sid, segment.manifest_id, version)
+        state_dir(store, spec.name).mkdir(parents=True, exist_ok=True)
+        save_json(log_state_path, {"manifest": segment.manifest_id, "end": segment.end})
+        report.log_segment = segment.manifest_id
+
+    for name, oid in to_move.items():
+        old, version = current.get(name, (None, None))
+        try:
+            version = backend.swap(f"refs/{name}", (oid + "\n").encode(), version or None)
+        except RefMoved:
+            now = read_pointers(store, spec, backend, "refs").get(name, (None,))[0]
+            report.conflicts.append(
+                f"ref {name}: remote {spec.name} has {short(now)}, but this store "
+                f"last saw {short(seen.get(name))} there; pull first, or push --force"
+            )
+            continue
+        remember_version(store, spec.name, "refs", name, oid, version)
+        report.moved[name] = [old, oid]
+    tracked = {n: local[n] for n in report.up_to_date + list(report.moved) if seen.get(n) != local[n]}
+    for name, oid in tracked.items():
+        set_ref(store, f"{TRACKING}/{spec.name}/{name}", oid, log=False)
+    if tracked:  # one event for what was shared (the next push carries it; a no-op push logs nothing)
+        append_event(store, "pushed", remote=spec.name, refs=tracked)
+    return report

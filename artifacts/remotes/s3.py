@@ -1,0 +1,239 @@
+"""An S3-compatible remote through obstore: conditional writes (If-Match / If-None-Match) move
+refs, and every failure (credentials, bucket, network) becomes one StoreError line."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+from datetime import timedelta
+from pathlib import Path
+from typing import Iterator
+
+import blake3
+
+from artifacts.errors import StoreError
+from artifacts.hashing import CHUNK_SIZE
+from artifacts.remotes.backends import SINGLE_PUT_MAX, Backend, MissingOnRemote, RefMoved, local_corrupt, object_key
+from artifacts.remotes.config import RemoteSpec
+
+
+def _s3_store(spec: RemoteSpec):
+    from obstore.store import S3Store
+
+    env = os.environ
+    endpoint = env.get("AWS_ENDPOINT_URL_S3") or env.get("AWS_ENDPOINT_URL") or env.get("AWS_ENDPOINT")
+    client = {
+        "connect_timeout": timedelta(seconds=float(env.get("ACCRUE_REMOTE_CONNECT_TIMEOUT", "5"))),
+        "timeout": timedelta(seconds=float(env.get("ACCRUE_REMOTE_TIMEOUT", "300"))),
+    }
+    if endpoint and endpoint.startswith("http://"):
+        client["allow_http"] = True
+    retries = int(env.get("ACCRUE_REMOTE_RETRIES", "3"))
+    retry = {
+        "max_retries": retries,
+        "retry_timeout": timedelta(seconds=30 if retries else 1),
+        "backoff": {"init_backoff": timedelta(milliseconds=100), "max_backoff": timedelta(seconds=2), "base": 2},
+    }
+    kwargs: dict = {}
+    if endpoint:
+        kwargs["endpoint"] = endpoint
+    provider = None
+    has_keys = env.get("AWS_ACCESS_KEY_ID") and env.get("AWS_SECRET_ACCESS_KEY")
+    aws_files = any((Path.home() / ".aws" / f).is_file() for f in ("credentials", "config"))
+    if not has_keys and (env.get("AWS_PROFILE") or aws_files):
+        # profiles (~/.aws/config, SSO, assume-role) are boto3's job; obstore takes it as a provider
+        import boto3
+        from obstore.auth.boto3 import Boto3CredentialProvider
+
+        session = boto3.Session(profile_name=env.get("AWS_PROFILE"))
+        if session.get_credentials() is not None:
+            provider = Boto3CredentialProvider(session)
+    return S3Store(
+        spec.bucket,
+        prefix=spec.prefix or None,
+        client_options=client,
+        retry_config=retry,
+        credential_provider=provider,
+        **kwargs,
+    )
+
+
+_S3_CODE = re.compile(r"<Code>([A-Za-z]+)</Code>")
+
+
+def explain_s3_error(exc: BaseException, where: str) -> StoreError:
+    text = str(exc)
+    code = (_S3_CODE.search(text) or [None, ""])[1]
+    low = text.lower()
+    if code == "NoSuchBucket":
+        return StoreError(f"{where}: the bucket does not exist (create it, or fix the URL)")
+    if code in (
+        "InvalidAccessKeyId",
+        "SignatureDoesNotMatch",
+        "AccessDenied",
+        "InvalidToken",
+        "ExpiredToken",
+        "AuthorizationHeaderMalformed",
+    ) or type(exc).__name__ in ("PermissionDeniedError", "UnauthenticatedError"):
+        return StoreError(
+            f"{where}: access denied ({code or type(exc).__name__}); check AWS_ACCESS_KEY_ID / "
+            "AWS_SECRET_ACCESS_KEY or AWS_PROFILE"
+        )
+    if any(
+        s in low
+        for s in (
+            "error sending request",
+            "connection refused",
+            "dns error",
+            "timed out",
+            "tcp connect",
+            "connect error",
+            "failed to lookup",
+            "connection reset",
+        )
+    ):
+        endpoint = os.environ.get("AWS_ENDPOINT_URL_S3") or os.environ.get("AWS_ENDPOINT_URL") or "AWS S3"
+        return StoreError(
+            f"{where}: cannot reach {endpoint} (connection failed); check the network and AWS_ENDPOINT_URL"
+        )
+    first = text.strip().splitlines()[0] if text.strip() else type(exc).__name__
+    return StoreError(f"{where}: {code + ': ' if code else ''}{first[:200]}")
+
+
+class S3Backend(Backend):
+    def __init__(self, spec: RemoteSpec) -> None:
+        self.spec = spec
+        try:
+            self.store = _s3_store(spec)
+        except Exception as exc:  # noqa: BLE001 - bad configuration values, unknown keys
+            raise StoreError(f"{self.describe()}: {str(exc).splitlines()[0][:200]}") from None
+
+    @contextlib.contextmanager
+    def _errors(self) -> Iterator[None]:
+        from obstore.exceptions import BaseError
+
+        try:
+            yield
+        except StoreError:
+            raise
+        except RefMoved:
+            raise
+        except FileNotFoundError as exc:
+            if "NoSuchBucket" in str(exc):
+                raise explain_s3_error(exc, self.describe()) from None
+            raise
+        except (BaseError, OSError) as exc:
+            raise explain_s3_error(exc, self.describe()) from None
+
+    def get_bytes(self, key: str) -> bytes | None:
+        got = self.read_versioned(key)
+        return got[0] if got else None
+
+    def read_versioned(self, key: str) -> tuple[bytes, str] | None:
+        import obstore
+
+        with self._errors():
+            try:
+                result = obstore.get(self.store, key)
+                data = bytes(result.bytes())
+            except FileNotFoundError as exc:
+                if "NoSuchBucket" in str(exc):
+                    raise
+                return None
+        return data, result.meta["e_tag"] or ""
+
+    def put_bytes(self, key: str, data: bytes) -> None:
+        import obstore
+
+        with self._errors():
+            obstore.put(self.store, key, data, use_multipart=False)
+
+    def swap(self, key: str, data: bytes, expect: str | None) -> str:
+        import obstore
+        from obstore.exceptions import AlreadyExistsError, PreconditionError
+
+        mode = "create" if expect is None else {"e_tag": expect}
+        with self._errors():
+            try:
+                result = obstore.put(self.store, key, data, mode=mode)
+            except (AlreadyExistsError, PreconditionError):
+                raise RefMoved(key) from None
+            except FileNotFoundError as exc:  # If-Match on a key deleted meanwhile
+                if "NoSuchBucket" in str(exc):
+                    raise
+                raise RefMoved(key) from None
+        return result["e_tag"] or ""
+
+    def _list(self, prefix: str) -> Iterator[dict]:
+        import obstore
+
+        with self._errors():
+            for batch in obstore.list(self.store, prefix.rstrip("/") + "/", chunk_size=1000):
+                yield from batch
+
+    def list_sizes(self, prefix: str) -> dict[str, int]:
+        return {m["path"]: m["size"] for m in self._list(prefix)}
+
+    def list_versions(self, prefix: str) -> dict[str, str]:
+        return {m["path"]: m["e_tag"] or "" for m in self._list(prefix)}
+
+    def head(self, key: str) -> int | None:
+        import obstore
+
+        with self._errors():
+            try:
+                return obstore.head(self.store, key)["size"]
+            except FileNotFoundError as exc:
+                if "NoSuchBucket" in str(exc):
+                    raise
+                return None
+
+    def upload_object(self, oid: str, path: Path, size: int) -> None:
+        import obstore
+
+        key = object_key(oid)
+        if size <= SINGLE_PUT_MAX:
+            data = path.read_bytes()
+            if blake3.blake3(data).hexdigest() != oid:
+                raise local_corrupt(oid)
+            with self._errors():
+                obstore.put(self.store, key, data, use_multipart=False)
+            return
+
+        def chunks() -> Iterator[bytes]:
+            # hashed on the way out; a mismatch raises before the last part, which aborts the
+            # multipart upload, so a damaged local copy never becomes a remote object
+            hasher, sent = blake3.blake3(max_threads=1), 0
+            with open(path, "rb") as f:
+                while chunk := f.read(CHUNK_SIZE):
+                    hasher.update(chunk)
+                    sent += len(chunk)
+                    if sent >= size and (sent != size or hasher.hexdigest() != oid):
+                        raise local_corrupt(oid)
+                    yield chunk
+            if sent != size:
+                raise local_corrupt(oid)
+
+        with self._errors():
+            obstore.put(self.store, key, chunks())  # multipart: 5 MiB parts, 12 at a time
+
+    def download_to(self, key: str, fd: int) -> tuple[str, int]:
+        import obstore
+
+        hasher, total = blake3.blake3(max_threads=1), 0
+        with self._errors():
+            try:
+                result = obstore.get(self.store, key)
+            except FileNotFoundError as exc:
+                if "NoSuchBucket" in str(exc):
+                    raise
+                raise MissingOnRemote(f"{self.describe()}: lacks {key}") from None
+            for chunk in result.stream(min_chunk_size=CHUNK_SIZE):
+                view = memoryview(chunk)
+                hasher.update(view)
+                written = 0
+                while written < len(view):
+                    written += os.write(fd, view[written:])
+                total += len(view)
+        return hasher.hexdigest(), total
