@@ -5,7 +5,6 @@ that drives it) finishes only the missing cells when run again, leaving the fini
 from __future__ import annotations
 
 import io
-import logging
 import os
 import signal
 import subprocess
@@ -19,7 +18,7 @@ from rich.console import Console
 
 from artifacts.refs import read_ref
 from artifacts.store import Store
-from stages.bench.execute import run_bench
+from stages.bench.execute import run_bench, start_ray
 from stages.bench.report import build_report
 from stages.bench.spec import load_spec
 from stages.bench.state import cell_states, counts, is_done
@@ -50,8 +49,7 @@ def write_spec(root: Path, name: str, seeds: list[int], broken: bool = False) ->
 @pytest.fixture(scope="module")
 def ray_address():
     ray = pytest.importorskip("ray")
-    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR)
+    start_ray(None, 2)                    # the bench's own start: retried when a busy machine delays it
     yield ray.get_runtime_context().gcs_address
     ray.shutdown()
 
