@@ -19,6 +19,7 @@ run on stage positions, so runs whose task lists differ (permutations or differe
 aggregated by their sequence-level numbers. `aggregate_runs` groups labelled runs by method: per method
 the mean and CI over all its runs, and per ordering the same over that ordering's seeds.
 """
+
 from __future__ import annotations
 
 import json
@@ -39,8 +40,10 @@ def _check_curves(curves) -> list[list[list[float]]]:
     n_points = None
     for i, stage in enumerate(curves):
         if not isinstance(stage, list) or len(stage) != i + 1:
-            raise AccrueError(f"curves[{i}]: stage {i} must list tasks 0..{i} ({i + 1} curves), "
-                              f"got {len(stage) if isinstance(stage, list) else type(stage).__name__}")
+            raise AccrueError(
+                f"curves[{i}]: stage {i} must list tasks 0..{i} ({i + 1} curves), "
+                f"got {len(stage) if isinstance(stage, list) else type(stage).__name__}"
+            )
         for j, curve in enumerate(stage):
             if not isinstance(curve, list) or not curve:
                 raise AccrueError(f"curves[{i}][{j}]: expected a non-empty list of success rates")
@@ -62,7 +65,7 @@ def success_matrix(curves) -> tuple[np.ndarray, list[int]]:
     best = []
     for i in range(k):
         own = np.asarray(curves[i][i], dtype=float)
-        e_star = int(np.argmax(own))          # argmax returns the first maximum: the earliest checkpoint
+        e_star = int(np.argmax(own))  # argmax returns the first maximum: the earliest checkpoint
         best.append(e_star)
         for j in range(i + 1):
             c[i, j] = curves[i][j][e_star]
@@ -89,13 +92,14 @@ def continual_metrics(curves) -> dict:
     return out
 
 
-def bootstrap_ci(values, resamples: int = BOOTSTRAP_RESAMPLES, confidence: float = CONFIDENCE,
-                 seed: int = 0) -> tuple[float, float]:
+def bootstrap_ci(
+    values, resamples: int = BOOTSTRAP_RESAMPLES, confidence: float = CONFIDENCE, seed: int = 0
+) -> tuple[float, float]:
     """Percentile bootstrap CI of the mean over runs (seeded: the same values give the same interval)."""
     v = np.asarray(values, dtype=float)
     if v.size == 0:
         raise AccrueError("bootstrap_ci: no values")
-    if np.all(v == v[0]):              # one run, or identical runs: nothing to resample
+    if np.all(v == v[0]):  # one run, or identical runs: nothing to resample
         return float(v[0]), float(v[0])
     rng = np.random.default_rng(seed)
     means = v[rng.integers(0, v.size, size=(resamples, v.size))].mean(1)
@@ -128,16 +132,22 @@ def ordering_label(tasks: list[str]) -> str:
     return " → ".join(tasks)
 
 
-def run_record(curves, *, method: str, tasks: list[str], ordering: str | None = None,
-               seed: int | None = None) -> dict:
+def run_record(curves, *, method: str, tasks: list[str], ordering: str | None = None, seed: int | None = None) -> dict:
     """One labelled run: its method, ordering (a name, else the task sequence), seed, tasks, and the
     Sec. V-A metrics of its curves ("metrics", plus "per_stage", "c", "best_checkpoint")."""
     m = continual_metrics(curves)
     if len(tasks) != len(m["c"]):
         raise AccrueError(f"run of {method}: {len(m['c'])} stages of curves but {len(tasks)} tasks")
-    return {"method": method, "ordering": ordering or ordering_label(tasks), "seed": seed, "tasks": list(tasks),
-            "metrics": {name: m[name] for name in METRICS},
-            "per_stage": m["per_stage"], "c": m["c"], "best_checkpoint": m["best_checkpoint"]}
+    return {
+        "method": method,
+        "ordering": ordering or ordering_label(tasks),
+        "seed": seed,
+        "tasks": list(tasks),
+        "metrics": {name: m[name] for name in METRICS},
+        "per_stage": m["per_stage"],
+        "c": m["c"],
+        "best_checkpoint": m["best_checkpoint"],
+    }
 
 
 def aggregate_runs(records: list[dict]) -> dict:
@@ -155,21 +165,31 @@ def aggregate_runs(records: list[dict]) -> dict:
     for r in records:
         known = tasks_of.setdefault(r["ordering"], list(r["tasks"]))
         if known != list(r["tasks"]):
-            raise AccrueError(f"ordering {r['ordering']!r} names two task sequences: {ordering_label(known)} "
-                              f"and {ordering_label(r['tasks'])}")
+            raise AccrueError(
+                f"ordering {r['ordering']!r} names two task sequences: {ordering_label(known)} "
+                f"and {ordering_label(r['tasks'])}"
+            )
         methods.setdefault(r["method"], {}).setdefault(r["ordering"], []).append(r)
     out = []
     for method, orderings in methods.items():
         runs = [r for group in orderings.values() for r in group]
-        out.append({
-            "method": method,
-            "runs": len(runs),
-            "metrics": {name: summarize_values([r["metrics"][name] for r in runs]) for name in METRICS},
-            "orderings": [{"ordering": name, "tasks": list(group[0]["tasks"]), "seeds": [r["seed"] for r in group],
-                           "runs": len(group),
-                           "metrics": {m: summarize_values([r["metrics"][m] for r in group]) for m in METRICS}}
-                          for name, group in orderings.items()],
-        })
+        out.append(
+            {
+                "method": method,
+                "runs": len(runs),
+                "metrics": {name: summarize_values([r["metrics"][name] for r in runs]) for name in METRICS},
+                "orderings": [
+                    {
+                        "ordering": name,
+                        "tasks": list(group[0]["tasks"]),
+                        "seeds": [r["seed"] for r in group],
+                        "runs": len(group),
+                        "metrics": {m: summarize_values([r["metrics"][m] for r in group]) for m in METRICS},
+                    }
+                    for name, group in orderings.items()
+                ],
+            }
+        )
     return {"methods": out, "confidence": CONFIDENCE, "resamples": BOOTSTRAP_RESAMPLES, "bootstrap_seed": 0}
 
 
@@ -181,13 +201,20 @@ def paired_differences(records: list[dict], reference: str, methods: list[str] |
     ref = {(r["ordering"], r["seed"]): r for r in records if r["method"] == reference}
     order = list(methods or []) + [r["method"] for r in records]
     out = []
-    for method in dict.fromkeys(m for m in order if m != reference):     # `methods` first, then any other
-        pairs = [(r, ref[(r["ordering"], r["seed"])]) for r in records
-                 if r["method"] == method and (r["ordering"], r["seed"]) in ref]
+    for method in dict.fromkeys(m for m in order if m != reference):  # `methods` first, then any other
+        pairs = [
+            (r, ref[(r["ordering"], r["seed"])])
+            for r in records
+            if r["method"] == method and (r["ordering"], r["seed"]) in ref
+        ]
         metrics = {}
         for name in METRICS:
-            diffs = [None if a["metrics"][name] is None or b["metrics"][name] is None
-                     else a["metrics"][name] - b["metrics"][name] for a, b in pairs]
+            diffs = [
+                None
+                if a["metrics"][name] is None or b["metrics"][name] is None
+                else a["metrics"][name] - b["metrics"][name]
+                for a, b in pairs
+            ]
             metrics[name] = summarize_values(diffs)
         out.append({"method": method, "pairs": len(pairs), "metrics": metrics})
     return out
@@ -220,8 +247,9 @@ def load_metrics_file(path: str | Path) -> list[dict]:
                 raise AccrueError(f"{where}: missing field '{key}'")
         if not isinstance(run["tasks"], list) or not all(isinstance(t, str) for t in run["tasks"]):
             raise AccrueError(f"{where}: 'tasks' must be a list of names")
-        if not isinstance(run["grid"], list) or not all(isinstance(g, (int, float)) and not isinstance(g, bool)
-                                                        for g in run["grid"]):
+        if not isinstance(run["grid"], list) or not all(
+            isinstance(g, (int, float)) and not isinstance(g, bool) for g in run["grid"]
+        ):
             raise AccrueError(f"{where}: 'grid' must be a list of env-step counts")
         try:
             _check_curves(run["curves"])
@@ -230,14 +258,23 @@ def load_metrics_file(path: str | Path) -> list[dict]:
         if len(run["curves"]) != len(run["tasks"]):
             raise AccrueError(f"{where}: {len(run['curves'])} stages in 'curves' but {len(run['tasks'])} tasks")
         if len(run["curves"][0][0]) != len(run["grid"]):
-            raise AccrueError(f"{where}: curves have {len(run['curves'][0][0])} points but 'grid' has "
-                              f"{len(run['grid'])}")
+            raise AccrueError(
+                f"{where}: curves have {len(run['curves'][0][0])} points but 'grid' has {len(run['grid'])}"
+            )
         for key in ("method", "ordering"):
             if key in run and (not isinstance(run[key], str) or not run[key]):
                 raise AccrueError(f"{where}: '{key}' must be a non-empty name")
         seed = run.get("seed", r)
         if isinstance(seed, bool) or not isinstance(seed, int):
             raise AccrueError(f"{where}: 'seed' must be an integer")
-        out.append({"method": run.get("method", "all"), "ordering": run.get("ordering") or ordering_label(run["tasks"]),
-                    "seed": seed, "tasks": run["tasks"], "grid": run["grid"], "curves": run["curves"]})
+        out.append(
+            {
+                "method": run.get("method", "all"),
+                "ordering": run.get("ordering") or ordering_label(run["tasks"]),
+                "seed": seed,
+                "tasks": run["tasks"],
+                "grid": run["grid"],
+                "curves": run["curves"],
+            }
+        )
     return out

@@ -4,6 +4,7 @@ A spec (workflows/bench/*.yaml) names a base workflow and a grid of methods x ta
 each cell is an ordinary workflow run in the store, so finished cells and shared steps are never
 recomputed. See stages/bench/spec.py for the spec's fields.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -24,33 +25,58 @@ class _RunByDefault(TyperGroup):
         return super().parse_args(ctx, args)
 
 
-bench_app = typer.Typer(cls=_RunByDefault, no_args_is_help=True,
-                        help="Methods x orderings x seeds as workflow runs: `accrue bench SPEC.yaml` runs the "
-                             "missing cells; `status` and `report` read the store.")
+bench_app = typer.Typer(
+    cls=_RunByDefault,
+    no_args_is_help=True,
+    help="Methods x orderings x seeds as workflow runs: `accrue bench SPEC.yaml` runs the "
+    "missing cells; `status` and `report` read the store.",
+)
 
-SpecArg = Annotated[Path, typer.Argument(metavar="SPEC", help="Bench spec YAML (workflows/bench/*.yaml).",
-                                         show_default=False)]
+SpecArg = Annotated[
+    Path, typer.Argument(metavar="SPEC", help="Bench spec YAML (workflows/bench/*.yaml).", show_default=False)
+]
 
 
 @bench_app.command("run")
-def run(spec: SpecArg,
-        executor: Annotated[str, typer.Option("--executor", help="ray (default) or serial (one cell after "
-                                              "another in this process).")] = "ray",
-        serial: Annotated[bool, typer.Option("--serial", help="Same as --executor serial.")] = False,
-        address: Annotated[Optional[str], typer.Option(
-            "--address", help="Join this Ray cluster (e.g. HEAD:6379) instead of starting a local one. Every node "
-                              "must mount the store at the same path (a shared filesystem) and have accrue "
-                              "installed.", show_default=False)] = None,
-        num_cpus: Annotated[Optional[int], typer.Option(
-            "--num-cpus", help="CPUs of the local Ray instance (default: all of this machine's).",
-            show_default=False)] = None,
-        retries: Annotated[Optional[int], typer.Option(
-            "--retries", help="Extra tries of a failed cell (default: the spec's `retries`, else 1).",
-            show_default=False)] = None,
-        logs: Annotated[Optional[Path], typer.Option(
-            "--logs", help="Directory of the cells' step logs (default runs/bench/<spec>/logs).",
-            show_default=False)] = None,
-        store: StoreOpt = None, as_json: JsonOpt = False) -> int:
+def run(
+    spec: SpecArg,
+    executor: Annotated[
+        str, typer.Option("--executor", help="ray (default) or serial (one cell after another in this process).")
+    ] = "ray",
+    serial: Annotated[bool, typer.Option("--serial", help="Same as --executor serial.")] = False,
+    address: Annotated[
+        Optional[str],
+        typer.Option(
+            "--address",
+            help="Join this Ray cluster (e.g. HEAD:6379) instead of starting a local one. Every node "
+            "must mount the store at the same path (a shared filesystem) and have accrue "
+            "installed.",
+            show_default=False,
+        ),
+    ] = None,
+    num_cpus: Annotated[
+        Optional[int],
+        typer.Option(
+            "--num-cpus", help="CPUs of the local Ray instance (default: all of this machine's).", show_default=False
+        ),
+    ] = None,
+    retries: Annotated[
+        Optional[int],
+        typer.Option(
+            "--retries",
+            help="Extra tries of a failed cell (default: the spec's `retries`, else 1).",
+            show_default=False,
+        ),
+    ] = None,
+    logs: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--logs", help="Directory of the cells' step logs (default runs/bench/<spec>/logs).", show_default=False
+        ),
+    ] = None,
+    store: StoreOpt = None,
+    as_json: JsonOpt = False,
+) -> int:
     """Run every cell of SPEC that is not finished yet (finished cells are skipped; a failed cell is retried,
     then reported while the others go on). Exit 1 if any cell failed."""
     from stages.bench.execute import run_bench, summary_rows
@@ -61,8 +87,15 @@ def run(spec: SpecArg,
         raise StageError(f"--retries: must be >= 0 (got {retries})")
     sp = load_spec(spec)
     st = open_store(store)
-    results = run_bench(sp, st, executor="serial" if serial else executor, address=address, num_cpus=num_cpus,
-                        retries=retries, logs_dir=logs)
+    results = run_bench(
+        sp,
+        st,
+        executor="serial" if serial else executor,
+        address=address,
+        num_cpus=num_cpus,
+        retries=retries,
+        logs_dir=logs,
+    )
     rows = summary_rows(results)
     failed = [r for r in rows if r["state"] == "failed"]
     if as_json:
@@ -70,11 +103,14 @@ def run(spec: SpecArg,
     else:
         con = console()
         n = {s: sum(r["state"] == s for r in rows) for s in ("done", "skipped", "failed")}
-        con.print(f"bench {sp.name}: {n['done']} cells run, {n['skipped']} already done, {n['failed']} failed "
-                  f"(of {len(rows)})")
+        con.print(
+            f"bench {sp.name}: {n['done']} cells run, {n['skipped']} already done, {n['failed']} failed "
+            f"(of {len(rows)})"
+        )
         for r in failed:
-            con.print(f"[red]failed[/] {r['method']} · {r['ordering']} · seed {r['seed']} ({r['tries']} tries): "
-                      f"{r['error']}")
+            con.print(
+                f"[red]failed[/] {r['method']} · {r['ordering']} · seed {r['seed']} ({r['tries']} tries): {r['error']}"
+            )
     return 1 if failed else 0
 
 
@@ -91,34 +127,61 @@ def status(spec: SpecArg, store: StoreOpt = None, as_json: JsonOpt = False) -> N
     states = cell_states(open_store(store), sp)
     n = counts(states)
     eta = eta_seconds(states)
-    rows = [{"cell": c.name, "method": c.method, "ordering": c.ordering, "seed": c.seed,
-             "state": states[c.name].state, "stages_done": states[c.name].stages_done,
-             "stages": c.workflow.num_stages, "running": states[c.name].running_step,
-             "error": states[c.name].error, "tries": states[c.name].tries, "seconds": states[c.name].seconds}
-            for c in sp.cells]
+    rows = [
+        {
+            "cell": c.name,
+            "method": c.method,
+            "ordering": c.ordering,
+            "seed": c.seed,
+            "state": states[c.name].state,
+            "stages_done": states[c.name].stages_done,
+            "stages": c.workflow.num_stages,
+            "running": states[c.name].running_step,
+            "error": states[c.name].error,
+            "tries": states[c.name].tries,
+            "seconds": states[c.name].seconds,
+        }
+        for c in sp.cells
+    ]
     if as_json:
         print_json({"spec": sp.name, "cells": rows, "counts": n, "eta_s": eta})
         return
     con = console()
-    con.print(f"[bold]bench {sp.name}[/]: {n['done']}/{len(rows)} done · {n['running']} running · "
-              f"{n['failed']} failed · {n['partial']} partial · {n['pending']} pending · ETA ≈ {hms(eta)}")
+    con.print(
+        f"[bold]bench {sp.name}[/]: {n['done']}/{len(rows)} done · {n['running']} running · "
+        f"{n['failed']} failed · {n['partial']} partial · {n['pending']} pending · ETA ≈ {hms(eta)}"
+    )
     table = Table(title_justify="left")
     for col in ("method", "ordering", "seed", "state", "stages", "detail"):
         table.add_column(col, overflow="fold")
     colours = {"done": "green", "running": "cyan", "failed": "red", "partial": "yellow", "pending": "dim"}
     for r in rows:
         detail = r["running"] or r["error"] or (f"{r['seconds']:.0f} s, {r['tries']} tries" if r["seconds"] else "")
-        table.add_row(r["method"], r["ordering"], str(r["seed"]), f"[{colours[r['state']]}]{r['state']}[/]",
-                      f"{r['stages_done']}/{r['stages']}", detail)
+        table.add_row(
+            r["method"],
+            r["ordering"],
+            str(r["seed"]),
+            f"[{colours[r['state']]}]{r['state']}[/]",
+            f"{r['stages_done']}/{r['stages']}",
+            detail,
+        )
     con.print(table)
 
 
 @bench_app.command("report")
-def report(spec: SpecArg,
-           out: Annotated[Optional[Path], typer.Option(
-               "--out", help="Directory for report.md, the CSVs, report.json and the plots "
-                             "(default runs/bench/<spec>/report).", show_default=False)] = None,
-           store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+def report(
+    spec: SpecArg,
+    out: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--out",
+            help="Directory for report.md, the CSVs, report.json and the plots (default runs/bench/<spec>/report).",
+            show_default=False,
+        ),
+    ] = None,
+    store: StoreOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
     """Per method, mean over orderings x seeds of NBT, FWT, AUC, ACC_final, F_final with 95% bootstrap CIs;
     the per-ordering breakdown; missing cells listed; Markdown, CSV, JSON and plots written to --out."""
     from stages.bench.report import build_report, default_out_dir, markdown, write_report
@@ -126,8 +189,9 @@ def report(spec: SpecArg,
 
     sp = load_spec(spec)
     rep, curves = build_report(open_store(store), sp)
-    files = write_report(rep, curves, out if out is not None else default_out_dir(sp),
-                         command=f"accrue bench report {spec}")
+    files = write_report(
+        rep, curves, out if out is not None else default_out_dir(sp), command=f"accrue bench report {spec}"
+    )
     if as_json:
         print_json({**rep, "files": files})
         return

@@ -1,5 +1,6 @@
 """`accrue metrics FILE.json... [--json]`: the paper's continual metrics of success curves, per method
 and per task ordering when the runs are labelled."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -8,8 +9,11 @@ import typer
 
 
 def metrics(
-    files: list[Path] = typer.Argument(..., help="JSON files, each one run {tasks, grid, curves} or a list of runs; "
-                                                 "a run may carry method, ordering and seed labels."),
+    files: list[Path] = typer.Argument(
+        ...,
+        help="JSON files, each one run {tasks, grid, curves} or a list of runs; "
+        "a run may carry method, ordering and seed labels.",
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
 ) -> None:
     """FWT, NBT, continual AUC, ACC_final and F_final (paper Sec. V-A) of each run; per method, the mean
@@ -27,8 +31,10 @@ def metrics(
             from accrue.errors import AccrueError
 
             raise AccrueError(f"{f}: JSON nested too deeply to be a metrics file") from None
-    records = [run_record(r["curves"], method=r["method"], tasks=r["tasks"], ordering=r["ordering"], seed=r["seed"])
-               for r in loaded]
+    records = [
+        run_record(r["curves"], method=r["method"], tasks=r["tasks"], ordering=r["ordering"], seed=r["seed"])
+        for r in loaded
+    ]
     agg = aggregate_runs(records)
     if as_json:
         print(json.dumps({**agg, "runs": records}, indent=2))
@@ -71,16 +77,19 @@ def _print_groups(console, agg: dict, files: list[Path]) -> None:
     pct = round(agg["confidence"] * 100)
     names = ", ".join(f.name for f in files)
     for title, header, rows in (
-            (f"{names}: per method, mean [{pct}% bootstrap CI] over runs", METHOD_HEADER, method_rows(agg)),
-            ("per ordering (mean [CI] over its seeds)", ORDERING_HEADER, ordering_rows(agg))):
+        (f"{names}: per method, mean [{pct}% bootstrap CI] over runs", METHOD_HEADER, method_rows(agg)),
+        ("per ordering (mean [CI] over its seeds)", ORDERING_HEADER, ordering_rows(agg)),
+    ):
         table = Table(title=title, title_justify="left")
         for col in header:
             table.add_column(col, justify="left" if col in ("method", "ordering", "seeds") else "right")
         for row in rows:
             table.add_row(*row)
         console.print(table)
-    console.print(f"[dim]percentile bootstrap of the mean, {agg['resamples']} resamples, numpy seed "
-                  f"{agg['bootstrap_seed']}; '—' = undefined (NBT and F_final need ≥ 2 stages)[/]")
+    console.print(
+        f"[dim]percentile bootstrap of the mean, {agg['resamples']} resamples, numpy seed "
+        f"{agg['bootstrap_seed']}; '—' = undefined (NBT and F_final need ≥ 2 stages)[/]"
+    )
 
 
 def register(app: typer.Typer) -> None:

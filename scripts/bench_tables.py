@@ -9,6 +9,7 @@ With --readme, each spec's tables replace what lies between the markers
 in that file (add the two marker lines where the table goes); without it they go to stdout.
 Exit 2 with one line on a bad spec, a missing store or missing markers.
 """
+
 from __future__ import annotations
 
 import argparse

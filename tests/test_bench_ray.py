@@ -2,6 +2,7 @@
 seeds, a hundred env steps, the scripted stand-in reference as base policy) runs through, a failing cell
 is retried, reported, and does not stop the others; a bench killed mid-run (`kill -9` of the process
 that drives it) finishes only the missing cells when run again, leaving the finished ones untouched."""
+
 from __future__ import annotations
 
 import io
@@ -25,15 +26,35 @@ from stages.bench.state import cell_states, counts, is_done
 from stages.runner import step_ref
 from stages.runner_types import STEP_NAMES
 
-pytestmark = pytest.mark.slow        # Ray's start-up and a few real cells: ~1.5 min on an idle 2-core machine
+pytestmark = pytest.mark.slow  # Ray's start-up and a few real cells: ~1.5 min on an idle 2-core machine
 ROOT = Path(__file__).resolve().parents[1]
 TASKS = ["nist/rect_peg", "nist/gear"]
-BASE = {"name": "tiny", "tasks": TASKS, "method": "accrue", "horizon": 4, "task_features": 8,
-        "base_policy": {"init": "scripted-reference:0.0"},
-        "learner": {"actor_hidden": [32, 32], "critic_hidden": [32, 32], "projector_dim": 16, "batch_size": 32,
-                    "num_atoms": 11, "utd": 1},
-        "budgets": {"env_steps": 96, "eval_every": 48, "eval_episodes": 2, "num_envs": 2, "warmup_episodes": 1,
-                    "retained_episodes": 2, "checkpoint_every": 0, "log_episodes": 0}}
+BASE = {
+    "name": "tiny",
+    "tasks": TASKS,
+    "method": "accrue",
+    "horizon": 4,
+    "task_features": 8,
+    "base_policy": {"init": "scripted-reference:0.0"},
+    "learner": {
+        "actor_hidden": [32, 32],
+        "critic_hidden": [32, 32],
+        "projector_dim": 16,
+        "batch_size": 32,
+        "num_atoms": 11,
+        "utd": 1,
+    },
+    "budgets": {
+        "env_steps": 96,
+        "eval_every": 48,
+        "eval_episodes": 2,
+        "num_envs": 2,
+        "warmup_episodes": 1,
+        "retained_episodes": 2,
+        "checkpoint_every": 0,
+        "log_episodes": 0,
+    },
+}
 BROKEN = {"method": "accrue", "base_policy": {"init": "embedded-mlp", "demos": {t: "no-such-demos" for t in TASKS}}}
 
 
@@ -41,15 +62,18 @@ def write_spec(root: Path, name: str, seeds: list[int], broken: bool = False) ->
     (root / "tiny.yaml").write_text(yaml.safe_dump(BASE))
     methods = {"accrue": {}, "sequential": {}, **({"broken": BROKEN} if broken else {})}
     path = root / f"{name}.yaml"
-    path.write_text(yaml.safe_dump({"base": "tiny.yaml", "methods": methods, "orderings": {"A": TASKS},
-                                    "seeds": seeds, "retries": 1}))
+    path.write_text(
+        yaml.safe_dump(
+            {"base": "tiny.yaml", "methods": methods, "orderings": {"A": TASKS}, "seeds": seeds, "retries": 1}
+        )
+    )
     return path
 
 
 @pytest.fixture(scope="module")
 def ray_address():
     ray = pytest.importorskip("ray")
-    start_ray(None, 2)                    # the bench's own start: retried when a busy machine delays it
+    start_ray(None, 2)  # the bench's own start: retried when a busy machine delays it
     yield ray.get_runtime_context().gcs_address
     ray.shutdown()
 
@@ -96,9 +120,24 @@ def test_killed_bench_resumes_only_the_missing_cells(ray_address, store, tmp_pat
     spec = load_spec(path)
     env = {**os.environ, "ACCRUE_STORE": str(store.root), "OMP_NUM_THREADS": "1"}
     with open(tmp_path / "bench.err", "w") as err:
-        proc = subprocess.Popen([sys.executable, "-m", "cli.main", "bench", str(path), "--address", ray_address,
-                                 "--logs", str(tmp_path / "logs")], cwd=ROOT, env=env, stdout=err, stderr=err,
-                                start_new_session=True)
+        proc = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "cli.main",
+                "bench",
+                str(path),
+                "--address",
+                ray_address,
+                "--logs",
+                str(tmp_path / "logs"),
+            ],
+            cwd=ROOT,
+            env=env,
+            stdout=err,
+            stderr=err,
+            start_new_session=True,
+        )
         deadline = time.monotonic() + 600
         while not any(is_done(store, c) for c in spec.cells):
             assert proc.poll() is None, (tmp_path / "bench.err").read_text()[-2000:]
@@ -113,5 +152,5 @@ def test_killed_bench_resumes_only_the_missing_cells(ray_address, store, tmp_pat
     assert {r.cell.name for r in results if r.state == "skipped"} == {c.name for c in finished}
     assert all(r.state in ("skipped", "done") for r in results)
     assert all(is_done(store, c) for c in spec.cells)
-    for c in finished:                        # finished cells: the very same committed records
+    for c in finished:  # finished cells: the very same committed records
         assert step_records(store, c) == before[c.name]

@@ -1,6 +1,7 @@
 """The bench report and status on a store holding known cell results (written through the runner by
 stand-in steps, so no RL runs): aggregates equal a hand computation, missing cells are listed, never
 dropped, and scripts/bench_tables.py writes the tables into marked README blocks."""
+
 from __future__ import annotations
 
 import csv
@@ -24,24 +25,44 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "scripts"))
 import bench_tables  # noqa: E402
 
-BASE = {"name": "base", "tasks": ["nist/rect_peg", "nist/gear"], "method": "accrue", "horizon": 4,
-        "base_policy": {"init": "scripted-reference:0.0"},
-        "budgets": {"env_steps": 100, "eval_every": 100, "eval_episodes": 10, "num_envs": 2}}
-SPEC = {"name": "known", "base": "base.yaml", "methods": {"accrue": {}, "sequential": {}},
-        "orderings": {"S1": ["nist/rect_peg", "nist/gear"], "S2": ["nist/gear", "nist/rect_peg"]},
-        "seeds": [0, 1]}
+BASE = {
+    "name": "base",
+    "tasks": ["nist/rect_peg", "nist/gear"],
+    "method": "accrue",
+    "horizon": 4,
+    "base_policy": {"init": "scripted-reference:0.0"},
+    "budgets": {"env_steps": 100, "eval_every": 100, "eval_episodes": 10, "num_envs": 2},
+}
+SPEC = {
+    "name": "known",
+    "base": "base.yaml",
+    "methods": {"accrue": {}, "sequential": {}},
+    "orderings": {"S1": ["nist/rect_peg", "nist/gear"], "S2": ["nist/gear", "nist/rect_peg"]},
+    "seeds": [0, 1],
+}
 # (method, ordering, seed) -> (stage-1 best, task 1 after stage 2, stage-2 best); None = not finished
-VALUES = {("accrue", "S1", 0): (0.8, 0.7, 0.6), ("accrue", "S1", 1): (0.6, 0.6, 1.0),
-          ("accrue", "S2", 0): (1.0, 0.9, 0.8), ("accrue", "S2", 1): None,              # failed
-          ("sequential", "S1", 0): (0.8, 0.2, 0.6), ("sequential", "S1", 1): (0.8, 0.2, 0.6),
-          ("sequential", "S2", 0): (0.8, 0.2, 0.6), ("sequential", "S2", 1): (0.8, 0.2, 0.6)}
+VALUES = {
+    ("accrue", "S1", 0): (0.8, 0.7, 0.6),
+    ("accrue", "S1", 1): (0.6, 0.6, 1.0),
+    ("accrue", "S2", 0): (1.0, 0.9, 0.8),
+    ("accrue", "S2", 1): None,  # failed
+    ("sequential", "S1", 0): (0.8, 0.2, 0.6),
+    ("sequential", "S1", 1): (0.8, 0.2, 0.6),
+    ("sequential", "S2", 0): (0.8, 0.2, 0.6),
+    ("sequential", "S2", 1): (0.8, 0.2, 0.6),
+}
 
 
 def hand_metrics(first: float, kept: float, second: float) -> dict:
     """Sec. V-A on two stages of grid [0, 100] with curves [0, first] and [0, second] (e* = 1)."""
     fwt1, fwt2 = first / 2, second / 2
-    return {"FWT": (fwt1 + fwt2) / 2, "NBT": first - kept, "AUC": ((fwt1 + kept) / 2 + fwt2) / 2,
-            "ACC_final": (kept + second) / 2, "F_final": first - kept}
+    return {
+        "FWT": (fwt1 + fwt2) / 2,
+        "NBT": first - kept,
+        "AUC": ((fwt1 + kept) / 2 + fwt2) / 2,
+        "ACC_final": (kept + second) / 2,
+        "F_final": first - kept,
+    }
 
 
 def stand_in(name: str, files) -> StepDef:
@@ -50,7 +71,10 @@ def stand_in(name: str, files) -> StepDef:
     def run(ctx):
         out = ctx.new_output(role, "eval" if name in SOURCES else "checkpoint")
         (out / filename).write_text(json.dumps(files(ctx.config)))
-    return StepDef(name=name, code_version="stand-in-1", run=run, outputs={role: "eval" if name in SOURCES else "checkpoint"})
+
+    return StepDef(
+        name=name, code_version="stand-in-1", run=run, outputs={role: "eval" if name in SOURCES else "checkpoint"}
+    )
 
 
 def commit_cell(store: Store, cell, values, stages: int | None = None) -> None:
@@ -62,17 +86,25 @@ def commit_cell(store: Store, cell, values, stages: int | None = None) -> None:
         def files(config):
             k = config["stage"]
             if step == TRAIN:
-                return {"stage": k, "task_ids": tasks[:k], "grid": [0, 100], "success": rates[k], "episodes_per_point": 10}
+                return {
+                    "stage": k,
+                    "task_ids": tasks[:k],
+                    "grid": [0, 100],
+                    "success": rates[k],
+                    "episodes_per_point": 10,
+                }
             if step == EVALUATE:
                 last = {t: c[-1] for t, c in rates[k].items()}
                 return {"stage": k, "task_ids": tasks[:k], "success": last, "base_success": last, "episodes": 10}
             return {"stage": k}
+
         return files
 
     runner = Runner(store)
     for k in range(1, (stages or 2) + 1):
-        steps = tuple(StepInvocation(step=stand_in(s, files_for(s)), config={"cell": cell.name, "stage": k})
-                      for s in STEP_NAMES)
+        steps = tuple(
+            StepInvocation(step=stand_in(s, files_for(s)), config={"cell": cell.name, "stage": k}) for s in STEP_NAMES
+        )
         runner.run_plan(StagePlan(workflow=cell.name, stage=k, steps=steps))
 
 
@@ -88,7 +120,7 @@ def bench(tmp_path):
         if v is not None:
             commit_cell(store, cell, v)
     failed = spec.cell("accrue", "S2", 1)
-    commit_cell(store, failed, (0.5, 0.5, 0.5), stages=1)         # got through stage 1, then failed
+    commit_cell(store, failed, (0.5, 0.5, 0.5), stages=1)  # got through stage 1, then failed
     record_outcome(store, spec, failed, "failed", tries=2, seconds=3.0, error="step train: boom")
     return spec, store, path
 
@@ -112,12 +144,12 @@ def test_aggregates_equal_a_hand_computation(bench):
         assert s["mean"] == pytest.approx(want) and s["n"] == 3
         assert s["ci_low"] <= s["mean"] <= s["ci_high"]
     assert agg["accrue"]["metrics"]["NBT"]["ci_low"] < agg["accrue"]["metrics"]["NBT"]["ci_high"]
-    seq = agg["sequential"]["metrics"]["NBT"]            # four identical runs: a degenerate interval
+    seq = agg["sequential"]["metrics"]["NBT"]  # four identical runs: a degenerate interval
     assert seq["mean"] == seq["ci_low"] == seq["ci_high"] == pytest.approx(0.6)
     s2 = next(o for o in agg["accrue"]["orderings"] if o["ordering"] == "S2")
     assert s2["seeds"] == [0] and s2["metrics"]["FWT"]["mean"] == pytest.approx(hand_metrics(1.0, 0.9, 0.8)["FWT"])
-    [diff] = report["differences"]                       # sequential − accrue, paired by ordering and seed
-    assert diff["method"] == "sequential" and diff["pairs"] == 3            # accrue S2 seed 1 has no result
+    [diff] = report["differences"]  # sequential − accrue, paired by ordering and seed
+    assert diff["method"] == "sequential" and diff["pairs"] == 3  # accrue S2 seed 1 has no result
     assert diff["metrics"]["NBT"]["mean"] == pytest.approx(((0.6 - 0.1) + (0.6 - 0.0) + (0.6 - 0.1)) / 3)
     assert [m["cell"] for m in report["missing"]] == [spec.cell("accrue", "S2", 1).name]
     assert report["missing"][0]["state"] == "failed" and report["missing"][0]["error"] == "step train: boom"
@@ -154,7 +186,7 @@ def test_a_method_with_no_finished_run_keeps_its_row(bench, tmp_path):
     report, _ = build_report(store, load_spec(path))
     text = markdown(report)
     assert "| ewc | 0 of 4 | — | — | — | — | — |" in text
-    assert "| ewc | 0 | — | — | — | — | — |" in text                  # and its row of differences
+    assert "| ewc | 0 | — | — | — | — | — |" in text  # and its row of differences
     assert sum(m["method"] == "ewc" for m in report["missing"]) == 4
 
 

@@ -1,5 +1,6 @@
 """Bench specs: the grid of cells, merged overrides, derived workflow names, shared cache keys across
 methods, the shipped specs, and bad specs as one-line errors with exit code 2."""
+
 from __future__ import annotations
 
 import json
@@ -16,17 +17,28 @@ from stages.errors import StageError
 from stages.plan import plan_stage
 
 ROOT = Path(__file__).resolve().parents[1]
-BASE = {"name": "base", "tasks": ["nist/rect_peg", "nist/gear"], "method": "accrue", "seed": 0, "horizon": 4,
-        "base_policy": {"init": "embedded-mlp", "finetune_steps": 5, "demos_per_task": 2},
-        "learner": {"beta": 1.0, "lam": 10.0},
-        "budgets": {"env_steps": 400, "eval_every": 200, "eval_episodes": 4, "num_envs": 2}}
-SPEC = {"base": "base.yaml",
-        "overrides": {"budgets.env_steps": 200, "budgets": {"eval_every": 100}},
-        "methods": {"accrue": {}, "sequential": {},
-                    "no-ref": {"method": "accrue", "learner.ablation": "no-reference"},
-                    "lam0": {"method": "accrue", "learner": {"lam": None}}},
-        "orderings": {"S1": ["nist/rect_peg", "nist/gear"], "S2": ["nist/gear", "nist/rect_peg"]},
-        "seeds": [0, 1]}
+BASE = {
+    "name": "base",
+    "tasks": ["nist/rect_peg", "nist/gear"],
+    "method": "accrue",
+    "seed": 0,
+    "horizon": 4,
+    "base_policy": {"init": "embedded-mlp", "finetune_steps": 5, "demos_per_task": 2},
+    "learner": {"beta": 1.0, "lam": 10.0},
+    "budgets": {"env_steps": 400, "eval_every": 200, "eval_episodes": 4, "num_envs": 2},
+}
+SPEC = {
+    "base": "base.yaml",
+    "overrides": {"budgets.env_steps": 200, "budgets": {"eval_every": 100}},
+    "methods": {
+        "accrue": {},
+        "sequential": {},
+        "no-ref": {"method": "accrue", "learner.ablation": "no-reference"},
+        "lam0": {"method": "accrue", "learner": {"lam": None}},
+    },
+    "orderings": {"S1": ["nist/rect_peg", "nist/gear"], "S2": ["nist/gear", "nist/rect_peg"]},
+    "seeds": [0, 1],
+}
 
 
 def write(tmp_path: Path, spec=SPEC, base=BASE, name="grid.yaml") -> Path:
@@ -40,14 +52,18 @@ def test_cells_are_methods_by_orderings_by_seeds_in_method_major_order(tmp_path)
     spec = load_spec(write(tmp_path))
     assert len(spec.cells) == 4 * 2 * 2
     assert [(c.method, c.ordering, c.seed) for c in spec.cells[:4]] == [
-        ("accrue", "S1", 0), ("accrue", "S1", 1), ("accrue", "S2", 0), ("accrue", "S2", 1)]
+        ("accrue", "S1", 0),
+        ("accrue", "S1", 1),
+        ("accrue", "S2", 0),
+        ("accrue", "S2", 1),
+    ]
     cell = spec.cell("no-ref", "S2", 1)
     wf = cell.workflow
     assert wf.tasks == ["nist/gear", "nist/rect_peg"] and wf.seed == 1 and wf.method == "accrue"
     assert wf.budgets.env_steps == 200 and wf.budgets.eval_every == 100 and wf.budgets.eval_episodes == 4
     assert wf.learner == {"beta": 1.0, "lam": 10.0, "ablation": "no-reference"}
-    assert spec.cell("lam0", "S1", 0).workflow.learner == {"beta": 1.0}          # null removes the key
-    assert spec.cell("sequential", "S1", 0).workflow.method == "sequential"     # method from the name
+    assert spec.cell("lam0", "S1", 0).workflow.learner == {"beta": 1.0}  # null removes the key
+    assert spec.cell("sequential", "S1", 0).workflow.method == "sequential"  # method from the name
     assert wf.name == cell.name and wf.name.startswith("grid.no-ref.S2.s1.")
 
 
@@ -66,8 +82,10 @@ def test_cell_names_are_deterministic_distinct_and_change_with_the_cell(tmp_path
 
 def test_overrides_merge_nested_and_dotted():
     assert expand_dotted({"a.b": 1, "a": {"c.d": 2}}, "x") == {"a": {"b": 1, "c": {"d": 2}}}
-    assert merge({"a": {"b": 1, "c": 2}, "d": [1]}, {"a": {"b": 3}, "d": [2], "e": None}, "x") == \
-        {"a": {"b": 3, "c": 2}, "d": [2]}
+    assert merge({"a": {"b": 1, "c": 2}, "d": [1]}, {"a": {"b": 3}, "d": [2], "e": None}, "x") == {
+        "a": {"b": 3, "c": 2},
+        "d": [2],
+    }
     with pytest.raises(StageError, match="not a mapping"):
         merge({"a": 1}, {"a": {"b": 2}}, "x")
 
@@ -84,25 +102,28 @@ def test_methods_share_base_policy_and_demo_cache_keys(tmp_path):
     for inv in (i for p in plans for i in p.steps if i.step.name in ("record-demos", "finetune-base")):
         text = json.dumps(inv.config)
         assert inv.workflow not in text and "sequential" not in text and "no-reference" not in text
-    assert plans[0].steps[-1].config != plans[1].steps[-1].config          # handoff knows the method
+    assert plans[0].steps[-1].config != plans[1].steps[-1].config  # handoff knows the method
 
 
-@pytest.mark.parametrize("change,message", [
-    ({"methods": {"acrue": {}}}, "unknown method 'acrue'"),
-    ({"methods": {"x": {"method": "acrue"}}}, "method: must be one of"),
-    ({"methods": {}}, "empty grid: methods has no entries"),
-    ({"seeds": []}, "empty grid: seeds has no entries"),
-    ({"orderings": {"S1": ["nist/rect_peg", "nist/nope"]}}, r"orderings.S1\[1\]: unknown task 'nist/nope'"),
-    ({"orderings": {"S1": ["nist/rect_peg", "nist/rect_peg"]}}, "appears twice"),
-    ({"overrides": {"tasks": ["nist/gear"]}}, "overrides.tasks: set by the grid"),
-    ({"overrides": {"budgets.env_steps": -1}}, "budgets.env_steps: must be > 0"),
-    ({"overrides": {"learner.no_such_knob": 1}}, "learner.no_such_knob: unknown setting"),
-    ({"seeds": [0, 0]}, "a seed appears twice"),
-    ({"resources": {"num_gpus": -1}}, "resources.num_gpus: must be a non-negative number"),
-    ({"colour": "red"}, "colour: unknown field"),
-    ({"base": "missing.yaml"}, "missing.yaml: no such base workflow file"),
-    ({"reference": "ewc"}, "reference: 'ewc' is not one of the spec's methods"),
-])
+@pytest.mark.parametrize(
+    "change,message",
+    [
+        ({"methods": {"acrue": {}}}, "unknown method 'acrue'"),
+        ({"methods": {"x": {"method": "acrue"}}}, "method: must be one of"),
+        ({"methods": {}}, "empty grid: methods has no entries"),
+        ({"seeds": []}, "empty grid: seeds has no entries"),
+        ({"orderings": {"S1": ["nist/rect_peg", "nist/nope"]}}, r"orderings.S1\[1\]: unknown task 'nist/nope'"),
+        ({"orderings": {"S1": ["nist/rect_peg", "nist/rect_peg"]}}, "appears twice"),
+        ({"overrides": {"tasks": ["nist/gear"]}}, "overrides.tasks: set by the grid"),
+        ({"overrides": {"budgets.env_steps": -1}}, "budgets.env_steps: must be > 0"),
+        ({"overrides": {"learner.no_such_knob": 1}}, "learner.no_such_knob: unknown setting"),
+        ({"seeds": [0, 0]}, "a seed appears twice"),
+        ({"resources": {"num_gpus": -1}}, "resources.num_gpus: must be a non-negative number"),
+        ({"colour": "red"}, "colour: unknown field"),
+        ({"base": "missing.yaml"}, "missing.yaml: no such base workflow file"),
+        ({"reference": "ewc"}, "reference: 'ewc' is not one of the spec's methods"),
+    ],
+)
 def test_bad_specs_name_the_field(tmp_path, change, message):
     with pytest.raises(StageError, match=message):
         load_spec(write(tmp_path, {**SPEC, **change}))
@@ -111,8 +132,14 @@ def test_bad_specs_name_the_field(tmp_path, change, message):
 def test_bad_spec_is_one_line_and_exit_2(tmp_path):
     path = write(tmp_path, {**SPEC, "methods": {"acrue": {}}})
     for args in (["bench", str(path)], ["bench", "status", str(path)], ["bench", "report", str(path)]):
-        res = subprocess.run([sys.executable, "-m", "cli.main", *args], capture_output=True, text=True, timeout=120,
-                             cwd=ROOT, env={"ACCRUE_STORE": str(tmp_path / "nostore"), "PATH": "/usr/bin:/bin"})
+        res = subprocess.run(
+            [sys.executable, "-m", "cli.main", *args],
+            capture_output=True,
+            text=True,
+            timeout=120,
+            cwd=ROOT,
+            env={"ACCRUE_STORE": str(tmp_path / "nostore"), "PATH": "/usr/bin:/bin"},
+        )
         assert res.returncode == 2, res.stderr
         assert res.stderr.startswith("error: ") and res.stderr.count("\n") == 1 and "unknown method" in res.stderr
 
@@ -133,5 +160,9 @@ def test_shipped_specs_load():
             assert set(spec.methods) == {"accrue", "sequential", "er", "ewc", "retain", "single-task", "isolated"}
             assert len(spec.orderings) >= 2 and len(spec.seeds) >= 3
         if path.stem == "retained-n":
-            assert sorted(c.workflow.budgets.retained_episodes for c in spec.cells
-                          if c.seed == spec.seeds[0]) == [10, 20, 50, 100]
+            assert sorted(c.workflow.budgets.retained_episodes for c in spec.cells if c.seed == spec.seeds[0]) == [
+                10,
+                20,
+                50,
+                100,
+            ]

@@ -1,4 +1,5 @@
 """Sec. V-A metrics against a hand-computed table (with ties in the maximum), bootstrap CIs, and the CLI."""
+
 import json
 import subprocess
 import sys
@@ -12,9 +13,9 @@ from accrue.metrics import aggregate, bootstrap_ci, continual_metrics, load_metr
 from cli.metrics_cmds import register
 
 CURVES = [
-    [[0.2, 0.8, 0.8, 0.5]],                                                # max 0.8 at e = 1 and 2 → e* = 1
-    [[0.9, 0.6, 0.3, 0.1], [0.1, 0.7, 0.4, 0.7]],                          # max 0.7 at e = 1 and 3 → e* = 1
-    [[0.5, 0.4, 0.2, 0.0], [0.3, 0.2, 0.6, 0.1], [0.0, 0.3, 0.9, 0.9]],    # max 0.9 at e = 2 and 3 → e* = 2
+    [[0.2, 0.8, 0.8, 0.5]],  # max 0.8 at e = 1 and 2 → e* = 1
+    [[0.9, 0.6, 0.3, 0.1], [0.1, 0.7, 0.4, 0.7]],  # max 0.7 at e = 1 and 3 → e* = 1
+    [[0.5, 0.4, 0.2, 0.0], [0.3, 0.2, 0.6, 0.1], [0.0, 0.3, 0.9, 0.9]],  # max 0.9 at e = 2 and 3 → e* = 2
 ]
 RUN = {"tasks": ["peg", "gear", "nut"], "grid": [0, 1000, 2000, 3000], "curves": CURVES}
 
@@ -22,7 +23,7 @@ RUN = {"tasks": ["peg", "gear", "nut"], "grid": [0, 1000, 2000, 3000], "curves":
 def test_success_matrix_uses_earliest_maximum():
     c, best = success_matrix(CURVES)
     assert best == [1, 1, 2]
-    assert c[1, 0] == 0.6            # the latest maximiser (e = 3) would give 0.1
+    assert c[1, 0] == 0.6  # the latest maximiser (e = 3) would give 0.1
     assert c[2].tolist() == [0.2, 0.6, 0.9]
 
 
@@ -49,7 +50,7 @@ def test_single_stage_has_no_backward_metrics():
 
 def test_bad_curves_raise_one_line_errors():
     with pytest.raises(AccrueError, match=r"curves\[1\]"):
-        continual_metrics([[[0.1]], [[0.1]]])                     # stage 1 must list 2 tasks
+        continual_metrics([[[0.1]], [[0.1]]])  # stage 1 must list 2 tasks
     with pytest.raises(AccrueError, match=r"curves\[0\]\[0\]\[1\]"):
         continual_metrics([[[0.1, 1.5]]])
     with pytest.raises(AccrueError, match="evaluation points"):
@@ -64,7 +65,7 @@ def test_seed_aggregation_and_bootstrap():
     lo, hi = agg["metrics"]["FWT"]["ci_low"], agg["metrics"]["FWT"]["ci_high"]
     assert min(single) <= lo <= hi <= max(single) and lo < hi
     vals = [0.1, 0.5, 0.9, 0.4, 0.6]
-    assert bootstrap_ci(vals) == bootstrap_ci(vals)               # seeded
+    assert bootstrap_ci(vals) == bootstrap_ci(vals)  # seeded
     lo, hi = bootstrap_ci(vals)
     assert lo < sum(vals) / 5 < hi
     assert bootstrap_ci([0.3]) == (0.3, 0.3)
@@ -76,6 +77,7 @@ def app() -> typer.Typer:
     @a.callback()
     def _root():
         pass
+
     register(a)
     return a
 
@@ -88,18 +90,21 @@ def test_cli_json_and_table(tmp_path):
     out = json.loads(res.output)
     [group] = out["methods"]
     assert group["metrics"]["NBT"]["mean"] == pytest.approx(0.25) and group["metrics"]["NBT"]["n"] == 2
-    assert group["metrics"]["NBT"]["ci_low"] == group["metrics"]["NBT"]["ci_high"] == 0.25   # identical runs
+    assert group["metrics"]["NBT"]["ci_low"] == group["metrics"]["NBT"]["ci_high"] == 0.25  # identical runs
     f.write_text(json.dumps(RUN))
     res = CliRunner().invoke(app(), ["metrics", str(f)])
     assert res.exit_code == 0 and "NBT" in res.output and "0.250" in res.output and "gear" in res.output
 
 
-@pytest.mark.parametrize("content,message", [
-    ("{not json", "not valid JSON"),
-    (json.dumps({"tasks": ["a"], "grid": [0]}), "missing field 'curves'"),
-    (json.dumps({"tasks": ["a", "b"], "grid": [0], "curves": [[[0.5]]]}), "1 stages in 'curves' but 2 tasks"),
-    (json.dumps({"tasks": ["a"], "grid": [0, 1], "curves": [[[0.5]]]}), "'grid' has 2"),
-])
+@pytest.mark.parametrize(
+    "content,message",
+    [
+        ("{not json", "not valid JSON"),
+        (json.dumps({"tasks": ["a"], "grid": [0]}), "missing field 'curves'"),
+        (json.dumps({"tasks": ["a", "b"], "grid": [0], "curves": [[[0.5]]]}), "1 stages in 'curves' but 2 tasks"),
+        (json.dumps({"tasks": ["a"], "grid": [0, 1], "curves": [[[0.5]]]}), "'grid' has 2"),
+    ],
+)
 def test_malformed_file_messages(tmp_path, content, message):
     f = tmp_path / "bad.json"
     f.write_text(content)
@@ -110,7 +115,11 @@ def test_malformed_file_messages(tmp_path, content, message):
 def test_cli_malformed_file_is_one_line_exit_2(tmp_path):
     f = tmp_path / "bad.json"
     f.write_text('{"tasks": ["a"], "grid": [0], "curves": [[[2.0]]]}')
-    res = subprocess.run([sys.executable, "-c", "from cli.main import main; main()", "metrics", str(f)],
-                         capture_output=True, text=True, timeout=120)
+    res = subprocess.run(
+        [sys.executable, "-c", "from cli.main import main; main()", "metrics", str(f)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert res.returncode == 2
     assert res.stderr.startswith("error: ") and res.stderr.count("\n") == 1 and "curves[0][0][0]" in res.stderr

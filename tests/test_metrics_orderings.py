@@ -1,6 +1,7 @@
 """Metrics over task orderings (issue 10, fix 6): runs whose task lists are permutations are aggregated
 per method with bootstrap CIs over runs, and each ordering keeps its own figures; `accrue metrics`
 reads labelled runs of different orderings."""
+
 import json
 
 import numpy as np
@@ -48,15 +49,19 @@ def test_permuted_runs_aggregate_by_sequence_level_metrics():
     assert m["metrics"]["NBT"]["mean"] == pytest.approx(0.35)
     assert [o["ordering"] for o in m["orderings"]] == ["S1", "S2"]
     assert m["orderings"][1]["tasks"] == [B, A]
-    assert m["orderings"][0]["metrics"]["NBT"]["mean"] == pytest.approx(0.2)   # per-ordering figures kept
+    assert m["orderings"][0]["metrics"]["NBT"]["mean"] == pytest.approx(0.2)  # per-ordering figures kept
 
 
 def test_method_means_and_cis_equal_a_hand_computation():
-    recs = [record("accrue", "S1", 0, metrics(0.8, 0.1)), record("accrue", "S1", 1, metrics(0.6, 0.3)),
-            record("accrue", "S2", 0, metrics(0.7, 0.2), tasks=(B, A)),
-            record("er", "S1", 0, metrics(0.5, None)), record("er", "S2", 0, metrics(0.5, None), tasks=(B, A))]
+    recs = [
+        record("accrue", "S1", 0, metrics(0.8, 0.1)),
+        record("accrue", "S1", 1, metrics(0.6, 0.3)),
+        record("accrue", "S2", 0, metrics(0.7, 0.2), tasks=(B, A)),
+        record("er", "S1", 0, metrics(0.5, None)),
+        record("er", "S2", 0, metrics(0.5, None), tasks=(B, A)),
+    ]
     agg = aggregate_runs(recs)
-    assert [m["method"] for m in agg["methods"]] == ["accrue", "er"]        # first-appearance order
+    assert [m["method"] for m in agg["methods"]] == ["accrue", "er"]  # first-appearance order
     acc = agg["methods"][0]
     fwt = acc["metrics"]["FWT"]
     assert fwt["mean"] == pytest.approx((0.8 + 0.6 + 0.7) / 3) and fwt["n"] == 3
@@ -84,8 +89,9 @@ def test_identical_values_give_a_degenerate_interval():
 
 def test_an_ordering_name_cannot_mean_two_sequences():
     with pytest.raises(AccrueError, match="ordering 'S1' names two task sequences"):
-        aggregate_runs([record("accrue", "S1", 0, metrics(0.1, 0.1)),
-                        record("er", "S1", 0, metrics(0.1, 0.1), tasks=(B, A))])
+        aggregate_runs(
+            [record("accrue", "S1", 0, metrics(0.1, 0.1)), record("er", "S1", 0, metrics(0.1, 0.1), tasks=(B, A))]
+        )
 
 
 def app() -> typer.Typer:
@@ -94,6 +100,7 @@ def app() -> typer.Typer:
     @a.callback()
     def _root():
         pass
+
     register(a)
     return a
 
@@ -103,9 +110,11 @@ def run_json(method, ordering, tasks, curves, seed):
 
 
 def test_metrics_file_with_orderings_and_methods(tmp_path):
-    runs = [run_json("accrue", "S1", [A, B], two_stage(0.8, 0.6, 1.0), 0),
-            run_json("accrue", "S2", [B, A], two_stage(1.0, 0.5, 0.6), 0),
-            run_json("sequential", "S1", [A, B], two_stage(0.8, 0.2, 1.0), 0)]
+    runs = [
+        run_json("accrue", "S1", [A, B], two_stage(0.8, 0.6, 1.0), 0),
+        run_json("accrue", "S2", [B, A], two_stage(1.0, 0.5, 0.6), 0),
+        run_json("sequential", "S1", [A, B], two_stage(0.8, 0.2, 1.0), 0),
+    ]
     f = tmp_path / "runs.json"
     f.write_text(json.dumps(runs))
     loaded = load_metrics_file(f)
@@ -120,13 +129,19 @@ def test_metrics_file_with_orderings_and_methods(tmp_path):
     res = CliRunner().invoke(app(), ["metrics", str(f)], env={"COLUMNS": "200"})
     assert res.exit_code == 0, res.output
     assert "per ordering" in res.output and "S2" in res.output and "sequential" in res.output
-    assert "0.350 [" in res.output            # accrue's NBT mean with its interval
+    assert "0.350 [" in res.output  # accrue's NBT mean with its interval
 
 
 def test_unlabelled_runs_group_by_their_task_sequence(tmp_path):
     f = tmp_path / "runs.json"
-    f.write_text(json.dumps([{"tasks": [A, B], "grid": [0, 1], "curves": two_stage(0.8, 0.6, 1.0)},
-                             {"tasks": [B, A], "grid": [0, 1], "curves": two_stage(0.8, 0.6, 1.0)}]))
+    f.write_text(
+        json.dumps(
+            [
+                {"tasks": [A, B], "grid": [0, 1], "curves": two_stage(0.8, 0.6, 1.0)},
+                {"tasks": [B, A], "grid": [0, 1], "curves": two_stage(0.8, 0.6, 1.0)},
+            ]
+        )
+    )
     loaded = load_metrics_file(f)
     assert [r["method"] for r in loaded] == ["all", "all"] and [r["seed"] for r in loaded] == [0, 1]
     assert loaded[1]["ordering"] == f"{B} → {A}"

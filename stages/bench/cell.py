@@ -8,6 +8,7 @@ fine-tune compute it once: the second finds the first's committed result when th
 run in `continue` mode: an attempt cut off by a killed bench resumes from its last checkpoint.
 The step output goes to the cell's log file, not to the bench's terminal.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -23,11 +24,11 @@ ENV_PREFIXES = ("ACCRUE_", "HF_", "TRANSFORMERS_", "MUJOCO_", "RERUN", "OMP_", "
 
 @dataclass(frozen=True)
 class CellJob:
-    store: str                      # absolute store path (a shared filesystem on a cluster)
-    workflow: dict                  # the cell's validated workflow as JSON (stages.bench.spec.workflow_data)
-    source: str                     # where it came from, for error messages
-    log: str                        # the cell's log file (appended)
-    cwd: str                        # the bench's working directory (relative paths in workflows)
+    store: str  # absolute store path (a shared filesystem on a cluster)
+    workflow: dict  # the cell's validated workflow as JSON (stages.bench.spec.workflow_data)
+    source: str  # where it came from, for error messages
+    log: str  # the cell's log file (appended)
+    cwd: str  # the bench's working directory (relative paths in workflows)
     env: dict = field(default_factory=dict)
 
 
@@ -47,18 +48,27 @@ def one_line(exc: BaseException) -> str:
 def run_cell(job: CellJob) -> dict:
     started = time.monotonic()
     Path(job.log).parent.mkdir(parents=True, exist_ok=True)
-    with open(job.log, "a", encoding="utf-8") as log, \
-            contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
+    with open(job.log, "a", encoding="utf-8") as log, contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
         try:
             run, cached = _run_stages(job, log)
-            return {"ok": True, "error": None, "seconds": time.monotonic() - started,
-                    "steps_run": run, "steps_cached": cached}
+            return {
+                "ok": True,
+                "error": None,
+                "seconds": time.monotonic() - started,
+                "steps_run": run,
+                "steps_cached": cached,
+            }
         except BaseException as exc:  # noqa: BLE001 - a cell's failure is data for the bench, not a crash
             if isinstance(exc, KeyboardInterrupt):
                 raise
             log.write(traceback.format_exc())
-            return {"ok": False, "error": one_line(exc), "seconds": time.monotonic() - started,
-                    "steps_run": 0, "steps_cached": 0}
+            return {
+                "ok": False,
+                "error": one_line(exc),
+                "seconds": time.monotonic() - started,
+                "steps_run": 0,
+                "steps_cached": 0,
+            }
 
 
 def _run_stages(job: CellJob, log) -> tuple[int, int]:
@@ -70,7 +80,7 @@ def _run_stages(job: CellJob, log) -> tuple[int, int]:
     from stages.workflow import parse_workflow
 
     os.environ.update(job.env)
-    if Path(job.cwd).is_dir():       # on another node the bench's directory may not exist
+    if Path(job.cwd).is_dir():  # on another node the bench's directory may not exist
         os.chdir(job.cwd)
     wf = parse_workflow(job.workflow, job.source)
     store = Store.open(Path(job.store))

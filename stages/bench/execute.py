@@ -8,6 +8,7 @@ Order of submission: method by method, each over orderings and seeds. Cells of o
 share a fine-tune (they differ in ordering or seed), so the cells running at the same time rarely
 wait on each other's step locks; later methods then find every shared step already committed.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -31,7 +32,7 @@ POLL_S = 0.5
 @dataclass
 class CellResult:
     cell: Cell
-    state: str                  # done | failed | skipped (finished before this run)
+    state: str  # done | failed | skipped (finished before this run)
     tries: int = 0
     seconds: float = 0.0
     error: str | None = None
@@ -44,19 +45,33 @@ def default_logs_dir(spec: BenchSpec) -> Path:
 
 
 def make_job(spec: BenchSpec, store: Store, cell: Cell, logs: Path) -> CellJob:
-    return CellJob(store=str(Path(store.root).resolve()), workflow=workflow_data(cell),
-                   source=f"{spec.path} (cell {cell.name})", log=str((logs / f"{cell.name}.log").resolve()),
-                   cwd=os.getcwd(), env=job_env())
+    return CellJob(
+        store=str(Path(store.root).resolve()),
+        workflow=workflow_data(cell),
+        source=f"{spec.path} (cell {cell.name})",
+        log=str((logs / f"{cell.name}.log").resolve()),
+        cwd=os.getcwd(),
+        env=job_env(),
+    )
 
 
-def run_bench(spec: BenchSpec, store: Store, *, executor: str = "ray", address: str | None = None,
-              num_cpus: int | None = None, retries: int | None = None, logs_dir: Path | None = None,
-              console=None, cells: list[Cell] | None = None) -> list[CellResult]:
+def run_bench(
+    spec: BenchSpec,
+    store: Store,
+    *,
+    executor: str = "ray",
+    address: str | None = None,
+    num_cpus: int | None = None,
+    retries: int | None = None,
+    logs_dir: Path | None = None,
+    console=None,
+    cells: list[Cell] | None = None,
+) -> list[CellResult]:
     if executor not in EXECUTORS:
         raise StageError(f"--executor: must be one of {', '.join(EXECUTORS)} (got {executor!r})")
     tries_allowed = 1 + (spec.retries if retries is None else retries)
     logs = Path(logs_dir) if logs_dir is not None else default_logs_dir(spec)
-    cells = list(spec.cells if cells is None else cells)       # the spec's order: method-major
+    cells = list(spec.cells if cells is None else cells)  # the spec's order: method-major
     results: dict[str, CellResult] = {}
     todo = []
     for c in cells:
@@ -70,8 +85,9 @@ def run_bench(spec: BenchSpec, store: Store, *, executor: str = "ray", address: 
         """Record a try's result; True when the cell is settled (done, or out of tries)."""
         if out["ok"]:
             record_outcome(store, spec, cell, "done", tries=tries, seconds=out["seconds"])
-            results[cell.name] = CellResult(cell, "done", tries, out["seconds"], None, out["steps_run"],
-                                            out["steps_cached"])
+            results[cell.name] = CellResult(
+                cell, "done", tries, out["seconds"], None, out["steps_run"], out["steps_cached"]
+            )
             progress.finished(cell, "done", out["seconds"], tries, steps=(out["steps_run"], out["steps_cached"]))
             return True
         if tries < tries_allowed:
@@ -119,16 +135,22 @@ def start_ray(address: str | None, num_cpus: int | None, attempts: int = START_A
             if address:
                 ray.init(address=address, log_to_driver=False, logging_level=logging.ERROR)
             else:
-                ray.init(num_cpus=num_cpus or os.cpu_count() or 1, include_dashboard=False, log_to_driver=False,
-                         logging_level=logging.ERROR)
+                ray.init(
+                    num_cpus=num_cpus or os.cpu_count() or 1,
+                    include_dashboard=False,
+                    log_to_driver=False,
+                    logging_level=logging.ERROR,
+                )
             return
         except Exception as exc:  # noqa: BLE001 - Ray raises bare Exception for a node that timed out
             with contextlib.suppress(Exception):
                 ray.shutdown()
             if address or attempt == attempts:
                 where = f"join Ray at {address}" if address else f"start a local Ray instance ({attempts} tries)"
-                raise StageError(f"cannot {where}: {one_line(exc)}; on a busy machine try again, or run the "
-                                 "cells one after another with --serial") from None
+                raise StageError(
+                    f"cannot {where}: {one_line(exc)}; on a busy machine try again, or run the "
+                    "cells one after another with --serial"
+                ) from None
 
 
 @contextlib.contextmanager
@@ -153,8 +175,10 @@ def _check_feasible(ray, todo: list[Cell]) -> None:
         need = {"CPU": cell.resources.num_cpus, "GPU": cell.resources.num_gpus, **cell.resources.custom}
         for name, amount in need.items():
             if amount > have.get(name, 0.0) + 1e-9:
-                raise StageError(f"cell {cell.name} needs {amount:g} {name} but the Ray cluster has "
-                                 f"{have.get(name, 0.0):g} (set resources in the spec, or join a bigger cluster)")
+                raise StageError(
+                    f"cell {cell.name} needs {amount:g} {name} but the Ray cluster has "
+                    f"{have.get(name, 0.0):g} (set resources in the spec, or join a bigger cluster)"
+                )
 
 
 def _run_ray(spec, store, todo, logs, finish, progress, address, num_cpus) -> None:
@@ -178,16 +202,33 @@ def _run_ray(spec, store, todo, logs, finish, progress, address, num_cpus) -> No
                 try:
                     out = ray.get(ref)
                 except Exception as exc:  # noqa: BLE001 - a lost worker (crash, OOM kill) fails the try
-                    out = {"ok": False, "error": f"Ray task lost: {one_line(exc)}", "seconds": time.monotonic() - t0,
-                           "steps_run": 0, "steps_cached": 0}
+                    out = {
+                        "ok": False,
+                        "error": f"Ray task lost: {one_line(exc)}",
+                        "seconds": time.monotonic() - t0,
+                        "steps_run": 0,
+                        "steps_cached": 0,
+                    }
                 if not finish(cell, tries, out):
                     submit(cell, tries + 1)
 
 
 def summary_rows(results: list[CellResult]) -> list[dict]:
-    return [{"cell": r.cell.name, "method": r.cell.method, "ordering": r.cell.ordering, "seed": r.cell.seed,
-             "state": r.state, "tries": r.tries, "seconds": round(r.seconds, 1), "error": r.error,
-             "steps_run": r.steps_run, "steps_cached": r.steps_cached} for r in results]
+    return [
+        {
+            "cell": r.cell.name,
+            "method": r.cell.method,
+            "ordering": r.cell.ordering,
+            "seed": r.cell.seed,
+            "state": r.state,
+            "tries": r.tries,
+            "seconds": round(r.seconds, 1),
+            "error": r.error,
+            "steps_run": r.steps_run,
+            "steps_cached": r.steps_cached,
+        }
+        for r in results
+    ]
 
 
 __all__ = ["run_bench", "ray_session", "start_ray", "CellResult", "EXECUTORS", "cell_states", "summary_rows"]

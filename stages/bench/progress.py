@@ -3,6 +3,7 @@
 One line per finished cell is printed above the live display, so a log (no terminal) keeps the story;
 the live part (a bar and the running cells) is redrawn twice a second on a terminal.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -27,14 +28,15 @@ def hms(seconds: float | None) -> str:
 
 
 class BenchProgress:
-    def __init__(self, spec: BenchSpec, store, cells: list[Cell], console: Console | None = None,
-                 skipped: int = 0) -> None:
+    def __init__(
+        self, spec: BenchSpec, store, cells: list[Cell], console: Console | None = None, skipped: int = 0
+    ) -> None:
         # its own file object: a cell run in this process redirects sys.stdout/stderr to its log
         self.console = console or Console(file=sys.stderr, highlight=False)
         self.spec, self.store, self.total, self.skipped = spec, store, len(cells), skipped
         self.done = self.failed = 0
-        self.flight: dict[str, Cell] = {}           # submitted (Ray) or started (serial), not finished
-        self.running: dict[str, str] = {}           # cell name -> what it runs now (from the store)
+        self.flight: dict[str, Cell] = {}  # submitted (Ray) or started (serial), not finished
+        self.running: dict[str, str] = {}  # cell name -> what it runs now (from the store)
         self.started_at = time.monotonic()
         self._polled = 0.0
 
@@ -85,21 +87,31 @@ class BenchProgress:
             t.append(f" ({self.skipped} before this run)", style="dim")
         t.append(f" · {len(self.running)} running")
         t.append(f" · {self.failed} failed", style="red" if self.failed else None)
-        t.append(f" · {max(0, pending)} pending · ETA {hms(self.eta())} · {hms(time.monotonic() - self.started_at)} elapsed")
+        t.append(
+            f" · {max(0, pending)} pending · ETA {hms(self.eta())} · {hms(time.monotonic() - self.started_at)} elapsed"
+        )
         return t
 
     def __rich__(self):
         bar = ProgressBar(total=max(1, self.total), completed=self.skipped + self.done + self.failed, width=40)
-        running = [Text(f"  running: {self.flight[n].label if n in self.flight else n} — {what}", style="cyan")
-                   for n, what in sorted(self.running.items())]
+        running = [
+            Text(f"  running: {self.flight[n].label if n in self.flight else n} — {what}", style="cyan")
+            for n, what in sorted(self.running.items())
+        ]
         return Group(self.line(), bar, *running)
 
     @contextlib.contextmanager
     def live(self):
         from rich.live import Live
 
-        with Live(self, console=self.console, refresh_per_second=2, redirect_stdout=False, redirect_stderr=False,
-                  transient=False):
+        with Live(
+            self,
+            console=self.console,
+            refresh_per_second=2,
+            redirect_stdout=False,
+            redirect_stderr=False,
+            transient=False,
+        ):
             yield self
-        if not self.console.is_terminal:      # the final frame of a non-terminal Live ends without a newline
+        if not self.console.is_terminal:  # the final frame of a non-terminal Live ends without a newline
             self.console.file.write("\n")

@@ -6,6 +6,7 @@ ACC_final and F_final with 95% bootstrap CIs; the per-ordering breakdown; every 
     files = write_report(report, curves, out_dir)        # report.md, summary.csv, cells.csv, report.json, PNGs
     text = markdown(report, command=...)                 # what scripts/bench_tables.py pastes into the README
 """
+
 from __future__ import annotations
 
 import csv
@@ -32,8 +33,14 @@ from stages.report.tables import (
     summary_csv,
 )
 
-FILES = {"markdown": "report.md", "summary_csv": "summary.csv", "cells_csv": "cells.csv", "json": "report.json",
-         "metric_bars": "metrics.png", "stage_curves": "stage_curves.png"}
+FILES = {
+    "markdown": "report.md",
+    "summary_csv": "summary.csv",
+    "cells_csv": "cells.csv",
+    "json": "report.json",
+    "metric_bars": "metrics.png",
+    "stage_curves": "stage_curves.png",
+}
 
 
 def default_out_dir(spec: BenchSpec) -> Path:
@@ -46,8 +53,9 @@ def _stage_curves(run) -> list[dict]:
     for sc in run.curves:
         current = sc.success[sc.task_ids[-1]]
         earlier = sc.task_ids[:-1]
-        mean_earlier = ([sum(sc.success[t][e] for t in earlier) / len(earlier) for e in range(len(sc.grid))]
-                        if earlier else None)
+        mean_earlier = (
+            [sum(sc.success[t][e] for t in earlier) / len(earlier) for e in range(len(sc.grid))] if earlier else None
+        )
         out.append({"grid": sc.grid, "current": current, "earlier": mean_earlier})
     return out
 
@@ -59,13 +67,22 @@ def build_report(store: Store, spec: BenchSpec) -> tuple[dict, dict]:
     curves: dict[str, list] = {m: [] for m in spec.methods}
     for cell in spec.cells:
         st = states[cell.name]
-        row = {"cell": cell.name, "method": cell.method, "ordering": cell.ordering, "seed": cell.seed,
-               "state": st.state, "stages_done": st.stages_done, "error": st.error, "metrics": None}
+        row = {
+            "cell": cell.name,
+            "method": cell.method,
+            "ordering": cell.ordering,
+            "seed": cell.seed,
+            "state": st.state,
+            "stages_done": st.stages_done,
+            "error": st.error,
+            "metrics": None,
+        }
         if st.state == "done":
             try:
                 run = load_run(store, cell.workflow)
-                rec = run_record(curve_tensor(run), method=cell.method, tasks=cell.tasks, ordering=cell.ordering,
-                                 seed=cell.seed)
+                rec = run_record(
+                    curve_tensor(run), method=cell.method, tasks=cell.tasks, ordering=cell.ordering, seed=cell.seed
+                )
             except (StageError, StoreError) as exc:
                 row.update(state="unreadable", error=str(exc))
             else:
@@ -80,16 +97,36 @@ def build_report(store: Store, spec: BenchSpec) -> tuple[dict, dict]:
     # a method without a single finished run still gets its row (all "—"), never dropped
     for method in spec.methods:
         if method not in present:
-            agg["methods"].append({"method": method, "runs": 0, "orderings": [], "metrics": {
-                name: {"mean": None, "ci_low": None, "ci_high": None, "n": 0, "undefined": 0} for name in TABLE_METRICS}})
+            agg["methods"].append(
+                {
+                    "method": method,
+                    "runs": 0,
+                    "orderings": [],
+                    "metrics": {
+                        name: {"mean": None, "ci_low": None, "ci_high": None, "n": 0, "undefined": 0}
+                        for name in TABLE_METRICS
+                    },
+                }
+            )
     agg["methods"].sort(key=lambda m: spec.methods.index(m["method"]))
     expected = {m: sum(1 for c in spec.cells if c.method == m) for m in spec.methods}
     differences = paired_differences(records, spec.reference, spec.methods) if spec.reference else []
     report = {
-        "spec": spec.name, "spec_file": str(spec.path), "description": spec.description, "base": str(spec.base),
-        "methods": spec.methods, "orderings": spec.orderings, "seeds": spec.seeds, "reference": spec.reference,
-        "cells_total": len(spec.cells), "cells_done": len(records), "cells": cells, "missing": missing,
-        "expected_runs": expected, "aggregate": agg, "differences": differences,
+        "spec": spec.name,
+        "spec_file": str(spec.path),
+        "description": spec.description,
+        "base": str(spec.base),
+        "methods": spec.methods,
+        "orderings": spec.orderings,
+        "seeds": spec.seeds,
+        "reference": spec.reference,
+        "cells_total": len(spec.cells),
+        "cells_done": len(records),
+        "cells": cells,
+        "missing": missing,
+        "expected_runs": expected,
+        "aggregate": agg,
+        "differences": differences,
     }
     return report, curves
 
@@ -100,8 +137,17 @@ def cells_csv(report: dict) -> str:
     w.writerow(["cell", "method", "ordering", "seed", "state", *TABLE_METRICS, "error"])
     for c in report["cells"]:
         m = c["metrics"] or {}
-        w.writerow([c["cell"], c["method"], c["ordering"], c["seed"], c["state"],
-                    *("" if m.get(n) is None else repr(float(m[n])) for n in TABLE_METRICS), c["error"] or ""])
+        w.writerow(
+            [
+                c["cell"],
+                c["method"],
+                c["ordering"],
+                c["seed"],
+                c["state"],
+                *("" if m.get(n) is None else repr(float(m[n])) for n in TABLE_METRICS),
+                c["error"] or "",
+            ]
+        )
     return buf.getvalue()
 
 
@@ -132,18 +178,26 @@ def markdown(report: dict, command: str | None = None, heading_level: int = 3) -
     ]
     if report.get("differences"):
         ref = report["reference"]
-        lines += [f"Difference from `{ref}`, paired by ordering and seed (mean [CI] of method − {ref}; "
-                  f"for NBT and F_final a positive difference is worse, for the others better):", "",
-                  markdown_table(["method", "pairs", *(f"Δ{m}" for m in TABLE_METRICS)],
-                                 [[d["method"], str(d["pairs"]), *(fmt_ci(d["metrics"][m], signed=True)
-                                                                  for m in TABLE_METRICS)]
-                                  for d in report["differences"]])]
+        lines += [
+            f"Difference from `{ref}`, paired by ordering and seed (mean [CI] of method − {ref}; "
+            f"for NBT and F_final a positive difference is worse, for the others better):",
+            "",
+            markdown_table(
+                ["method", "pairs", *(f"Δ{m}" for m in TABLE_METRICS)],
+                [
+                    [d["method"], str(d["pairs"]), *(fmt_ci(d["metrics"][m], signed=True) for m in TABLE_METRICS)]
+                    for d in report["differences"]
+                ],
+            ),
+        ]
     if report["missing"]:
         lines += [f"Missing cells ({len(report['missing'])}):", ""]
         for m in report["missing"]:
             why = f": {m['error']}" if m["error"] else ""
-            lines.append(f"- {m['method']} · {m['ordering']} · seed {m['seed']} — {m['state']} "
-                         f"(stages done: {m['stages_done']}){why}")
+            lines.append(
+                f"- {m['method']} · {m['ordering']} · seed {m['seed']} — {m['state']} "
+                f"(stages done: {m['stages_done']}){why}"
+            )
         lines.append("")
     return "\n".join(lines)
 

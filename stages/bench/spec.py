@@ -28,6 +28,7 @@ cell runs gives it a new name, so a finished cell is never confused with a chang
 cached by content (the workflow name is not in any cache key), so cells that share a base policy's
 fine-tune (same demos, settings, seed) share it through the store.
 """
+
 from __future__ import annotations
 
 import copy
@@ -39,9 +40,19 @@ from typing import Any
 from stages.errors import StageError
 
 _LABEL = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,39}$")
-GRID_FIELDS = ("name", "tasks", "seed")        # set by the grid, never by overrides
-SPEC_FIELDS = ("name", "description", "base", "overrides", "methods", "orderings", "seeds", "resources",
-               "retries", "reference")
+GRID_FIELDS = ("name", "tasks", "seed")  # set by the grid, never by overrides
+SPEC_FIELDS = (
+    "name",
+    "description",
+    "base",
+    "overrides",
+    "methods",
+    "orderings",
+    "seeds",
+    "resources",
+    "retries",
+    "reference",
+)
 RESOURCE_FIELDS = ("num_cpus", "num_gpus", "custom")
 MAX_NAME = 64
 
@@ -64,8 +75,8 @@ class Cell:
     method: str
     ordering: str
     seed: int
-    name: str                   # the cell's workflow name (refs workflow/<name>/...)
-    workflow: Any               # stages.workflow.Workflow
+    name: str  # the cell's workflow name (refs workflow/<name>/...)
+    workflow: Any  # stages.workflow.Workflow
     resources: Resources
 
     @property
@@ -131,8 +142,9 @@ def merge(base: dict, overrides: dict, where: str, path: str = "") -> dict:
             out.pop(key, None)
         elif isinstance(value, dict) and key in out and out[key] is not None:
             if not isinstance(out[key], dict):
-                raise StageError(f"{where}: {at}: the base workflow's value is not a mapping "
-                                 f"(got {out[key]!r}); override it whole")
+                raise StageError(
+                    f"{where}: {at}: the base workflow's value is not a mapping (got {out[key]!r}); override it whole"
+                )
             out[key] = merge(out[key], value, where, at)
         else:
             out[key] = copy.deepcopy(value)
@@ -184,7 +196,9 @@ def _resources(value: Any, where: str, default: Resources | None = None) -> Reso
     def number(key: str, positive: bool) -> float:
         v = d.get(key, getattr(base, key))
         if isinstance(v, bool) or not isinstance(v, (int, float)) or v < 0 or (positive and v == 0):
-            raise StageError(f"{where}.{key}: must be a {'positive' if positive else 'non-negative'} number (got {v!r})")
+            raise StageError(
+                f"{where}.{key}: must be a {'positive' if positive else 'non-negative'} number (got {v!r})"
+            )
         return float(v)
 
     custom = _mapping(d.get("custom", base.custom), f"{where}.custom")
@@ -222,7 +236,7 @@ def cell_name(spec_name: str, method: str, ordering: str, seed: int, wf_data: di
 
     digest = hash_json({k: v for k, v in wf_data.items() if k not in ("name", "description")})[:8]
     label = f"{spec_name}.{method}.{ordering}.s{seed}"
-    return f"{label[:MAX_NAME - 9]}.{digest}"
+    return f"{label[: MAX_NAME - 9]}.{digest}"
 
 
 def load_spec(path: Path | str) -> BenchSpec:
@@ -275,8 +289,10 @@ def load_spec(path: Path | str) -> BenchSpec:
                 raise StageError(f"{where}.{f}: set by the grid (orderings, seeds, cell names), not by a method")
         if "method" not in m:
             if method not in METHODS:
-                raise StageError(f"{where}: unknown method {method!r}: name one of {', '.join(METHODS)}, or give "
-                                 f"`method:` for a variant (e.g. {{method: accrue, learner.ablation: no-reference}})")
+                raise StageError(
+                    f"{where}: unknown method {method!r}: name one of {', '.join(METHODS)}, or give "
+                    f"`method:` for a variant (e.g. {{method: accrue, learner.ablation: no-reference}})"
+                )
             m["method"] = method
         merged = merge(merge(base_data, overrides, f"{src}: overrides"), m, where)
         method_names.append(method)
@@ -295,10 +311,21 @@ def load_spec(path: Path | str) -> BenchSpec:
                 cells.append(Cell(method, ordering, seed, cname, wf, cell_resources))
     reference = data.get("reference", "accrue" if "accrue" in method_names else None)
     if reference is not None and reference not in method_names:
-        raise StageError(f"{src}: reference: {reference!r} is not one of the spec's methods ({', '.join(method_names)})")
-    return BenchSpec(path=path, name=name, description=str(data.get("description", "")), base=base,
-                     methods=method_names, orderings=orderings, seeds=list(seeds), retries=retries,
-                     reference=reference, cells=cells)
+        raise StageError(
+            f"{src}: reference: {reference!r} is not one of the spec's methods ({', '.join(method_names)})"
+        )
+    return BenchSpec(
+        path=path,
+        name=name,
+        description=str(data.get("description", "")),
+        base=base,
+        methods=method_names,
+        orderings=orderings,
+        seeds=list(seeds),
+        retries=retries,
+        reference=reference,
+        cells=cells,
+    )
 
 
 def workflow_data(cell: Cell) -> dict:

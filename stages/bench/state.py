@@ -12,6 +12,7 @@ A cell is
 Outcomes are small JSON objects under the ref bench/<spec>/<cell> (one writer: the bench driver), so
 a failure that happened before any step started (a missing input, a crashed worker) is kept too.
 """
+
 from __future__ import annotations
 
 import socket
@@ -31,7 +32,7 @@ STATES = ("done", "running", "failed", "partial", "pending")
 @dataclass
 class CellState:
     state: str
-    stages_done: int = 0          # stages whose every step has committed
+    stages_done: int = 0  # stages whose every step has committed
     running_step: str | None = None
     error: str | None = None
     tries: int = 0
@@ -47,12 +48,25 @@ def read_outcome(store: Store, spec: BenchSpec, cell: Cell) -> dict | None:
     return None if oid is None else store.read_json(oid)
 
 
-def record_outcome(store: Store, spec: BenchSpec, cell: Cell, state: str, *, tries: int, seconds: float,
-                   error: str | None = None) -> None:
-    oid = store.put_json({"type": "bench-cell", "spec": spec.name, "cell": cell.name, "method": cell.method,
-                          "ordering": cell.ordering, "seed": cell.seed, "state": state, "tries": tries,
-                          "seconds": round(seconds, 3), "error": error, "finished": now_iso(),
-                          "host": socket.gethostname()})
+def record_outcome(
+    store: Store, spec: BenchSpec, cell: Cell, state: str, *, tries: int, seconds: float, error: str | None = None
+) -> None:
+    oid = store.put_json(
+        {
+            "type": "bench-cell",
+            "spec": spec.name,
+            "cell": cell.name,
+            "method": cell.method,
+            "ordering": cell.ordering,
+            "seed": cell.seed,
+            "state": state,
+            "tries": tries,
+            "seconds": round(seconds, 3),
+            "error": error,
+            "finished": now_iso(),
+            "host": socket.gethostname(),
+        }
+    )
     set_ref(store, outcome_ref(spec, cell), oid)
 
 
@@ -76,7 +90,7 @@ def cell_states(store: Store, spec: BenchSpec, cells: list[Cell] | None = None) 
         if a.get("workflow") in names:
             attempts.setdefault(a["workflow"], []).append(a)
     for key in {a["cache_key"] for group in attempts.values() for a in group if a["state"] == "running"}:
-        if reap_abandoned(store, key):          # a dead process's attempt is abandoned on the next look
+        if reap_abandoned(store, key):  # a dead process's attempt is abandoned on the next look
             for group in attempts.values():
                 for a in group:
                     if a["cache_key"] == key and a["state"] == "running":
@@ -86,8 +100,9 @@ def cell_states(store: Store, spec: BenchSpec, cells: list[Cell] | None = None) 
         done = stages_committed(store, cell)
         outcome = read_outcome(store, spec, cell)
         mine = sorted(attempts.get(cell.name, []), key=lambda a: a.get("started", ""))
-        st = CellState("pending", stages_done=done, tries=(outcome or {}).get("tries", 0),
-                       seconds=(outcome or {}).get("seconds"))
+        st = CellState(
+            "pending", stages_done=done, tries=(outcome or {}).get("tries", 0), seconds=(outcome or {}).get("seconds")
+        )
         running = [a for a in mine if a["state"] == "running"]
         last_start = mine[-1].get("started", "") if mine else ""
         if done == cell.workflow.num_stages:

@@ -8,6 +8,7 @@
 
 `curves` is {method: [per run: [per stage k: {"grid": [...], "current": [...], "earlier": [...] | None}]]}.
 """
+
 from __future__ import annotations
 
 import math
@@ -83,7 +84,7 @@ def plot_stage_curves(curves: dict[str, list], path: Path) -> Path | None:
             if not stage:
                 continue
             grid = stage[0]["grid"]
-            same = [s for s in stage if s["grid"] == grid]        # one grid per method (its own budgets)
+            same = [s for s in stage if s["grid"] == grid]  # one grid per method (its own budgets)
             for key, style in (("current", "-"), ("earlier", "--")):
                 rows = [s[key] for s in same if s[key] is not None]
                 if not rows:
@@ -98,8 +99,10 @@ def plot_stage_curves(curves: dict[str, list], path: Path) -> Path | None:
     for k in range(K, nrows * ncols):
         axes[k // ncols][k % ncols].set_visible(False)
     handles = [Line2D([], [], color=colours[m], lw=2, label=m) for m in methods]
-    handles += [Line2D([], [], color="0.3", lw=2, label="task of this stage"),
-                Line2D([], [], color="0.3", lw=1.3, ls="--", label="earlier tasks (mean)")]
+    handles += [
+        Line2D([], [], color="0.3", lw=2, label="task of this stage"),
+        Line2D([], [], color="0.3", lw=1.3, ls="--", label="earlier tasks (mean)"),
+    ]
     fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 5), fontsize=8.5, frameon=False)
     fig.suptitle("mean success per stage over orderings × seeds (bands: 95% bootstrap CI)", fontsize=11)
     fig.tight_layout(rect=(0, 0.05 + 0.03 * math.ceil(len(handles) / 5), 1, 1))

@@ -7,6 +7,7 @@ and ordering, as plain rows that rich, Markdown and CSV writers share.
 A metric with no defined value in a group prints as "—"; a group with fewer runs than expected says
 how many ("4 of 6"), so a missing cell is visible in every table.
 """
+
 from __future__ import annotations
 
 import csv
@@ -41,8 +42,14 @@ def _runs_text(found: int, expected: int | None) -> str:
 
 
 def method_rows(agg: dict, expected: dict[str, int] | None = None) -> list[list[str]]:
-    return [[m["method"], _runs_text(m["runs"], (expected or {}).get(m["method"])),
-             *(fmt_ci(m["metrics"][name]) for name in TABLE_METRICS)] for m in agg["methods"]]
+    return [
+        [
+            m["method"],
+            _runs_text(m["runs"], (expected or {}).get(m["method"])),
+            *(fmt_ci(m["metrics"][name]) for name in TABLE_METRICS),
+        ]
+        for m in agg["methods"]
+    ]
 
 
 def ordering_rows(agg: dict, expected: dict[tuple[str, str], int] | None = None) -> list[list[str]]:
@@ -75,8 +82,19 @@ def summary_csv(agg: dict) -> str:
         for ordering, runs, metrics in groups:
             for name in TABLE_METRICS:
                 s = metrics[name]
-                w.writerow([m["method"], ordering, runs, name, _csv_num(s["mean"]), _csv_num(s["ci_low"]),
-                            _csv_num(s["ci_high"]), s["n"], s["undefined"]])
+                w.writerow(
+                    [
+                        m["method"],
+                        ordering,
+                        runs,
+                        name,
+                        _csv_num(s["mean"]),
+                        _csv_num(s["ci_low"]),
+                        _csv_num(s["ci_high"]),
+                        s["n"],
+                        s["undefined"],
+                    ]
+                )
     return buf.getvalue()
 
 
