@@ -166,3 +166,18 @@ def test_shipped_specs_load():
                 50,
                 100,
             ]
+
+
+def test_unreachable_cluster_address_is_one_line_and_exit_2(tmp_path):
+    path = write(tmp_path)
+    Store.init(tmp_path / "store")
+    res = subprocess.run(
+        [sys.executable, "-m", "cli.main", "bench", str(path), "--address", "127.0.0.1:1"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=ROOT,
+        env={"ACCRUE_STORE": str(tmp_path / "store"), "PATH": "/usr/bin:/bin"},
+    )
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.startswith("error: --address 127.0.0.1:1: nothing answers there") and res.stderr.count("\n") == 1

@@ -98,12 +98,17 @@ def run_bench(
         progress.finished(cell, "failed", out["seconds"], tries, error=out["error"])
         return True
 
-    with progress.live():
-        if todo:
-            if executor == "serial":
+    # Ray starts (and a cell too big for the cluster is refused) before the live display, so such an
+    # error is the only line on stderr
+    use_ray = executor == "ray" and bool(todo)
+    with ray_session(address, num_cpus) if use_ray else contextlib.nullcontext() as ray:
+        if use_ray:
+            _check_feasible(ray, todo)
+        with progress.live():
+            if use_ray:
+                _run_ray(ray, spec, store, todo, logs, finish, progress)
+            elif todo:
                 _run_serial(spec, store, todo, logs, finish, progress)
-            else:
-                _run_ray(spec, store, todo, logs, finish, progress, address, num_cpus)
     return [results[c.name] for c in cells]
 
 
@@ -130,6 +135,8 @@ def start_ray(address: str | None, num_cpus: int | None, attempts: int = START_A
     import ray
 
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+    if address:
+        check_reachable(address)
     for attempt in range(1, attempts + 1):
         try:
             if address:
@@ -151,6 +158,22 @@ def start_ray(address: str | None, num_cpus: int | None, attempts: int = START_A
                     f"cannot {where}: {one_line(exc)}; on a busy machine try again, or run the "
                     "cells one after another with --serial"
                 ) from None
+
+
+def check_reachable(address: str, timeout_s: float = 5.0) -> None:
+    """A HOST:PORT that nothing answers is one line now, not minutes of Ray retrying to reach its GCS."""
+    import socket
+
+    host, sep, port = address.rpartition(":")
+    if not sep or not port.isdigit() or "/" in address:
+        return  # "auto", "ray://...": left to Ray
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout_s).close()
+    except OSError as exc:
+        raise StageError(
+            f"--address {address}: nothing answers there ({exc.strerror or exc}); start the "
+            "cluster's head with `ray start --head` or check the address"
+        ) from None
 
 
 @contextlib.contextmanager
@@ -181,36 +204,34 @@ def _check_feasible(ray, todo: list[Cell]) -> None:
                 )
 
 
-def _run_ray(spec, store, todo, logs, finish, progress, address, num_cpus) -> None:
-    with ray_session(address, num_cpus) as ray:
-        _check_feasible(ray, todo)
-        remote = ray.remote(max_retries=0)(run_cell)
-        flight: dict = {}
+def _run_ray(ray, spec, store, todo, logs, finish, progress) -> None:
+    remote = ray.remote(max_retries=0)(run_cell)
+    flight: dict = {}
 
-        def submit(cell: Cell, tries: int) -> None:
-            ref = remote.options(**cell.resources.ray_options()).remote(make_job(spec, store, cell, logs))
-            flight[ref] = (cell, tries, time.monotonic())
-            progress.submitted(cell)
+    def submit(cell: Cell, tries: int) -> None:
+        ref = remote.options(**cell.resources.ray_options()).remote(make_job(spec, store, cell, logs))
+        flight[ref] = (cell, tries, time.monotonic())
+        progress.submitted(cell)
 
-        for cell in todo:
-            submit(cell, 1)
-        while flight:
-            ready, _ = ray.wait(list(flight), num_returns=1, timeout=POLL_S)
-            progress.poll()
-            for ref in ready:
-                cell, tries, t0 = flight.pop(ref)
-                try:
-                    out = ray.get(ref)
-                except Exception as exc:  # noqa: BLE001 - a lost worker (crash, OOM kill) fails the try
-                    out = {
-                        "ok": False,
-                        "error": f"Ray task lost: {one_line(exc)}",
-                        "seconds": time.monotonic() - t0,
-                        "steps_run": 0,
-                        "steps_cached": 0,
-                    }
-                if not finish(cell, tries, out):
-                    submit(cell, tries + 1)
+    for cell in todo:
+        submit(cell, 1)
+    while flight:
+        ready, _ = ray.wait(list(flight), num_returns=1, timeout=POLL_S)
+        progress.poll()
+        for ref in ready:
+            cell, tries, t0 = flight.pop(ref)
+            try:
+                out = ray.get(ref)
+            except Exception as exc:  # noqa: BLE001 - a lost worker (crash, OOM kill) fails the try
+                out = {
+                    "ok": False,
+                    "error": f"Ray task lost: {one_line(exc)}",
+                    "seconds": time.monotonic() - t0,
+                    "steps_run": 0,
+                    "steps_cached": 0,
+                }
+            if not finish(cell, tries, out):
+                submit(cell, tries + 1)
 
 
 def summary_rows(results: list[CellResult]) -> list[dict]:
