@@ -147,3 +147,36 @@ def test_bridge_faults_end_in_robot_faults_never_hangs(sim_factory):
     assert "command dropped at step 4" in out.faults
     with pytest.raises(RobotFault):
         RobotBridge(sim_factory(), mapping).observe()                 # never connected
+
+
+@pytest.mark.timeout(30)
+def test_terminal_operator_reads_single_keys_from_a_terminal(monkeypatch):
+    import io
+    import os
+    import pty
+    import sys
+
+    from rich.console import Console
+
+    from accrue.robot.operator import TerminalOperator
+
+    master, slave = pty.openpty()
+    with os.fdopen(slave, "r") as tty_in:
+        monkeypatch.setattr(sys, "stdin", tty_in)
+        op = TerminalOperator("ann", console=Console(file=io.StringIO()))
+        os.write(master, b"xlfr")              # a stray key, re-label the last episode a failure, reset done
+        answer = op.wait_reset(4, "nist/rect_peg", 3)
+        assert answer.go and answer.relabel.success is False and answer.relabel.note == "re-label of episode 3"
+        os.write(master, b"s")
+        label = op.label(4, "done, 40 steps")
+        assert label.success and label.by == "ann"
+        assert op.poll() is None
+        os.write(master, b"e")
+        assert op.poll() == "end"
+        os.write(master, b"prpa")              # paused: reset is not accepted until resumed; then abort
+        assert op.wait_reset(5, "nist/rect_peg", 4).go is False
+        op.close()
+    os.close(master)
+    monkeypatch.setattr(sys, "stdin", io.StringIO())
+    with pytest.raises(AccrueError, match="needs an interactive terminal"):
+        TerminalOperator("ann")

@@ -10,6 +10,7 @@ episode, so an audit finds every one).
 from __future__ import annotations
 
 import datetime as _dt
+import os
 import time
 from dataclasses import asdict, dataclass, field
 from typing import Callable
@@ -54,6 +55,9 @@ class Operator:
     def poll(self) -> str | None:
         """Non-blocking, during an episode: "end" (stop it now), "abort", or None."""
         return None
+
+    def close(self) -> None:
+        """Release what the operator holds (the terminal's mode)."""
 
 
 @dataclass
@@ -109,24 +113,36 @@ class TerminalOperator(Operator):
         if not sys.stdin.isatty():
             raise AccrueError("robot.operator: terminal needs an interactive terminal (stdin is not a tty); "
                               "use robot.operator: scripted for an unattended run on the simulated robot")
-        self.name = name
-        self.console = console or Console(stderr=True)
-        self._last_label: Label | None = None
-
-    def _key(self, timeout: float | None) -> str | None:
-        import select
-        import sys
+        import atexit
         import termios
         import tty
 
-        fd = sys.stdin.fileno()
-        old = termios.tcgetattr(fd)
-        try:
-            tty.setcbreak(fd)
-            ready, _, _ = select.select([sys.stdin], [], [], timeout)
-            return sys.stdin.read(1).lower() if ready else None
-        finally:
-            termios.tcsetattr(fd, termios.TCSADRAIN, old)
+        self.name = name
+        self.console = console or Console(stderr=True)
+        # cbreak for the operator's whole session: keys typed at any moment are read one by one
+        self._fd = sys.stdin.fileno()
+        self._saved = termios.tcgetattr(self._fd)
+        tty.setcbreak(self._fd, termios.TCSANOW)
+        atexit.register(self.close)
+
+    def close(self) -> None:
+        """Give the terminal back as it was."""
+        import termios
+
+        if self._saved is not None:
+            try:
+                termios.tcsetattr(self._fd, termios.TCSADRAIN, self._saved)
+            except termios.error:
+                pass
+            self._saved = None
+
+    def _key(self, timeout: float | None) -> str | None:
+        import select
+
+        ready, _, _ = select.select([self._fd], [], [], timeout)
+        # os.read, not sys.stdin.read: a buffered read would swallow keys typed together, and the next
+        # select() would wait for keys already read
+        return os.read(self._fd, 1).decode(errors="replace").lower() if ready else None
 
     def tell(self, line: str) -> None:
         self.console.print(f"[bold yellow]robot:[/] {line}")

@@ -42,6 +42,7 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
                          metadata={"task_id": task, "stage": k, "phase": "evaluate", "policy": "base+actor"})
         finally:
             bridge.disconnect()
+            operator.close()
     session.close("retention trials done")
     trials = {t: [bool(e["label"]["success"]) for e in session.ordered() if e["task"] == t] for t in tasks[:-1]}
     success = {t: sum(v) / len(v) for t, v in trials.items() if v}

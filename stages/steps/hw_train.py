@@ -163,6 +163,7 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
     finally:
         link.close()
         bridge.disconnect()
+        operator.close()
     ctx.console.print(f"train: stopped - {why}")
 
     torch.manual_seed(seed)

@@ -41,6 +41,7 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
         session.close(f"{c['episodes']} warmup episodes")
     finally:
         bridge.disconnect()
+        operator.close()
     eps = session.ordered()
     dim = session.arrays(eps[0]["index"])["s"].shape[-1] if eps else features({"state": np.zeros((1, 29), np.float32)}).shape[1]
     buffer = replay_from_episodes(ReplayBuffer(dim, horizon), [session.arrays(e["index"]) for e in eps], k - 1)
