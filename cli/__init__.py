@@ -17,6 +17,7 @@ _COMMAND_MODULES = [
     "cli.report_cmds",    # report WORKFLOW
     "cli.bench_cmds",     # bench SPEC / bench status / bench report
     "cli.remote_cmds",    # remote add/list/remove, push, fetch, pull
+    "cli.robot_cmds",     # robot learner (the learner of a hardware stage on a second host)
 ]
 
 

@@ -24,6 +24,16 @@ _OPTIONS = [("grpc.max_send_message_length", MAX_MESSAGE), ("grpc.max_receive_me
 Handler = Callable[[dict, bytes], tuple[dict, bytes]]
 
 
+def _grpc():
+    import os
+
+    # gRPC's C core logs failures it also raises; accrue reports them itself, in one line
+    os.environ.setdefault("GRPC_VERBOSITY", "NONE")
+    import grpc
+
+    return grpc
+
+
 class PeerDown(Exception):
     """The peer did not answer in time, or is not there."""
 
@@ -61,7 +71,7 @@ def serve(handlers: dict[str, Handler], address: str, workers: int = 8):
     """Start a gRPC server; returns (server, bound port). Workers leave headroom for a reconnecting actor."""
     from concurrent import futures
 
-    import grpc
+    grpc = _grpc()
 
     def wrap(fn: Handler):
         def call(request: bytes, context) -> bytes:
@@ -76,17 +86,19 @@ def serve(handlers: dict[str, Handler], address: str, workers: int = 8):
     server = grpc.server(futures.ThreadPoolExecutor(max_workers=workers), options=_OPTIONS)
     server.add_generic_rpc_handlers((grpc.method_handlers_generic_handler(
         SERVICE, {name: wrap(fn) for name, fn in handlers.items()}),))
-    port = server.add_insecure_port(address)
+    try:
+        port = server.add_insecure_port(address)
+    except RuntimeError:
+        port = 0
     if port == 0:
-        raise AccrueError(f"learner: cannot listen on {address}")
+        raise AccrueError(f"learner: cannot listen on {address!r} (expected HOST:PORT with a free port)")
     server.start()
     return server, port
 
 
 class Peer:
     def __init__(self, address: str):
-        import grpc
-
+        grpc = _grpc()
         self.address = address
         self._grpc = grpc
         self.channel = grpc.insecure_channel(address, options=_OPTIONS)
