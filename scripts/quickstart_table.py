@@ -50,7 +50,7 @@ def run_workflow(path: Path, store: Path) -> None:
     accrue = [sys.executable, "-m", "cli.main"]
     if not (store / "config").exists():
         subprocess.run(accrue + ["init"], check=True, env=env, cwd=ROOT)
-    subprocess.run(accrue + ["run", str(path), "--continue"], check=True, env=env, cwd=ROOT)
+    subprocess.run(accrue + ["run", str(path), "--continue", "--wait"], check=True, env=env, cwd=ROOT)
 
 
 def summarize(path: Path, store: Path) -> dict:
