@@ -1,19 +1,49 @@
-"""`accrue add DIR --kind demos --workflow WF`: a lerobot-record dataset is checked against WF's robot mapping."""
+"""`accrue add DIR --kind demos --workflow WF [--task TASK]`: a lerobot-record dataset, checked against WF's
+robot mapping and converted into accrue's demo layout for TASK, so base_policy.demos can name it."""
 from __future__ import annotations
 
 from pathlib import Path
 
 
-def check_demos_for_workflow(path: Path, kind: str, workflow: Path) -> dict:
+def _task_of(wf, recorded: list[str], task: str | None) -> str:
+    """--task, else the workflow task whose id or instruction lerobot-record stored, else its only task."""
+    from accrue.sim.demos import get_task_spec
+    from stages.errors import StageError
+
+    if task is not None:
+        if task not in wf.tasks:
+            raise StageError(f"--task {task!r}: not one of workflow {wf.name}'s tasks ({', '.join(wf.tasks)})")
+        return task
+    said = {t.strip().lower() for t in recorded}
+    matches = [t for t in wf.tasks if t.lower() in said or get_task_spec(t).instruction.strip().lower() in said]
+    if len(matches) == 1:
+        return matches[0]
+    if len(wf.tasks) == 1:
+        return wf.tasks[0]
+    raise StageError(f"name the demonstrations' task with --task (one of {', '.join(wf.tasks)}); the dataset "
+                     f"says {', '.join(repr(t) for t in recorded[:3]) or 'nothing'}")
+
+
+def convert_demos_for_workflow(path: Path, kind: str, workflow: Path, task: str | None, out_dir: Path) -> dict:
+    """Check `path` against the workflow's robot mapping and write accrue demos of the task to out_dir.
+
+    Returns the converted dataset's meta (meta/accrue.json). Every refusal is one line (exit 2).
+    """
     from stages.errors import StageError
     from stages.workflow import load_workflow
 
     if kind != "demos":
-        raise StageError(f"--workflow checks demonstrations: it goes with --kind demos (got --kind {kind})")
+        raise StageError(f"--workflow converts demonstrations: it goes with --kind demos (got --kind {kind})")
     wf = load_workflow(workflow)
     if wf.robot is None:
         raise StageError(f"--workflow {workflow}: has no robot section to check the dataset against")
+    from accrue.robot.demo_convert import convert_robot_dataset, recorded_tasks
     from accrue.robot.demos import check_robot_dataset
     from accrue.robot.mapping import RobotMapping
+    from accrue.sim.demos import get_task_spec
 
-    return check_robot_dataset(path, RobotMapping.from_dict(wf.robot.model_dump()), wf.robot.type)
+    mapping = RobotMapping.from_dict(wf.robot.model_dump())
+    check_robot_dataset(path, mapping, wf.robot.type)     # metadata first: a misfit is refused before lerobot loads
+    task_id = _task_of(wf, recorded_tasks(path), task)
+    return convert_robot_dataset(path, out_dir, mapping, wf.robot.type, task_id, get_task_spec(task_id).instruction,
+                                 progress=True)

@@ -77,8 +77,11 @@ def add(
     kind: Annotated[str, typer.Option("--kind", help="Artifact kind, e.g. demos, episodes, base-policy.")],
     ref: Annotated[Optional[str], typer.Option("--ref", help="Also point this ref at it.")] = None,
     workflow: Annotated[Optional[Path], typer.Option(
-        "--workflow", help="With --kind demos: a lerobot-record dataset is checked against this workflow's "
-                           "robot mapping first.", show_default=False)] = None,
+        "--workflow", help="With --kind demos: a lerobot-record dataset, checked against this workflow's "
+                           "robot mapping and stored converted into accrue's demo layout.", show_default=False)] = None,
+    task: Annotated[Optional[str], typer.Option(
+        "--task", help="With --workflow: the workflow task the demonstrations are for (default: the one the "
+                       "dataset names, or the workflow's only task).", show_default=False)] = None,
     store: StoreOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
@@ -88,12 +91,23 @@ def add(
 
     if not path.exists():
         raise StoreError(f"{path}: no such file or directory")
-    if workflow is not None:       # demonstrations for a robot: their features must fit its mapping
-        from cli.hw_demos import check_demos_for_workflow
-
-        check_demos_for_workflow(path, kind, workflow)
+    if task is not None and workflow is None:
+        raise StoreError("--task goes with --workflow (the robot whose demonstrations are converted)")
     st = open_store(store)
-    artifact_id, created = add_path(st, path, kind, ref=ref)
+    if workflow is not None:       # a robot's demonstrations: mapped into accrue's demo layout, then stored
+        import shutil
+        import tempfile
+
+        from cli.hw_demos import convert_demos_for_workflow
+
+        work = Path(tempfile.mkdtemp(prefix="accrue-demos-"))
+        try:
+            convert_demos_for_workflow(path, kind, workflow, task, work / "demos")
+            artifact_id, created = add_path(st, work / "demos", kind, ref=ref)
+        finally:
+            shutil.rmtree(work, ignore_errors=True)
+    else:
+        artifact_id, created = add_path(st, path, kind, ref=ref)
     if as_json:
         print_json({"id": artifact_id, "created": created, "kind": kind})
     else:

@@ -30,7 +30,8 @@ def _names(features: dict, key: str, root: Path) -> list[str]:
 
 
 def check_robot_dataset(root: Path | str, mapping: RobotMapping, robot: str) -> dict:
-    """{episodes, frames, fps, robot_type}; AccrueError (one line) when it does not fit the mapping."""
+    """{episodes, frames, fps, robot_type, state_names, action_names}; AccrueError (one line) when it does not
+    fit the mapping."""
     root = Path(root)
     info_path = root / "meta" / "info.json"
     if not info_path.is_file():
@@ -42,13 +43,15 @@ def check_robot_dataset(root: Path | str, mapping: RobotMapping, robot: str) -> 
         raise AccrueError(f"{info_path}: unreadable ({type(exc).__name__})") from None
     if str(info.get("codebase_version")) != LEROBOT_FORMAT:
         raise AccrueError(f"{root}: LeRobotDataset {info.get('codebase_version')}; accrue reads {LEROBOT_FORMAT}")
+    recorded = {}
     for key, wanted, what in (("observation.state", mapping.state_keys, "robot.state_keys"),
                               ("action", mapping.action_keys, "robot.action_keys")):
-        names = _names(features, key, root)
+        names = recorded[key] = _names(features, key, root)
         missing = [k for k in wanted if k not in names]
         if missing:
             raise AccrueError(f"{root}: recorded on robot {info.get('robot_type') or '?'} with {key} "
                               f"({len(names)} values: {', '.join(names[:4])}{', ...' if len(names) > 4 else ''}), "
                               f"which lacks {len(missing)} key(s) {robot}'s mapping needs ({what}: {missing[0]}, ...)")
     return {"episodes": int(info.get("total_episodes", 0)), "frames": int(info.get("total_frames", 0)),
-            "fps": info.get("fps"), "robot_type": info.get("robot_type")}
+            "fps": info.get("fps"), "robot_type": info.get("robot_type"),
+            "state_names": recorded["observation.state"], "action_names": recorded["action"]}

@@ -1,0 +1,182 @@
+"""A lerobot-record dataset turned into accrue's demo layout through a workflow's robot mapping.
+
+lerobot-record stores what the robot reported (`observation.state` named by the robot's float observation
+keys) and what it was told (`action` named by its action keys). finetune-base trains on accrue's layout
+(accrue.sim.demos): the 29 STATE_NAMES columns and the normalised 6-D end-effector delta. The mapping that
+drives the robot live gives both directions: `state_keys` picks the state columns, and the inverse of its
+action map (robot value / per-axis limit, clipped to [-1, 1]) gives the normalised delta.
+
+Frames keep lerobot-record's order and fps: frame t is the observation before action t, as in accrue's demos.
+A teleoperated demonstration counts as a success, so each episode's last frame is done and successful and
+its last SUCCESS_TAIL frames carry reward 1, like the simulator's demos. Cameras are not carried over
+(accrue's robot path is state-only). The result is built under a hidden sibling and renamed into place.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from accrue.errors import AccrueError
+from accrue.robot.demos import check_robot_dataset
+from accrue.robot.mapping import RobotMapping
+from accrue.sim.demos import (
+    ACCRUE_META,
+    ACCRUE_META_FORMAT,
+    ACTION_KEY,
+    DONE_KEY,
+    REWARD_KEY,
+    STATE_KEY,
+    SUCCESS_KEY,
+    _add_frame,
+    _check_out_dir,
+    _label_success_tail,
+    _publish,
+    _write_json_atomic,
+    demo_features,
+    repo_id_for,
+)
+from accrue.sim.observation import STATE_NAMES
+
+SOURCE = "lerobot-record"
+
+
+def mapped_states(observation: np.ndarray, names: list[str], mapping: RobotMapping) -> np.ndarray:
+    """(T, len(names)) recorded observation.state -> (T, 29) accrue states: column i is state_keys[i]."""
+    _check_width(observation, names, STATE_KEY)
+    columns = [names.index(k) for k in mapping.state_keys]
+    return np.asarray(observation, dtype=np.float64)[:, columns].astype(np.float32)
+
+
+def normalised_actions(action: np.ndarray, names: list[str], mapping: RobotMapping) -> tuple[np.ndarray, int]:
+    """(T, len(names)) recorded actions -> ((T, 6) normalised deltas in [-1, 1], values that were clipped).
+
+    The inverse of RobotMapping.action: axis j is action_keys[j] divided by action_limits[j].
+    """
+    _check_width(action, names, ACTION_KEY)
+    columns = [names.index(k) for k in mapping.action_keys]
+    raw = np.asarray(action, dtype=np.float64)[:, columns] / np.asarray(mapping.action_limits, dtype=np.float64)
+    clipped = int(np.count_nonzero(np.abs(raw) > 1.0))
+    raw[~np.isfinite(raw)] = np.nan               # an infinite command is a broken frame, not a full-scale one
+    return np.clip(raw, -1.0, 1.0).astype(np.float32), clipped
+
+
+def _check_width(values: np.ndarray, names: list[str], key: str) -> None:
+    if np.ndim(values) != 2 or np.shape(values)[1] != len(names):
+        raise AccrueError(f"recorded {key} has {np.shape(values)[1:] or 'no'} values per frame but names "
+                          f"{len(names)}: the names cannot be matched to the columns")
+
+
+def recorded_tasks(root: Path | str) -> list[str]:
+    """The task strings lerobot-record stored (its --dataset.single_task), from meta/tasks.parquet."""
+    import pandas as pd
+
+    path = Path(root) / "meta" / "tasks.parquet"
+    try:
+        return [str(t) for t in pd.read_parquet(path).index]
+    except Exception as exc:  # noqa: BLE001 - a missing or damaged file is a broken user dataset
+        raise AccrueError(f"{path}: unreadable ({type(exc).__name__})") from None
+
+
+def _read_recorded(root: Path) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+    """(fps, observation.state (N, S), action (N, A), episode_index (N,)) of a local LeRobotDataset v3."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    try:
+        dataset = LeRobotDataset(repo_id=f"local/{root.name}", root=root, video_backend="pyav")
+        table = dataset.hf_dataset.with_format("numpy")
+        columns = table.select_columns([STATE_KEY, ACTION_KEY, "episode_index"])[:]
+        states = np.stack(columns[STATE_KEY]).astype(np.float64)
+        actions = np.stack(columns[ACTION_KEY]).astype(np.float64)
+    except Exception as exc:  # noqa: BLE001 - any load failure is a broken user dataset
+        first_line = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise AccrueError(f"cannot read dataset {root}: {first_line}") from None
+    return int(dataset.meta.fps), states, actions, np.asarray(columns["episode_index"])
+
+
+def convert_robot_dataset(src: Path | str, out_dir: Path | str, mapping: RobotMapping, robot: str, task_id: str,
+                          instruction: str, progress: bool = False) -> dict:
+    """Write accrue demos of `task_id` to out_dir from the lerobot-record dataset at src; return its meta.
+
+    A dataset whose features do not fit the mapping, or whose mapped values are not finite, is a one-line
+    AccrueError and nothing is written.
+    """
+    src, out_dir = Path(src), Path(out_dir)
+    check = check_robot_dataset(src, mapping, robot)
+    fps, observation, action, episode_index = _read_recorded(src)
+    states = mapped_states(observation, check["state_names"], mapping)
+    actions, clipped = normalised_actions(action, check["action_names"], mapping)
+    bad = np.flatnonzero(~(np.isfinite(states).all(axis=1) & np.isfinite(actions).all(axis=1)))
+    if bad.size:
+        raise AccrueError(f"{src}: episode {int(episode_index[bad[0]])} has a frame whose mapped state or action "
+                          f"is not finite ({bad.size} frame(s) in all)")
+    episodes = [np.flatnonzero(episode_index == ep) for ep in sorted(set(episode_index.tolist()))]
+    episodes = [rows for rows in episodes if rows.size]
+    if not episodes:
+        raise AccrueError(f"{src}: has no frames to convert")
+    _check_out_dir(out_dir)
+
+    import datasets
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    staging = out_dir.with_name(f".{out_dir.name}.partial-{os.getpid()}")
+    shutil.rmtree(staging, ignore_errors=True)
+    bars_were_on = not datasets.are_progress_bars_disabled()
+    datasets.disable_progress_bars()
+    bar = _bar(progress, len(episodes), f"demos {task_id} from {check['robot_type'] or robot}")
+    try:
+        ds = LeRobotDataset.create(repo_id=repo_id_for(task_id), root=staging, fps=fps,
+                                   features=demo_features(list(STATE_NAMES)), use_videos=False)
+        try:
+            for n, rows in enumerate(episodes, 1):
+                last = rows.size - 1
+                frames = [{STATE_KEY: states[r], ACTION_KEY: actions[r],
+                           REWARD_KEY: np.zeros(1, dtype=np.float32), DONE_KEY: np.array([i == last]),
+                           SUCCESS_KEY: np.array([i == last]), "task": instruction} for i, r in enumerate(rows)]
+                _label_success_tail(frames)
+                for frame in frames:
+                    _add_frame(ds, frame)
+                with warnings.catch_warnings():
+                    warnings.filterwarnings("ignore", "Converting input from bool", RuntimeWarning)
+                    ds.save_episode()
+                if bar is not None:
+                    bar[0].update(bar[1], completed=n)
+        finally:
+            ds.finalize()
+        meta = {"format": ACCRUE_META_FORMAT, "source": SOURCE, "task_id": task_id, "instruction": instruction,
+                "recorded_tasks": recorded_tasks(src), "robot_type": check["robot_type"], "robot": robot,
+                "seed": None, "quality": None, "obs_mode": "state",
+                "requested": len(episodes), "episodes": len(episodes), "frames": int(sum(r.size for r in episodes)),
+                # a teleoperated demonstration is taken as a success: the operator kept only what worked
+                "attempts": len(episodes), "successes": len(episodes), "only_successful": True,
+                "fps": fps, "clipped_action_values": clipped, "state_names": list(STATE_NAMES),
+                "mapping": {"state_keys": list(mapping.state_keys), "action_keys": list(mapping.action_keys),
+                            "action_limits": list(mapping.action_limits)}}
+        _write_json_atomic(staging / ACCRUE_META, meta)
+        _publish(staging, out_dir)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+    finally:
+        if bar is not None:
+            bar[0].stop()
+        if bars_were_on:
+            datasets.enable_progress_bars()
+    return meta
+
+
+def _bar(enabled: bool, total: int, label: str):
+    """(rich Progress, task id) on stderr, or None."""
+    if not enabled:
+        return None
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                   console=Console(stderr=True))
+    task = bar.add_task(label, total=total)
+    bar.start()
+    return bar, task
