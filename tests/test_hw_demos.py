@@ -173,3 +173,17 @@ def test_robot_dataset_check_reads_only_metadata(datasets):
     with pytest.raises(AccrueError, match="not a LeRobot dataset"):
         check_robot_dataset(root, RobotMapping(), "accrue_sim")
     assert np.isfinite(info["fps"])
+
+
+def test_task_comes_from_the_option_or_the_recorded_text(datasets):
+    from accrue.sim import get_task
+    from cli.hw_demos import _task_of
+    from stages.errors import StageError
+    from stages.workflow import load_workflow
+
+    wf = load_workflow(datasets[4])
+    assert _task_of(wf, ["insert"], "nist/round_peg") == "nist/round_peg"
+    assert _task_of(wf, ["nist/round_peg"], None) == "nist/round_peg"
+    assert _task_of(wf, [get_task("nist/rect_peg").instruction.upper() + " "], None) == "nist/rect_peg"
+    with pytest.raises(StageError, match="--task"):
+        _task_of(wf, ["insert"], None)
