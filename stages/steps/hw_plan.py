@@ -44,8 +44,8 @@ def hardware_steps(wf: Workflow, stage: int, steps: list[StepInvocation]) -> lis
         missing = [t for t in wf.tasks[:stage] if t not in wf.base_policy.demos]
         if missing:
             raise StageError(f"workflow {wf.name}: base_policy.demos: a real robot's demonstrations come from "
-                             f"lerobot-record; add the dataset of {missing[0]} (`accrue add DIR --kind demos`) "
-                             "and name it here")
+                             f"lerobot-record; add the dataset of {missing[0]} "
+                             f"(`accrue add DIR --kind demos --workflow WF --task {missing[0]}`) and name it here")
     settings = session_settings(wf)
     common = {"robot": robot_config(wf), "workflow": wf.name}
     bodies = {"warmup": hw_warmup, "train": hw_train, "evaluate-all": hw_evaluate}
