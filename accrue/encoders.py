@@ -8,6 +8,7 @@ Specs:  "none"                          -> (B, 0) features, for state-only runs
         "<model>:<weights.safetensors>" -> a timm model loaded offline from that file, where <model>
                                            is an alias below or any timm model name
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -111,13 +112,20 @@ class TimmEncoder:
         kwargs = {"img_size": image_size} if image_size else {}
         try:
             self.model = timm.create_model(
-                model_name, pretrained=True, num_classes=0,
-                pretrained_cfg_overlay=dict(file=str(weights)), **kwargs,
+                model_name,
+                pretrained=True,
+                num_classes=0,
+                pretrained_cfg_overlay=dict(file=str(weights)),
+                **kwargs,
             )
         except RuntimeError as exc:
-            raise AccrueError(f"encoder weights {weights} do not fit timm model '{model_name}': {str(exc).splitlines()[0]}") from exc
+            raise AccrueError(
+                f"encoder weights {weights} do not fit timm model '{model_name}': {str(exc).splitlines()[0]}"
+            ) from exc
         except Exception as exc:  # noqa: BLE001 - unknown names, unreadable files
-            raise AccrueError(f"cannot build encoder '{model_name}' from {weights}: {str(exc).splitlines()[0]}") from exc
+            raise AccrueError(
+                f"cannot build encoder '{model_name}' from {weights}: {str(exc).splitlines()[0]}"
+            ) from exc
         self.model.eval().requires_grad_(False)
         config = timm.data.resolve_model_data_config(self.model)
         # timm's data config reports the pretrained size even when img_size overrides it
@@ -170,7 +178,9 @@ def parse_spec(spec: str) -> EncoderSpec | None:
         return None
     model, sep, path = spec.partition(":")
     if not sep or not model or not path:
-        raise AccrueError(f"encoder spec '{spec}' must be 'none' or '<model>:<weights file>', e.g. dinov2-small:/models/dinov2_small.safetensors")
+        raise AccrueError(
+            f"encoder spec '{spec}' must be 'none' or '<model>:<weights file>', e.g. dinov2-small:/models/dinov2_small.safetensors"
+        )
     name, size = ALIASES.get(model, (model, None))
     return EncoderSpec(name, Path(path).expanduser(), size)
 
@@ -185,5 +195,9 @@ def make_encoder(spec: str, cache_dir: Path | str | None = None, image_size: int
     except ImportError as exc:
         raise AccrueError("encoders need the 'timm' package (pip install 'timm>=1.0,<1.1')") from exc
     if parsed.model_name not in timm.list_models(pretrained=True) and parsed.model_name not in timm.list_models():
-        raise AccrueError(f"unknown encoder model '{parsed.model_name}' (aliases: {', '.join(ALIASES)}, or any timm model name)")
-    return TimmEncoder(parsed.model_name, parsed.weights, image_size or parsed.image_size, Path(cache_dir) if cache_dir else None)
+        raise AccrueError(
+            f"unknown encoder model '{parsed.model_name}' (aliases: {', '.join(ALIASES)}, or any timm model name)"
+        )
+    return TimmEncoder(
+        parsed.model_name, parsed.weights, image_size or parsed.image_size, Path(cache_dir) if cache_dir else None
+    )

@@ -8,6 +8,7 @@ which part is in the gripper and ã carries the task. Our state-only simulator h
 instruction's embedding stands in for what the image would show. Every method, the no-reference ablation
 included, sees exactly the same s.
 """
+
 from __future__ import annotations
 
 from typing import Callable
@@ -67,8 +68,10 @@ def observation_from_state(s: np.ndarray, encoder_spec: str) -> dict:
     """The base policy's observation recovered from stored learner states (for fresh reference chunks at
     retained states). Only state-only runs can: with an image encoder the memory keeps E(I), not I."""
     if encoder_spec != "none":
-        raise AccrueError("learner.distill_inputs fresh/both needs state observations: the retained memory "
-                          f"keeps encoder features, not the images the base policy reads (encoder {encoder_spec})")
+        raise AccrueError(
+            "learner.distill_inputs fresh/both needs state observations: the retained memory "
+            f"keeps encoder features, not the images the base policy reads (encoder {encoder_spec})"
+        )
     from accrue.sim import STATE_DIM
 
     return {"state": np.ascontiguousarray(np.asarray(s, dtype=np.float32)[:, :STATE_DIM])}

@@ -6,6 +6,7 @@ learner (`accrue.learner`), the stage loop and the steps all ask `rules(method, 
 else branches on a method's name. A new baseline is one row here. Torch-free, so the workflow
 validator can import it at CLI start-up.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
@@ -13,17 +14,17 @@ from dataclasses import dataclass, replace
 
 @dataclass(frozen=True)
 class MethodRules:
-    inherit_actor: bool = True            # θ^k starts from θ^{k-1} (else fresh, seeded by stage)
-    inherit_critic: bool = True           # ψ^k starts from ψ^{k-1}
-    critic_on_prior: bool = False         # critic TD (Eq. 2) also on B^{<k}
-    actor_rl_on_prior: bool = False       # Eq. 1 also on B^{<k}
-    distill: bool = False                 # Eq. 4 on B^{<k} toward cached Eq. 3 targets, weighted by λ (Eq. 5)
-    uses_prior_memory: bool = False       # samples B^{<k} at all during a stage
-    ewc_penalty: bool = False             # EWC: Fisher-weighted anchor to θ^{k-1}
-    merge: bool = False                   # RETAIN: deploy (1−α)·θ_prev + α·θ (discounted interpolation)
-    checkpoint_per_task: bool = False     # Isolated: task i is served by the learner kept after stage i
-    use_reference: bool = True            # actor and critic see ã (no-reference ablation: π_θ(s), Q(s, a))
-    zero_beta: bool = False               # β = 0 ablation of Eq. 1
+    inherit_actor: bool = True  # θ^k starts from θ^{k-1} (else fresh, seeded by stage)
+    inherit_critic: bool = True  # ψ^k starts from ψ^{k-1}
+    critic_on_prior: bool = False  # critic TD (Eq. 2) also on B^{<k}
+    actor_rl_on_prior: bool = False  # Eq. 1 also on B^{<k}
+    distill: bool = False  # Eq. 4 on B^{<k} toward cached Eq. 3 targets, weighted by λ (Eq. 5)
+    uses_prior_memory: bool = False  # samples B^{<k} at all during a stage
+    ewc_penalty: bool = False  # EWC: Fisher-weighted anchor to θ^{k-1}
+    merge: bool = False  # RETAIN: deploy (1−α)·θ_prev + α·θ (discounted interpolation)
+    checkpoint_per_task: bool = False  # Isolated: task i is served by the learner kept after stage i
+    use_reference: bool = True  # actor and critic see ã (no-reference ablation: π_θ(s), Q(s, a))
+    zero_beta: bool = False  # β = 0 ablation of Eq. 1
 
     @property
     def critic_data(self) -> str:

@@ -19,6 +19,7 @@ bit-identical artifacts to one that never stopped (CPU, fixed torch threads). Be
 cuts the episodes in progress, checkpoints are kept at least `min_checkpoint_gap` env steps apart (the
 train step uses two full episodes of every env), so that most episodes still run to their end.
 """
+
 from __future__ import annotations
 
 import time
@@ -29,7 +30,7 @@ import numpy as np
 
 ReferenceFn = Callable[[dict], np.ndarray]
 FeatureFn = Callable[[dict], np.ndarray]
-ActFn = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]   # (s, ã, fresh) -> a
+ActFn = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]  # (s, ã, fresh) -> a
 
 
 def subset(obs: dict, rows: np.ndarray) -> dict:
@@ -59,12 +60,20 @@ class ChunkStats:
 class ChunkCollector:
     """Steps N envs one chunk at a time, writing (s, a, ã, R^(H), s', ã', done, task, episode, ended) to B^k."""
 
-    def __init__(self, env, reference: ReferenceFn, features: FeatureFn, buffer, task_index: int,
-                 gamma: float, next_episode: int = 0):
+    def __init__(
+        self,
+        env,
+        reference: ReferenceFn,
+        features: FeatureFn,
+        buffer,
+        task_index: int,
+        gamma: float,
+        next_episode: int = 0,
+    ):
         self.env, self.reference, self.features, self.buffer = env, reference, features, buffer
         self.task_index, self.gamma = task_index, gamma
         self.next_episode = next_episode
-        self.s = self.ref = self.episode_id = self.fresh = None   # set by restart()
+        self.s = self.ref = self.episode_id = self.fresh = None  # set by restart()
 
     def restart(self) -> None:
         """Every env starts a fresh episode (stage start, and right after each checkpoint)."""
@@ -81,10 +90,21 @@ class ChunkCollector:
         res = self.env.step_chunk(a, self.gamma)
         s_next, ref_next = self.features(res.obs), self.reference(res.obs)
         done = res.terminated | res.truncated
-        self.buffer.add(self.s, a, self.ref, res.reward.astype(np.float32), s_next, ref_next,
-                        res.terminated, self.task_index, self.episode_id, ended=done)
-        stats = ChunkStats(env_steps=int(res.steps.sum()), episodes=int(done.sum()),
-                           successes=int(res.success[done].sum()))
+        self.buffer.add(
+            self.s,
+            a,
+            self.ref,
+            res.reward.astype(np.float32),
+            s_next,
+            ref_next,
+            res.terminated,
+            self.task_index,
+            self.episode_id,
+            ended=done,
+        )
+        stats = ChunkStats(
+            env_steps=int(res.steps.sum()), episodes=int(done.sum()), successes=int(res.success[done].sum())
+        )
         if done.any():
             obs = self.env.reset(done)
             rows = np.flatnonzero(done)
@@ -117,9 +137,16 @@ class Evaluator:
     """Success rate of π_base^k alone or of the actor refining π_base^k's chunks, on M fixed episodes per
     task (the same episodes at every call: each env's episode counter is rewound first)."""
 
-    def __init__(self, make_env: Callable[[str, int], object], references: dict[str, ReferenceFn],
-                 features: FeatureFn | dict[str, FeatureFn], episodes: int, num_envs: int, horizon: int,
-                 gamma: float):
+    def __init__(
+        self,
+        make_env: Callable[[str, int], object],
+        references: dict[str, ReferenceFn],
+        features: FeatureFn | dict[str, FeatureFn],
+        episodes: int,
+        num_envs: int,
+        horizon: int,
+        gamma: float,
+    ):
         self.make_env, self.references, self.features = make_env, references, features
         self.episodes, self.num_envs, self.horizon, self.gamma = episodes, min(num_envs, episodes), horizon, gamma
         self._envs: dict[str, object] = {}
@@ -128,7 +155,7 @@ class Evaluator:
         if task_id not in self._envs:
             self._envs[task_id] = self.make_env(task_id, self.num_envs)
         env = self._envs[task_id]
-        env.episode[:] = -1        # replay the same M episodes every time
+        env.episode[:] = -1  # replay the same M episodes every time
         return env
 
     def success_rate(self, task_id: str, act: ActFn | None = None) -> float:
@@ -175,11 +202,11 @@ def actor_act(learner) -> ActFn:
 # ---------------------------------------------------------------------------------------- training
 @dataclass(frozen=True)
 class LoopSettings:
-    task_ids: list[str]              # tasks 1..k; the last one is the current task
-    env_steps: int                   # RL budget of the stage (control steps, all envs together)
-    eval_every: int                  # E: evaluation grid spacing in env steps
-    checkpoint_every: int            # env steps between checkpoints (0 = at every evaluation point)
-    min_checkpoint_gap: int = 0      # never closer: every checkpoint restarts the envs' episodes
+    task_ids: list[str]  # tasks 1..k; the last one is the current task
+    env_steps: int  # RL budget of the stage (control steps, all envs together)
+    eval_every: int  # E: evaluation grid spacing in env steps
+    checkpoint_every: int  # env steps between checkpoints (0 = at every evaluation point)
+    min_checkpoint_gap: int = 0  # never closer: every checkpoint restarts the envs' episodes
 
     def grid(self) -> list[int]:
         points = list(range(0, self.env_steps, self.eval_every)) + [self.env_steps]
@@ -193,6 +220,7 @@ class LoopSettings:
 @dataclass
 class LoopState:
     """Everything the loop itself needs to continue exactly (the learner and buffer save themselves)."""
+
     env_steps: int = 0
     chunk_steps: int = 0
     updates: int = 0
@@ -212,11 +240,19 @@ class LoopState:
         return cls(**data)
 
 
-def train_loop(learner, collector: ChunkCollector, evaluator: Evaluator, settings: LoopSettings,
-               prior=None, teacher=None, state: LoopState | None = None, fresh_ref=None,
-               frozen_acts: dict[str, ActFn] | None = None,
-               on_checkpoint: Callable[[LoopState], None] | None = None,
-               on_progress: Callable[[LoopState, dict], None] | None = None) -> LoopState:
+def train_loop(
+    learner,
+    collector: ChunkCollector,
+    evaluator: Evaluator,
+    settings: LoopSettings,
+    prior=None,
+    teacher=None,
+    state: LoopState | None = None,
+    fresh_ref=None,
+    frozen_acts: dict[str, ActFn] | None = None,
+    on_checkpoint: Callable[[LoopState], None] | None = None,
+    on_progress: Callable[[LoopState, dict], None] | None = None,
+) -> LoopState:
     """Algorithm 1 lines 4-10 with an evaluation on tasks 1..k at every grid point.
 
     frozen_acts overrides the actor used to evaluate some earlier tasks (the Isolated method keeps one
@@ -258,13 +294,13 @@ def train_loop(learner, collector: ChunkCollector, evaluator: Evaluator, setting
         state.updates += learner.cfg.utd
         crossed = [p for p in ckpt_points if p <= state.env_steps and p not in state.checkpoints_done]
         if crossed and state.env_steps < settings.env_steps:
-            evaluate_due()          # a grid point under the checkpoint is evaluated before it is saved
+            evaluate_due()  # a grid point under the checkpoint is evaluated before it is saved
             state.checkpoints_done.extend(crossed)
             state.next_episode = collector.next_episode
             state.env_episode_counts = [int(c) for c in collector.env.episode]
             if on_checkpoint:
                 on_checkpoint(state)
-            collector.restart()     # fresh episodes: the continuation depends only on what was saved
+            collector.restart()  # fresh episodes: the continuation depends only on what was saved
         elif on_progress and state.chunk_steps % 10 == 0:
             on_progress(state, {**info, "elapsed": time.monotonic() - started})
     return state
@@ -278,8 +314,9 @@ def restore_collector(collector: ChunkCollector, state: LoopState) -> None:
 
 
 # ---------------------------------------------------------------------------------------- episode logs
-def record_episodes(env, reference: ReferenceFn, features: FeatureFn, act: ActFn | None, recorder,
-                    horizon: int, metadata: dict) -> list[bool]:
+def record_episodes(
+    env, reference: ReferenceFn, features: FeatureFn, act: ActFn | None, recorder, horizon: int, metadata: dict
+) -> list[bool]:
     """One episode per env, logged step by step to an accrue.logs EpisodeRecorder (MCAP): each chunk is
     executed one control step at a time so every intermediate state, action and reward is recorded."""
     from accrue.sim.observation import decode_state
@@ -299,10 +336,17 @@ def record_episodes(env, reference: ReferenceFn, features: FeatureFn, act: ActFn
             res = env.step(chunk[:, h])
             state = obs["state"]
             for i in np.flatnonzero(live):
-                d = decode_state(state[i:i + 1])
-                recorder.log_step(int(i), t, state[i], chunk[i, h], reference=ref[i] if h == 0 else None,
-                                  reward=float(res.rewards[i, 0]), ee_pose=d["pos"][0],
-                                  wrench=np.concatenate([d["force"][0], d["torque"][0]]))
+                d = decode_state(state[i : i + 1])
+                recorder.log_step(
+                    int(i),
+                    t,
+                    state[i],
+                    chunk[i, h],
+                    reference=ref[i] if h == 0 else None,
+                    reward=float(res.rewards[i, 0]),
+                    ee_pose=d["pos"][0],
+                    wrench=np.concatenate([d["force"][0], d["torque"][0]]),
+                )
             ended = live & (res.terminated | res.truncated)
             for i in np.flatnonzero(ended):
                 success[i] = bool(res.success[i])

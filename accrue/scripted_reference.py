@@ -8,6 +8,7 @@ vertical command. The expert knows only the fraction `known_bias` of its fixture
 bias, so the reference misses the hole by a systematic, task-specific offset: exactly the kind of
 local refinement the actor is meant to learn. It is not a learned policy and is never fine-tuned.
 """
+
 from __future__ import annotations
 
 import numpy as np

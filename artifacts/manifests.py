@@ -4,6 +4,7 @@ pointing at its content — one file object, or a tree object listing a director
 An artifact's id is the id of its manifest. Manifest kinds used by accrue: base-policy, replay,
 teacher-targets, checkpoint, eval, handoff, demos, episodes (any short lowercase name is accepted).
 """
+
 from __future__ import annotations
 
 import os
@@ -18,8 +19,7 @@ from artifacts.hashing import copy_hashing, hash_file
 from artifacts.store import Store
 
 MANIFEST_FORMAT = 1
-KNOWN_KINDS = ("base-policy", "replay", "teacher-targets", "checkpoint", "eval", "handoff",
-               "demos", "episodes")
+KNOWN_KINDS = ("base-policy", "replay", "teacher-targets", "checkpoint", "eval", "handoff", "demos", "episodes")
 _KIND_RE = re.compile(r"^[a-z][a-z0-9-]{0,39}$")
 
 
@@ -29,8 +29,9 @@ def now_iso() -> str:
 
 def check_kind(kind: str) -> str:
     if not _KIND_RE.match(kind):
-        raise StoreError(f"bad artifact kind {quote(kind)}: use lowercase letters, digits and '-' "
-                         f"(e.g. {', '.join(KNOWN_KINDS)})")
+        raise StoreError(
+            f"bad artifact kind {quote(kind)}: use lowercase letters, digits and '-' (e.g. {', '.join(KNOWN_KINDS)})"
+        )
     return kind
 
 
@@ -43,14 +44,19 @@ def put_tree(store: Store, directory: Path, how: Literal["copy", "adopt", "check
     The tree object is a canonical sorted list of {path, id, size, exec}.
     """
     store_file: Callable[[Path], tuple[str, int]] = {
-        "copy": store.ingest_file, "adopt": store.adopt_file, "checked": store.copy_in_checked}[how]
+        "copy": store.ingest_file,
+        "adopt": store.adopt_file,
+        "checked": store.copy_in_checked,
+    }[how]
     entries = []
     for root, dirs, files in os.walk(directory, onerror=_walk_error):
         dirs.sort()
         for name in dirs:  # os.walk lists a symlinked directory but does not enter it: refuse, as for files
             if os.path.islink(os.path.join(root, name)):
-                raise StoreError(f"{_shown(Path(root) / name)}: a symlink; only regular files and directories "
-                                 "can be stored (copy the target in instead)")
+                raise StoreError(
+                    f"{_shown(Path(root) / name)}: a symlink; only regular files and directories "
+                    "can be stored (copy the target in instead)"
+                )
         for name in sorted(files):
             path = Path(root) / name
             st = os.lstat(path)
@@ -58,8 +64,7 @@ def put_tree(store: Store, directory: Path, how: Literal["copy", "adopt", "check
                 raise StoreError(f"{_shown(path)}: only regular files can be stored (symlinks and devices are refused)")
             rel = utf8_name(path.relative_to(directory).as_posix(), path)
             oid, size = store_file(path)
-            entries.append({"path": rel, "id": oid, "size": size,
-                            "exec": bool(st.st_mode & stat.S_IXUSR)})
+            entries.append({"path": rel, "id": oid, "size": size, "exec": bool(st.st_mode & stat.S_IXUSR)})
     entries.sort(key=lambda e: e["path"])
     tree_id = store.put_json({"type": "tree", "format": MANIFEST_FORMAT, "entries": entries})
     return {"tree": tree_id, "size": sum(e["size"] for e in entries), "files": len(entries)}
@@ -101,32 +106,55 @@ def store_content(store: Store, path: Path, how: Literal["copy", "adopt", "check
     if path.is_dir():
         tree = put_tree(store, path, how)
         return {"layout": "dir", "content": tree["tree"], "size": tree["size"], "files": tree["files"]}
-    oid, size = {"copy": store.ingest_file, "adopt": store.adopt_file,
-                 "checked": store.copy_in_checked}[how](path)
+    oid, size = {"copy": store.ingest_file, "adopt": store.adopt_file, "checked": store.copy_in_checked}[how](path)
     return {"layout": "file", "content": oid, "size": size, "files": 1, "name": path.name}
 
 
-def write_manifest(store: Store, content: dict, kind: str, *, producer: dict[str, Any],
-                   inputs: dict[str, str] | None = None, config: dict[str, Any] | None = None,
-                   code_version: str = "", meta: dict[str, Any] | None = None) -> str:
+def write_manifest(
+    store: Store,
+    content: dict,
+    kind: str,
+    *,
+    producer: dict[str, Any],
+    inputs: dict[str, str] | None = None,
+    config: dict[str, Any] | None = None,
+    code_version: str = "",
+    meta: dict[str, Any] | None = None,
+) -> str:
     """Write the manifest of already-stored content (see store_content); returns the artifact id."""
     manifest: dict[str, Any] = {
-        "type": "artifact", "format": MANIFEST_FORMAT, "kind": check_kind(kind), "producer": producer,
-        "inputs": dict(inputs or {}), "config": config or {}, "code_version": code_version,
-        "created": now_iso(), "meta": meta or {}, **content,
+        "type": "artifact",
+        "format": MANIFEST_FORMAT,
+        "kind": check_kind(kind),
+        "producer": producer,
+        "inputs": dict(inputs or {}),
+        "config": config or {},
+        "code_version": code_version,
+        "created": now_iso(),
+        "meta": meta or {},
+        **content,
     }
     return store.put_json(manifest)
 
 
-def publish_artifact(store: Store, path: Path, kind: str, *, producer: dict[str, Any],
-                     inputs: dict[str, str] | None = None, config: dict[str, Any] | None = None,
-                     code_version: str = "", meta: dict[str, Any] | None = None,
-                     how: Literal["copy", "adopt", "checked"] = "copy") -> str:
+def publish_artifact(
+    store: Store,
+    path: Path,
+    kind: str,
+    *,
+    producer: dict[str, Any],
+    inputs: dict[str, str] | None = None,
+    config: dict[str, Any] | None = None,
+    code_version: str = "",
+    meta: dict[str, Any] | None = None,
+    how: Literal["copy", "adopt", "checked"] = "copy",
+) -> str:
     """Store a file or directory as an artifact: objects first, then its manifest. Returns its id."""
     check_kind(kind)
     content = store_content(store, path, how)
-    return write_manifest(store, content, kind, producer=producer, inputs=inputs, config=config,
-                          code_version=code_version, meta=meta)
+    return write_manifest(
+        store, content, kind, producer=producer, inputs=inputs, config=config, code_version=code_version, meta=meta
+    )
 
 
 def read_artifact(store: Store, artifact_id: str) -> dict:

@@ -4,6 +4,7 @@ Shared by verify (everything reachable must exist) and gc (everything else may g
 can never disagree. Roots: every ref; every committed attempt's step record; the inputs and
 checkpoints of attempts that did not commit (so `continue` still works).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -16,7 +17,7 @@ from artifacts.store import Store
 
 @dataclass
 class Reach:
-    sizes: dict[str, int | None] = field(default_factory=dict)   # id -> expected size (None: manifest)
+    sizes: dict[str, int | None] = field(default_factory=dict)  # id -> expected size (None: manifest)
     problems: list[str] = field(default_factory=list)
 
 

@@ -14,6 +14,7 @@ Layout under the store root (default `.accrue/`, or $ACCRUE_STORE):
 A handle that writes or names objects holds a shared writer lock until close() (see writers.py):
 gc sweeps only while no writer is alive.
 """
+
 from __future__ import annotations
 
 import json
@@ -86,8 +87,10 @@ class Store:
         if not isinstance(cfg, dict):
             raise StoreError(f"{config}: not a store config (expected a JSON object, got {type(cfg).__name__})")
         if cfg.get("format") != STORE_FORMAT or cfg.get("hash") != HASH_NAME:
-            raise StoreError(f"{config}: unsupported store format {cfg.get('format')!r} / hash "
-                             f"{cfg.get('hash')!r} (this accrue reads format {STORE_FORMAT}, {HASH_NAME})")
+            raise StoreError(
+                f"{config}: unsupported store format {cfg.get('format')!r} / hash "
+                f"{cfg.get('hash')!r} (this accrue reads format {STORE_FORMAT}, {HASH_NAME})"
+            )
         store = cls(root)
         try:  # tolerate a store whose empty dirs were lost (e.g. copied with git)
             for sub in _SUBDIRS:
@@ -160,8 +163,10 @@ class Store:
                     oid, size = copy_hashing(f, fd, before)
                     after = os.fstat(f.fileno()).st_size
                     if not before == size == after:
-                        raise StoreError(f"{src}: changed size while it was being stored ({before} -> "
-                                         f"{after} bytes); nothing was stored")
+                        raise StoreError(
+                            f"{src}: changed size while it was being stored ({before} -> "
+                            f"{after} bytes); nothing was stored"
+                        )
                     os.fsync(fd)
                 except BaseException:
                     os.close(fd)
@@ -215,8 +220,9 @@ class Store:
                 raise StoreError(f"object {oid[:12]} is missing from the store") from None
             data = path.read_bytes()
         if verify and hash_bytes(data) != oid:
-            raise StoreError(f"object {oid[:12]} is corrupt (its bytes no longer match its id); "
-                             "run `accrue verify --full`")
+            raise StoreError(
+                f"object {oid[:12]} is corrupt (its bytes no longer match its id); run `accrue verify --full`"
+            )
         return data
 
     def read_json(self, oid: str) -> dict:
@@ -287,13 +293,16 @@ class Store:
         if len(text) < 4 or any(c not in "0123456789abcdef" for c in text):
             raise StoreError(f"{quote(prefix)} is neither a ref nor an id (ids are hex, at least 4 digits)")
         fan = self.objects_dir / text[:2]
-        matches = sorted(fan.name + p.name for p in fan.iterdir()
-                         if p.name.startswith(text[2:])) if fan.is_dir() else []
+        matches = (
+            sorted(fan.name + p.name for p in fan.iterdir() if p.name.startswith(text[2:])) if fan.is_dir() else []
+        )
         if not matches:
             raise StoreError(f"no object or ref matches {quote(prefix)}")
         if len(matches) > 1:
-            raise StoreError(f"id prefix {quote(prefix)} is ambiguous ({len(matches)} objects: "
-                             f"{', '.join(m[:12] for m in matches[:4])}…); give more digits")
+            raise StoreError(
+                f"id prefix {quote(prefix)} is ambiguous ({len(matches)} objects: "
+                f"{', '.join(m[:12] for m in matches[:4])}…); give more digits"
+            )
         return matches[0]
 
     def new_tmp_dir(self, prefix: str) -> Path:

@@ -11,6 +11,7 @@ step, and the student's prior-batch forward stacked with the current one (one ac
 By default every update includes an actor step (--policy-frequency 1), the heaviest case for ACCRUE;
 --policy-frequency 2 is the learner's default schedule (both sides then step the actor every 2nd update).
 """
+
 from __future__ import annotations
 
 import argparse
@@ -22,6 +23,7 @@ from torch import nn
 
 def reference_fasttd3(state_dim, chunk, hidden, proj, atoms, v_min, v_max, lr, wd, device, policy_frequency=1):
     """A plain FastTD3-style C51 TD3 update over chunks (the baseline being compared against)."""
+
     def mlp(sizes):
         layers = []
         for i in range(len(sizes) - 1):
@@ -41,8 +43,9 @@ def reference_fasttd3(state_dim, chunk, hidden, proj, atoms, v_min, v_max, lr, w
             x = torch.cat([self.proj(s), a, r], -1)
             return self.q1(x), self.q2(x)
 
-    actor_net = nn.Sequential(nn.Linear(state_dim, proj), nn.LayerNorm(proj), nn.SiLU(),
-                              mlp([proj, *hidden, chunk])).to(device)
+    actor_net = nn.Sequential(
+        nn.Linear(state_dim, proj), nn.LayerNorm(proj), nn.SiLU(), mlp([proj, *hidden, chunk])
+    ).to(device)
     actor = lambda s, r: torch.tanh(actor_net(s) + torch.atanh(r.clamp(-0.999, 0.999)))  # noqa: E731
     qnet, qtarget = Q().to(device), Q().to(device)
     qtarget.load_state_dict(qnet.state_dict())
@@ -86,15 +89,18 @@ def reference_fasttd3(state_dim, chunk, hidden, proj, atoms, v_min, v_max, lr, w
             a_opt.step()
         with torch.no_grad():
             torch._foreach_lerp_(list(qtarget.parameters()), list(qnet.parameters()), 0.1)
+
     return update
 
 
 def timed_interleaved(fns: dict, iters: int, warmup: int, rounds: int, device: str) -> dict:
     """Updates/s of each function, measured in alternating rounds (so a busy machine slows all alike);
     the median round is reported."""
+
     def sync():
         if device.startswith("cuda"):
             torch.cuda.synchronize()
+
     for fn in fns.values():
         for _ in range(warmup):
             fn()
@@ -137,35 +143,78 @@ def main() -> None:
     from accrue.learner.replay import Batch
 
     d, h, a_dim, n = args.state_dim, args.horizon, args.action_dim, args.batch
-    cfg = LearnerConfig(algo="fasttd3", method="accrue", actor_hidden=args.hidden, critic_hidden=args.hidden,
-                        projector_dim=args.projector, num_atoms=args.atoms, batch_size=n, policy_frequency=args.policy_frequency,
-                        device=args.device, amp=args.amp, compile=args.compile or args.cudagraphs,
-                        compile_mode="reduce-overhead" if args.cudagraphs else "default")
+    cfg = LearnerConfig(
+        algo="fasttd3",
+        method="accrue",
+        actor_hidden=args.hidden,
+        critic_hidden=args.hidden,
+        projector_dim=args.projector,
+        num_atoms=args.atoms,
+        batch_size=n,
+        policy_frequency=args.policy_frequency,
+        device=args.device,
+        amp=args.amp,
+        compile=args.compile or args.cudagraphs,
+        compile_mode="reduce-overhead" if args.cudagraphs else "default",
+    )
     learner = make_learner(cfg, d, h, a_dim)
     g = torch.Generator().manual_seed(0)
 
     def batch():
         rows = lambda *shape: torch.rand(n, *shape, generator=g).to(args.device) * 2 - 1  # noqa: E731
-        return Batch(state=rows(d), action=rows(h, a_dim), ref=rows(h, a_dim),
-                     reward=(rows() > 0.8).float(), next_state=rows(d), next_ref=rows(h, a_dim),
-                     done=(rows() > 0.9).float(), index=torch.arange(n, device=args.device))
+        return Batch(
+            state=rows(d),
+            action=rows(h, a_dim),
+            ref=rows(h, a_dim),
+            reward=(rows() > 0.8).float(),
+            next_state=rows(d),
+            next_ref=rows(h, a_dim),
+            done=(rows() > 0.9).float(),
+            index=torch.arange(n, device=args.device),
+        )
 
     cur, prior = batch(), batch()
     prior = prior.with_teacher(compute_teacher_targets(learner, prior.state, prior.ref, n))
-    ref_update = reference_fasttd3(d, h * a_dim, args.hidden, args.projector, args.atoms, cfg.v_min, cfg.v_max,
-                                   cfg.critic_lr, cfg.weight_decay, args.device, args.policy_frequency)
-    disc = (cfg.gamma ** h) * (1 - cur.done)
-    ref_batch = (cur.state, cur.action.flatten(1), cur.ref.flatten(1), cur.reward, cur.next_state,
-                 cur.next_ref.flatten(1), disc)
+    ref_update = reference_fasttd3(
+        d,
+        h * a_dim,
+        args.hidden,
+        args.projector,
+        args.atoms,
+        cfg.v_min,
+        cfg.v_max,
+        cfg.critic_lr,
+        cfg.weight_decay,
+        args.device,
+        args.policy_frequency,
+    )
+    disc = (cfg.gamma**h) * (1 - cur.done)
+    ref_batch = (
+        cur.state,
+        cur.action.flatten(1),
+        cur.ref.flatten(1),
+        cur.reward,
+        cur.next_state,
+        cur.next_ref.flatten(1),
+        disc,
+    )
 
-    results = timed_interleaved({
-        "reference FastTD3 update (critic+actor, B^k)": lambda: ref_update(ref_batch),
-        "accrue.learner sequential update (critic+actor, B^k)": lambda: learner._update(cur, None),
-        "accrue.learner ACCRUE update (critic+actor+distill, B^k + B^<k)": lambda: learner._update(cur, prior),
-    }, args.iters, args.warmup, args.rounds, args.device)
-    print(f"device={args.device} threads={torch.get_num_threads()} state_dim={d} H={h} d={a_dim} batch={n} "
-          f"(+{n} prior rows for ACCRUE) hidden={args.hidden} atoms={args.atoms} amp={args.amp} "
-          f"compile={args.compile} cudagraphs={args.cudagraphs} policy_frequency={args.policy_frequency}; median of {args.rounds} interleaved rounds")
+    results = timed_interleaved(
+        {
+            "reference FastTD3 update (critic+actor, B^k)": lambda: ref_update(ref_batch),
+            "accrue.learner sequential update (critic+actor, B^k)": lambda: learner._update(cur, None),
+            "accrue.learner ACCRUE update (critic+actor+distill, B^k + B^<k)": lambda: learner._update(cur, prior),
+        },
+        args.iters,
+        args.warmup,
+        args.rounds,
+        args.device,
+    )
+    print(
+        f"device={args.device} threads={torch.get_num_threads()} state_dim={d} H={h} d={a_dim} batch={n} "
+        f"(+{n} prior rows for ACCRUE) hidden={args.hidden} atoms={args.atoms} amp={args.amp} "
+        f"compile={args.compile} cudagraphs={args.cudagraphs} policy_frequency={args.policy_frequency}; median of {args.rounds} interleaved rounds"
+    )
     base = results["reference FastTD3 update (critic+actor, B^k)"]
     for name, ups in results.items():
         print(f"  {name:<66s} {ups:8.1f} updates/s   ({ups / base:4.2f}x reference)")

@@ -72,8 +72,9 @@ def raw_rate(env, episodes) -> tuple[float, float]:
 def success_table(episodes: int, seed: int = 1):
     from accrue.sim import expert_success_rate, list_tasks
 
-    return [(tid, *(expert_success_rate(tid, episodes, seed=seed, quality=q) for q in (1.0, 0.5)))
-            for tid in list_tasks()]
+    return [
+        (tid, *(expert_success_rate(tid, episodes, seed=seed, quality=q) for q in (1.0, 0.5))) for tid in list_tasks()
+    ]
 
 
 def main() -> None:
@@ -86,8 +87,10 @@ def main() -> None:
     args = ap.parse_args()
     cores = os.cpu_count() or 1
     print(f"task {args.task}, {cores} CPU cores, physics dt 2 ms, 25 substeps per control step (20 Hz)")
-    print(f"{'N':>4} {'threads':>7} {'env ctrl steps/s':>17} {'per core':>9} {'raw ctrl steps/s':>17} "
-          f"{'raw phys steps/s':>17} {'env/raw per core':>17} {'expert act/s':>13}")
+    print(
+        f"{'N':>4} {'threads':>7} {'env ctrl steps/s':>17} {'per core':>9} {'raw ctrl steps/s':>17} "
+        f"{'raw phys steps/s':>17} {'env/raw per core':>17} {'expert act/s':>13}"
+    )
     for n, threads in ((1, 1), (16, 1), (64, 1), (16, cores), (64, cores)):
         if threads > 1 and cores == 1:
             continue
@@ -103,8 +106,11 @@ def main() -> None:
         env_rate, expert_rate, raw_ctrl, raw_phys = best
         ratio = float(np.median(ratios))
         per_core = env_rate / threads
-        print(f"{n:>4} {threads:>7} {env_rate:>17.0f} {per_core:>9.0f} {raw_ctrl:>17.0f} {raw_phys:>17.0f} "
-              f"{ratio:>17.2f} {expert_rate:>13.0f}", flush=True)
+        print(
+            f"{n:>4} {threads:>7} {env_rate:>17.0f} {per_core:>9.0f} {raw_ctrl:>17.0f} {raw_phys:>17.0f} "
+            f"{ratio:>17.2f} {expert_rate:>13.0f}",
+            flush=True,
+        )
     if not args.no_table:
         print(f"\nexpert success, {args.episodes} episodes per task (seed 1)")
         print(f"{'task':<20} {'quality 1.0':>11} {'quality 0.5':>11}")

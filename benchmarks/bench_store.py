@@ -1,12 +1,13 @@
 """Store benchmarks (a script, not a test): prints
 
-  1. ingest throughput of a large file (default 1 GiB) into the store vs raw BLAKE3 on the same file
-     (goal: >= 0.8x), with the page cache warm for both;
-  2. `accrue log` wall time over a 10,000-event audit log (default view, and --all --json);
-  3. `accrue --help` cold-start time (goal: < 0.5 s).
+1. ingest throughput of a large file (default 1 GiB) into the store vs raw BLAKE3 on the same file
+   (goal: >= 0.8x), with the page cache warm for both;
+2. `accrue log` wall time over a 10,000-event audit log (default view, and --all --json);
+3. `accrue --help` cold-start time (goal: < 0.5 s).
 
-    .venv/bin/python benchmarks/bench_store.py [--size-mb 1024] [--events 10000] [--dir DIR]
+  .venv/bin/python benchmarks/bench_store.py [--size-mb 1024] [--events 10000] [--dir DIR]
 """
+
 from __future__ import annotations
 
 import argparse
@@ -31,8 +32,11 @@ from artifacts.hashing import canonical_json, hash_bytes, hash_file  # noqa: E40
 from artifacts.manifests import now_iso  # noqa: E402
 from artifacts.store import Store  # noqa: E402
 
-ACCRUE = [str(ROOT / ".venv" / "bin" / "accrue")] if (ROOT / ".venv" / "bin" / "accrue").exists() else \
-    [sys.executable, "-m", "cli.main"]
+ACCRUE = (
+    [str(ROOT / ".venv" / "bin" / "accrue")]
+    if (ROOT / ".venv" / "bin" / "accrue").exists()
+    else [sys.executable, "-m", "cli.main"]
+)
 
 
 def make_file(path: Path, size: int) -> None:
@@ -129,9 +133,19 @@ def write_log(store: Store, events: int) -> None:
     prev, lines = GENESIS, []
     for seq in range(events):
         ev = ("step-started", "checkpoint-saved", "artifact-written", "step-committed", "ref-moved")[seq % 5]
-        line = canonical_json({"seq": seq, "ts": now_iso(), "event": ev, "pid": 1, "host": "bench",
-                               "step": "train", "attempt": 1 + seq // 5, "artifact": hash_bytes(str(seq).encode()),
-                               "prev": prev})
+        line = canonical_json(
+            {
+                "seq": seq,
+                "ts": now_iso(),
+                "event": ev,
+                "pid": 1,
+                "host": "bench",
+                "step": "train",
+                "attempt": 1 + seq // 5,
+                "artifact": hash_bytes(str(seq).encode()),
+                "prev": prev,
+            }
+        )
         lines.append(line)
         prev = hash_bytes(line)
     store.log_path.write_bytes(b"\n".join(lines) + b"\n")
@@ -142,6 +156,7 @@ def run_cli(args: list[str], repeat: int) -> float:
 
     def once():
         subprocess.run(ACCRUE + args, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+
     once()
     return best_of(once, repeat)
 
@@ -162,24 +177,39 @@ def main() -> None:
         store = Store.init(work / "logstore")[0]
         write_log(store, args.events)
         s = str(store.root)
-        rows.append((f"accrue log (last 20 of {args.events} events)", f"{run_cli(['log', '--store', s], args.repeat):.3f} s"))
-        rows.append((f"accrue log --all --json ({args.events} events)",
-                     f"{run_cli(['log', '--all', '--json', '--store', s], args.repeat):.3f} s"))
-        rows.append((f"accrue verify (incl. {args.events}-line chain check)",
-                     f"{run_cli(['verify', '--store', s], args.repeat):.3f} s"))
+        rows.append(
+            (f"accrue log (last 20 of {args.events} events)", f"{run_cli(['log', '--store', s], args.repeat):.3f} s")
+        )
+        rows.append(
+            (
+                f"accrue log --all --json ({args.events} events)",
+                f"{run_cli(['log', '--all', '--json', '--store', s], args.repeat):.3f} s",
+            )
+        )
+        rows.append(
+            (
+                f"accrue verify (incl. {args.events}-line chain check)",
+                f"{run_cli(['verify', '--store', s], args.repeat):.3f} s",
+            )
+        )
         helps = []
         for _ in range(max(5, args.repeat)):
             t = time.perf_counter()
             subprocess.run(ACCRUE + ["--help"], check=True, stdout=subprocess.DEVNULL)
             helps.append(time.perf_counter() - t)
-        rows.append(("accrue --help cold start (min / median)",
-                     f"{min(helps):.3f} s / {statistics.median(helps):.3f} s   (goal < 0.5 s)"))
+        rows.append(
+            (
+                "accrue --help cold start (min / median)",
+                f"{min(helps):.3f} s / {statistics.median(helps):.3f} s   (goal < 0.5 s)",
+            )
+        )
     finally:
         shutil.rmtree(work, ignore_errors=True)
     load = ", ".join(f"{x:.1f}" for x in os.getloadavg())
-    table = Table(title=f"accrue store benchmark ({args.size_mb} MiB file, {os.cpu_count()} cores, "
-                        f"load average {load})",
-                  title_justify="left")
+    table = Table(
+        title=f"accrue store benchmark ({args.size_mb} MiB file, {os.cpu_count()} cores, load average {load})",
+        title_justify="left",
+    )
     table.add_column("measure")
     table.add_column("result")
     for name, value in rows:

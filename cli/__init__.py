@@ -1,4 +1,5 @@
 """Command-line interface. Each group of commands registers itself from its own module."""
+
 from __future__ import annotations
 
 import importlib
@@ -8,16 +9,16 @@ import typer
 # module name -> function register(app) it exports. A module that does not exist yet is skipped,
 # so command groups can land one at a time.
 _COMMAND_MODULES = [
-    "cli.store_cmds",     # init, log, show, lineage, verify, gc, add
-    "cli.stage_cmds",     # stage run/status, run, report
-    "cli.run_cmds",       # run WORKFLOW (every stage)
-    "cli.sim_cmds",       # sim tasks/demos/watch
-    "cli.policy_cmds",    # policy finetune/chunk
-    "cli.metrics_cmds",   # metrics FILE.json
-    "cli.report_cmds",    # report WORKFLOW
-    "cli.bench_cmds",     # bench SPEC / bench status / bench report
-    "cli.remote_cmds",    # remote add/list/remove, push, fetch, pull
-    "cli.robot_cmds",     # robot learner (the learner of a hardware stage on a second host)
+    "cli.store_cmds",  # init, log, show, lineage, verify, gc, add
+    "cli.stage_cmds",  # stage run/status, run, report
+    "cli.run_cmds",  # run WORKFLOW (every stage)
+    "cli.sim_cmds",  # sim tasks/demos/watch
+    "cli.policy_cmds",  # policy finetune/chunk
+    "cli.metrics_cmds",  # metrics FILE.json
+    "cli.report_cmds",  # report WORKFLOW
+    "cli.bench_cmds",  # bench SPEC / bench status / bench report
+    "cli.remote_cmds",  # remote add/list/remove, push, fetch, pull
+    "cli.robot_cmds",  # robot learner (the learner of a hardware stage on a second host)
 ]
 
 

@@ -1,5 +1,6 @@
 """`accrue add DIR --kind demos --workflow WF [--task TASK]`: a lerobot-record dataset, checked against WF's
 robot mapping and converted into accrue's demo layout for TASK, so base_policy.demos can name it."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -20,8 +21,10 @@ def _task_of(wf, recorded: list[str], task: str | None) -> str:
         return matches[0]
     if len(wf.tasks) == 1:
         return wf.tasks[0]
-    raise StageError(f"name the demonstrations' task with --task (one of {', '.join(wf.tasks)}); the dataset "
-                     f"says {', '.join(repr(t) for t in recorded[:3]) or 'nothing'}")
+    raise StageError(
+        f"name the demonstrations' task with --task (one of {', '.join(wf.tasks)}); the dataset "
+        f"says {', '.join(repr(t) for t in recorded[:3]) or 'nothing'}"
+    )
 
 
 def convert_demos_for_workflow(path: Path, kind: str, workflow: Path, task: str | None, out_dir: Path) -> dict:
@@ -43,7 +46,8 @@ def convert_demos_for_workflow(path: Path, kind: str, workflow: Path, task: str 
     from accrue.sim.demos import get_task_spec
 
     mapping = RobotMapping.from_dict(wf.robot.model_dump())
-    check_robot_dataset(path, mapping, wf.robot.type)     # metadata first: a misfit is refused before lerobot loads
+    check_robot_dataset(path, mapping, wf.robot.type)  # metadata first: a misfit is refused before lerobot loads
     task_id = _task_of(wf, recorded_tasks(path), task)
-    return convert_robot_dataset(path, out_dir, mapping, wf.robot.type, task_id, get_task_spec(task_id).instruction,
-                                 progress=True)
+    return convert_robot_dataset(
+        path, out_dir, mapping, wf.robot.type, task_id, get_task_spec(task_id).instruction, progress=True
+    )

@@ -1,4 +1,5 @@
 """`accrue stage status` for a workflow with a robot: one table of sessions per hardware step."""
+
 from __future__ import annotations
 
 from rich.table import Table
@@ -17,15 +18,25 @@ def print_hardware_status(store, wf) -> None:
         if "error" in r:
             console().print(f"[red]stage {r['stage']} {r['step']}: cannot read its sealed episodes ({r['error']})[/]")
             continue
-        title = (f"robot — stage {r['stage']} {r['step']} ({r['state']}): {r['episodes']} episodes, "
-                 f"{r['successes']} labelled success, robot time {r['robot_time_s']:.1f} s, "
-                 f"{r['faults']} with faults")
+        title = (
+            f"robot — stage {r['stage']} {r['step']} ({r['state']}): {r['episodes']} episodes, "
+            f"{r['successes']} labelled success, robot time {r['robot_time_s']:.1f} s, "
+            f"{r['faults']} with faults"
+        )
         if "window" in r:
             title += f"; running success {r['window']} — stop rule {r['stop_rule']}"
         table = Table(title=title, title_justify="left")
         for col in ("session", "started", "last seal", "host", "operator", "episodes", "robot time", "ended"):
             table.add_column(col, overflow="fold")
         for s in r["sessions"]:
-            table.add_row(str(s["id"]), s["started"][:19].replace("T", " "), s["last"][:19].replace("T", " "),
-                          s["host"], s["operator"], str(s["episodes"]), f"{s['robot_time_s']:.1f} s", s["ended"])
+            table.add_row(
+                str(s["id"]),
+                s["started"][:19].replace("T", " "),
+                s["last"][:19].replace("T", " "),
+                s["host"],
+                s["operator"],
+                str(s["episodes"]),
+                f"{s['robot_time_s']:.1f} s",
+                s["ended"],
+            )
         console().print(table)

@@ -2,6 +2,7 @@
 
 Only typer/rich at module level; torch and lerobot load inside the commands.
 """
+
 from __future__ import annotations
 
 import json
@@ -10,8 +11,9 @@ from typing import Annotated, Optional
 
 import typer
 
-policy_app = typer.Typer(help="Base policies (lerobot checkpoints): fine-tune on demos, query chunks, measure success.",
-                         no_args_is_help=True)
+policy_app = typer.Typer(
+    help="Base policies (lerobot checkpoints): fine-tune on demos, query chunks, measure success.", no_args_is_help=True
+)
 
 CheckpointArg = Annotated[Path, typer.Argument(help="A lerobot policy checkpoint directory.", show_default=False)]
 
@@ -24,14 +26,23 @@ def _console(stderr: bool = False):
 
 @policy_app.command("finetune")
 def finetune_cmd(
-    demos: Annotated[list[Path], typer.Option("--demos", help="A task's LeRobotDataset; repeat in task order, current task last.")],
+    demos: Annotated[
+        list[Path], typer.Option("--demos", help="A task's LeRobotDataset; repeat in task order, current task last.")
+    ],
     out: Annotated[Path, typer.Option("--out", help="Output checkpoint directory (must not exist or be empty).")],
-    init: Annotated[str, typer.Option("--init", help="Checkpoint dir to continue from, or embedded-mlp / embedded-act / act / diffusion.")] = "embedded-mlp",
+    init: Annotated[
+        str,
+        typer.Option(
+            "--init", help="Checkpoint dir to continue from, or embedded-mlp / embedded-act / act / diffusion."
+        ),
+    ] = "embedded-mlp",
     steps: Annotated[int, typer.Option("--steps")] = 2000,
     batch_size: Annotated[int, typer.Option("--batch-size")] = 32,
     lr: Annotated[float, typer.Option("--lr")] = 1e-4,
     seed: Annotated[int, typer.Option("--seed")] = 0,
-    retention: Annotated[float, typer.Option("--retention", help="Fraction of earlier tasks' demos kept (0.05..1).")] = 1.0,
+    retention: Annotated[
+        float, typer.Option("--retention", help="Fraction of earlier tasks' demos kept (0.05..1).")
+    ] = 1.0,
     chunk_size: Annotated[int, typer.Option("--chunk-size", help="Actions per chunk (from-scratch policies).")] = 16,
     device: Annotated[str, typer.Option("--device")] = "cpu",
 ) -> None:
@@ -42,11 +53,13 @@ def finetune_cmd(
 
     from accrue.policy import FinetuneSettings, finetune
 
-    settings = FinetuneSettings(steps=steps, batch_size=batch_size, lr=lr, seed=seed, retention=retention,
-                                chunk_size=chunk_size, device=device)
+    settings = FinetuneSettings(
+        steps=steps, batch_size=batch_size, lr=lr, seed=seed, retention=retention, chunk_size=chunk_size, device=device
+    )
     init_value: Path | str = Path(init) if Path(init).is_dir() else init
-    bar = Progress(TextColumn("fine-tune"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                   console=_console(stderr=True))
+    bar = Progress(
+        TextColumn("fine-tune"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(), console=_console(stderr=True)
+    )
     task = bar.add_task("steps", total=steps)
 
     def show(done: int, total: int) -> None:
@@ -75,9 +88,15 @@ def _parse_state(text: str) -> list[float]:
 @policy_app.command("chunk")
 def chunk_cmd(
     checkpoint: CheckpointArg,
-    instruction: Annotated[Optional[str], typer.Option("--instruction", help="Instruction text (default: the task's).")] = None,
-    task: Annotated[Optional[str], typer.Option("--task", help="Sim task id: use its instruction and a reset observation.")] = None,
-    state: Annotated[Optional[str], typer.Option("--state", help="Comma-separated state vector instead of a sim reset.")] = None,
+    instruction: Annotated[
+        Optional[str], typer.Option("--instruction", help="Instruction text (default: the task's).")
+    ] = None,
+    task: Annotated[
+        Optional[str], typer.Option("--task", help="Sim task id: use its instruction and a reset observation.")
+    ] = None,
+    state: Annotated[
+        Optional[str], typer.Option("--state", help="Comma-separated state vector instead of a sim reset.")
+    ] = None,
     horizon: Annotated[Optional[int], typer.Option("--horizon", help="Chunk length H (default: the policy's).")] = None,
     seed: Annotated[int, typer.Option("--seed")] = 0,
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
@@ -96,7 +115,9 @@ def chunk_cmd(
     else:
         from accrue.sim import make_vec_env
 
-        obs = make_vec_env(task, num_envs=1, seed=seed, obs_mode="state+image" if policy.image_keys else "state").reset()
+        obs = make_vec_env(
+            task, num_envs=1, seed=seed, obs_mode="state+image" if policy.image_keys else "state"
+        ).reset()
     if instruction is None:
         from accrue.sim import get_task
 
@@ -130,7 +151,9 @@ def eval_cmd(
     policy = BasePolicy.load(checkpoint)
     for task_id in task:
         result = evaluate_success(policy, task_id, episodes=episodes, horizon=horizon, seed=seed)
-        typer.echo(f"{task_id}\tsuccess {result.rate:.3f} ({result.successes}/{result.episodes})\tmean steps {result.mean_steps:.1f}")
+        typer.echo(
+            f"{task_id}\tsuccess {result.rate:.3f} ({result.successes}/{result.episodes})\tmean steps {result.mean_steps:.1f}"
+        )
 
 
 def register(app: typer.Typer) -> None:

@@ -1,5 +1,6 @@
 """`accrue report WORKFLOW [--json] [--out DIR]`: the continual metrics of a workflow's committed
 run, its per-task base-vs-after-RL success, and figures plus a rerun recording written to DIR."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -16,15 +17,27 @@ def _num(value: float | None) -> str:
     return "—" if value is None else f"{value:.3f}"
 
 
-def report(workflow: Annotated[Path, typer.Argument(metavar="WORKFLOW", help="Workflow YAML file.",
-                                                    show_default=False)],
-           out: Annotated[Optional[Path], typer.Option(
-               "--out", help="Directory for the figures, recording and report.json "
-                             "(default: runs/<workflow-name>/report/).", show_default=False)] = None,
-           single_task: Annotated[Optional[Path], typer.Option(
-               "--single-task", help="Hardware workflows: a Single-task workflow of the same tasks to compare "
-                                     "robot time against (Fig. 4).", show_default=False)] = None,
-           store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+def report(
+    workflow: Annotated[Path, typer.Argument(metavar="WORKFLOW", help="Workflow YAML file.", show_default=False)],
+    out: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--out",
+            help="Directory for the figures, recording and report.json (default: runs/<workflow-name>/report/).",
+            show_default=False,
+        ),
+    ] = None,
+    single_task: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--single-task",
+            help="Hardware workflows: a Single-task workflow of the same tasks to compare robot time against (Fig. 4).",
+            show_default=False,
+        ),
+    ] = None,
+    store: StoreOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
     """Metrics (FWT, NBT, AUC, ACC_final, F_final), per-task base vs after-RL success, plots and a .rrd.
     A workflow with a robot gets the paper's Fig. 4 and Table III instead."""
     from stages.report.build import write_report
@@ -83,19 +96,38 @@ def _print_summary(s: dict) -> None:
         stages.add_column(col, justify="left" if col == "task" else "right")
     per = s["per_stage"]
     for i, st in enumerate(s["stages"]):
-        stages.add_row(str(st["stage"]), st["task"], _num(per["FWT"][i]),
-                       _num(per["NBT"][i]) if i < len(per["NBT"]) else "—", _num(per["AUC"][i]),
-                       str(s["best_checkpoint"][i]["env_steps"]))
+        stages.add_row(
+            str(st["stage"]),
+            st["task"],
+            _num(per["FWT"][i]),
+            _num(per["NBT"][i]) if i < len(per["NBT"]) else "—",
+            _num(per["AUC"][i]),
+            str(s["best_checkpoint"][i]["env_steps"]),
+        )
     con.print(stages)
 
     tasks = Table(title="per task: base policy vs after RL (deployment, evaluate-all)", title_justify="left")
-    for col in ("task", "learned in", "base π_base", "after RL", "eval (stage, episodes)",
-                "best in own stage c_jj", f"after stage {m} c_{m}j"):
+    for col in (
+        "task",
+        "learned in",
+        "base π_base",
+        "after RL",
+        "eval (stage, episodes)",
+        "best in own stage c_jj",
+        f"after stage {m} c_{m}j",
+    ):
         tasks.add_column(col, justify="left" if col == "task" else "right")
     for row in s["per_task"]:
         where = "—" if row["eval_stage"] is None else f"stage {row['eval_stage']}, {row['episodes']}"
-        tasks.add_row(row["task"], f"stage {row['stage']}", _num(row["base_success"]), _num(row["after_rl_success"]),
-                      where, _num(row["best_in_own_stage"]), _num(row["at_last_stage"]))
+        tasks.add_row(
+            row["task"],
+            f"stage {row['stage']}",
+            _num(row["base_success"]),
+            _num(row["after_rl_success"]),
+            where,
+            _num(row["best_in_own_stage"]),
+            _num(row["at_last_stage"]),
+        )
     con.print(tasks)
 
     con.print("wrote:")
@@ -113,11 +145,19 @@ def register(app: typer.Typer) -> None:
 def _print_hardware(summary: dict) -> None:
     for k, st in summary["stages"].items():
         reached = st["reached_robot_time_s"]
-        typer.echo(f"stage {k}: warmup {st['warmup_robot_time_s']:.1f} s, RL {st['rl_robot_time_s']:.1f} s over "
-                   f"{st['episodes']} episodes; " + (f"19/20 reached at {reached:.1f} s of RL robot time"
-                                                      if reached is not None else f"not reached ({st['stopped']})"))
+        typer.echo(
+            f"stage {k}: warmup {st['warmup_robot_time_s']:.1f} s, RL {st['rl_robot_time_s']:.1f} s over "
+            f"{st['episodes']} episodes; "
+            + (
+                f"19/20 reached at {reached:.1f} s of RL robot time"
+                if reached is not None
+                else f"not reached ({st['stopped']})"
+            )
+        )
     for k, row in summary.get("single_task", {}).get("time_saved", {}).items():
-        typer.echo(f"stage {k}: Single-task needed {row['single_task_s']:.1f} s, {summary['workflow']} "
-                   f"{row['accrue_s']:.1f} s: {row['saved_s']:.1f} s saved ({row['saved_percent']}%)")
+        typer.echo(
+            f"stage {k}: Single-task needed {row['single_task_s']:.1f} s, {summary['workflow']} "
+            f"{row['accrue_s']:.1f} s: {row['saved_s']:.1f} s saved ({row['saved_percent']}%)"
+        )
     for name, path in summary["files"].items():
         typer.echo(f"{name}: {path}")

@@ -3,6 +3,7 @@
 Committed steps are no-ops, so the command resumes after any interruption: run it again (with
 --continue when a step was cut off mid-way, to resume it from its last checkpoint).
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -19,16 +20,27 @@ from cli.store_cmds import JsonOpt, StoreOpt, console, open_store, print_json
 WorkflowArg = Annotated[Path, typer.Argument(metavar="WORKFLOW", help="Workflow YAML file.", show_default=False)]
 
 
-def run(workflow: WorkflowArg,
-        budget: Annotated[Optional[str], typer.Option(
-            "--budget", metavar="FRACTION_OR_STEPS",
-            help="Scale each stage's env-step budget (0.01) or set it (5000); the eval grid scales alike.")] = None,
-        stages: Annotated[Optional[str], typer.Option(
-            "--stages", metavar="A-B", help="Run only these stages, e.g. 1-2 (default: all).")] = None,
-        cont: Annotated[bool, typer.Option("--continue", help="Resume interrupted steps from their last checkpoint.")] = False,
-        rerun: Annotated[bool, typer.Option("--rerun", help="Run every step again from scratch, ignoring caches.")] = False,
-        wait: Annotated[bool, typer.Option("--wait", help="If another process runs the same step, wait for it.")] = False,
-        store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+def run(
+    workflow: WorkflowArg,
+    budget: Annotated[
+        Optional[str],
+        typer.Option(
+            "--budget",
+            metavar="FRACTION_OR_STEPS",
+            help="Scale each stage's env-step budget (0.01) or set it (5000); the eval grid scales alike.",
+        ),
+    ] = None,
+    stages: Annotated[
+        Optional[str], typer.Option("--stages", metavar="A-B", help="Run only these stages, e.g. 1-2 (default: all).")
+    ] = None,
+    cont: Annotated[
+        bool, typer.Option("--continue", help="Resume interrupted steps from their last checkpoint.")
+    ] = False,
+    rerun: Annotated[bool, typer.Option("--rerun", help="Run every step again from scratch, ignoring caches.")] = False,
+    wait: Annotated[bool, typer.Option("--wait", help="If another process runs the same step, wait for it.")] = False,
+    store: StoreOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
     """Run every stage of WORKFLOW (finished steps are skipped; interrupted ones need --continue or --rerun)."""
     from stages.plan import apply_budget, plan_stage
     from stages.runner import Runner
@@ -42,18 +54,22 @@ def run(workflow: WorkflowArg,
     runner = Runner(st, console=out if not as_json else None, wait=wait)
     started, summary = time.monotonic(), []
     with contextlib.redirect_stdout(sys.stderr) if as_json else contextlib.nullcontext():
-        for k in range(first, last + 1):   # with --json, stdout carries the JSON summary only
+        for k in range(first, last + 1):  # with --json, stdout carries the JSON summary only
             if not as_json:
                 out.rule(f"workflow {wf.name} · stage {k}/{wf.num_stages} · {wf.task(k)}")
             results = runner.run_plan(plan_stage(wf, k, st), mode=mode)
-            summary += [{"stage": k, "step": r.step, "cached": r.cached, "record": r.record_id,
-                         "outputs": r.outputs} for r in results]
+            summary += [
+                {"stage": k, "step": r.step, "cached": r.cached, "record": r.record_id, "outputs": r.outputs}
+                for r in results
+            ]
     if as_json:
         print_json(summary)
     else:
         done = sum(not r["cached"] for r in summary)
-        out.print(f"workflow {wf.name}: stages {first}-{last} done ({done} steps run, "
-                  f"{len(summary) - done} cached) in {time.monotonic() - started:.0f} s")
+        out.print(
+            f"workflow {wf.name}: stages {first}-{last} done ({done} steps run, "
+            f"{len(summary) - done} cached) in {time.monotonic() - started:.0f} s"
+        )
 
 
 def parse_stages(text: str | None, num_stages: int) -> tuple[int, int]:

@@ -2,6 +2,7 @@
 
 Only typer/rich at module level; the simulator, lerobot and rerun are imported inside commands.
 """
+
 from __future__ import annotations
 
 import json
@@ -10,8 +11,9 @@ from typing import Annotated, Optional
 
 import typer
 
-sim_app = typer.Typer(help="Simulated insertion tasks: list them, record expert demos, watch an episode.",
-                      no_args_is_help=True)
+sim_app = typer.Typer(
+    help="Simulated insertion tasks: list them, record expert demos, watch an episode.", no_args_is_help=True
+)
 
 TaskArg = Annotated[str, typer.Argument(help="Task id, e.g. plugs/cross (see `accrue sim tasks`).", show_default=False)]
 SeedOpt = Annotated[int, typer.Option("--seed", min=0, help="Seed of the env (and expert / random policy).")]
@@ -45,9 +47,14 @@ def tasks_cmd(
             families = sorted({s.family for s in (sim.get_task(t) for t in sim.list_tasks())})
             raise AccrueError(f"no task family {family!r}; families: {', '.join(families)}")
     rows = [
-        {"family": s.family, "task_id": s.task_id, "instruction": s.instruction,
-         "clearance_mm": round(float(s.clearance) * 1e3, 3), "max_steps": int(s.max_steps),
-         "control_hz": float(s.control_hz)}
+        {
+            "family": s.family,
+            "task_id": s.task_id,
+            "instruction": s.instruction,
+            "clearance_mm": round(float(s.clearance) * 1e3, 3),
+            "max_steps": int(s.max_steps),
+            "control_hz": float(s.control_hz),
+        }
         for s in specs
     ]
     if as_json:
@@ -56,12 +63,22 @@ def tasks_cmd(
     from rich.table import Table
 
     table = Table(title=f"{len(rows)} simulated tasks")
-    for name, justify in (("family", "left"), ("task id", "left"), ("instruction", "left"),
-                          ("clearance", "right"), ("max steps", "right")):
+    for name, justify in (
+        ("family", "left"),
+        ("task id", "left"),
+        ("instruction", "left"),
+        ("clearance", "right"),
+        ("max steps", "right"),
+    ):
         table.add_column(name, justify=justify)
     for r in rows:
-        table.add_row(r["family"], r["task_id"], r["instruction"], f"{r['clearance_mm']:.2f} mm",
-                      f"{r['max_steps']} ({r['max_steps'] / r['control_hz']:.1f} s)")
+        table.add_row(
+            r["family"],
+            r["task_id"],
+            r["instruction"],
+            f"{r['clearance_mm']:.2f} mm",
+            f"{r['max_steps']} ({r['max_steps'] / r['control_hz']:.1f} s)",
+        )
     _console().print(table)
 
 
@@ -69,18 +86,32 @@ def tasks_cmd(
 def demos_cmd(
     task: TaskArg,
     episodes: Annotated[int, typer.Option("--episodes", "-n", min=1, help="Episodes to write.")] = ...,
-    out: Annotated[Path, typer.Option("--out", "-o", help="New (or empty) dataset directory.", show_default=False)] = ...,
+    out: Annotated[
+        Path, typer.Option("--out", "-o", help="New (or empty) dataset directory.", show_default=False)
+    ] = ...,
     seed: SeedOpt = 0,
     quality: Annotated[float, typer.Option("--quality", min=0.0, max=1.0, help="Expert quality (1 = best).")] = 1.0,
     images: Annotated[bool, typer.Option("--images", help="Also record the wrist camera (video).")] = False,
     keep_failures: Annotated[bool, typer.Option("--keep-failures", help="Keep failed expert episodes too.")] = False,
-    search: Annotated[bool, typer.Option("--search/--no-search",
-                      help="--no-search: an expert that never searches (acts on the current observation only).")] = True,
-    bias_known: Annotated[float, typer.Option("--bias-known", min=0.0, max=1.0,
-                          help="Fraction of the fixture's estimate bias the expert corrects.")] = 1.0,
-    num_envs: Annotated[Optional[int], typer.Option("--num-envs", min=1, help="Parallel envs (default min(N, 8)).")] = None,
-    max_attempts: Annotated[Optional[int], typer.Option("--max-attempts", min=1,
-                            help="Most expert episodes to run (default max(3N, N+8)).")] = None,
+    search: Annotated[
+        bool,
+        typer.Option(
+            "--search/--no-search",
+            help="--no-search: an expert that never searches (acts on the current observation only).",
+        ),
+    ] = True,
+    bias_known: Annotated[
+        float,
+        typer.Option(
+            "--bias-known", min=0.0, max=1.0, help="Fraction of the fixture's estimate bias the expert corrects."
+        ),
+    ] = 1.0,
+    num_envs: Annotated[
+        Optional[int], typer.Option("--num-envs", min=1, help="Parallel envs (default min(N, 8)).")
+    ] = None,
+    max_attempts: Annotated[
+        Optional[int], typer.Option("--max-attempts", min=1, help="Most expert episodes to run (default max(3N, N+8)).")
+    ] = None,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar.")] = False,
 ) -> None:
     """Record scripted-expert demonstrations as a LeRobotDataset v3 (loads with lerobot offline)."""
@@ -89,18 +120,31 @@ def demos_cmd(
     refuse_inside_store(out, "--out")  # before the simulator's slow imports
     from accrue.sim.demos import write_demos
 
-    summary = write_demos(task, episodes, out, seed=seed, quality=quality,
-                          obs_mode="state+image" if images else "state", only_successful=not keep_failures,
-                          progress=not quiet, num_envs=num_envs, max_attempts=max_attempts,
-                          search=search, bias_known=bias_known)
+    summary = write_demos(
+        task,
+        episodes,
+        out,
+        seed=seed,
+        quality=quality,
+        obs_mode="state+image" if images else "state",
+        only_successful=not keep_failures,
+        progress=not quiet,
+        num_envs=num_envs,
+        max_attempts=max_attempts,
+        search=search,
+        bias_known=bias_known,
+    )
     con = _console()
     con.print(f"wrote {summary.episodes} episodes ({summary.frames} frames) of {summary.task_id} to {summary.root}")
-    con.print(f"expert success rate: {summary.expert_success_rate:.0%} "
-              f"({summary.successes} of {summary.attempts} episodes, quality {summary.quality:g})")
+    con.print(
+        f"expert success rate: {summary.expert_success_rate:.0%} "
+        f"({summary.successes} of {summary.attempts} episodes, quality {summary.quality:g})"
+    )
     if not summary.complete:
         _console(stderr=True).print(
             f"[yellow]warning:[/] only {summary.episodes} of {summary.requested} episodes written "
-            f"(attempt bound reached); raise --max-attempts or --quality")
+            f"(attempt bound reached); raise --max-attempts or --quality"
+        )
         raise typer.Exit(1)
 
 
@@ -109,11 +153,20 @@ def watch_cmd(
     task: TaskArg,
     policy: Annotated[str, typer.Option("--policy", help="expert or random.")] = "expert",
     seed: SeedOpt = 0,
-    out: Annotated[Optional[Path], typer.Option("--out", "-o", help="Recording file (.rrd); "
-                   "default ./watch-<task>-<policy>-seed<S>.rrd.", show_default=False)] = None,
+    out: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--out",
+            "-o",
+            help="Recording file (.rrd); default ./watch-<task>-<policy>-seed<S>.rrd.",
+            show_default=False,
+        ),
+    ] = None,
     images: Annotated[bool, typer.Option("--images", help="Also log the wrist camera.")] = False,
-    mcap: Annotated[Optional[Path], typer.Option("--mcap", help="Also record the episode as MCAP in this directory.",
-                    show_default=False)] = None,
+    mcap: Annotated[
+        Optional[Path],
+        typer.Option("--mcap", help="Also record the episode as MCAP in this directory.", show_default=False),
+    ] = None,
 ) -> None:
     """Run one episode and write a rerun recording of it (open with `rerun FILE.rrd`)."""
     from accrue.errors import AccrueError
@@ -129,8 +182,10 @@ def watch_cmd(
     result = watch_episode(task, policy=policy, seed=seed, out=out, images=images, mcap_dir=mcap)
     con = _console()
     outcome = "[green]success[/]" if result.success else "[red]no success[/]"
-    con.print(f"{task} with the {policy} policy (seed {seed}): {outcome} after {result.steps} steps, "
-              f"return {result.episode_return:g}")
+    con.print(
+        f"{task} with the {policy} policy (seed {seed}): {outcome} after {result.steps} steps, "
+        f"return {result.episode_return:g}"
+    )
     con.print(f"recording: {result.rrd_path}" + (f"\nepisode log: {result.mcap_path}" if result.mcap_path else ""))
 
 

@@ -3,6 +3,7 @@
 `stage run` asks stages.plan.plan_stage(workflow, k, store) for the stage's step invocations and
 hands them to the runner; until the step bodies are installed it says so and stops.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -36,8 +37,10 @@ def load_plan_function():
         module = importlib.import_module("stages.plan")
     except ModuleNotFoundError as exc:
         if exc.name == "stages.plan":
-            raise StageError("the step bodies are not installed (stages/plan.py is missing): this build "
-                             "can validate workflows and manage the store, but cannot run stages") from None
+            raise StageError(
+                "the step bodies are not installed (stages/plan.py is missing): this build "
+                "can validate workflows and manage the store, but cannot run stages"
+            ) from None
         raise
     if not hasattr(module, "plan_stage"):
         raise StageError("stages/plan.py does not define plan_stage(workflow, stage, store)")
@@ -45,14 +48,22 @@ def load_plan_function():
 
 
 @stage_app.command("run")
-def run(workflow: WorkflowArg,
-        stage: Annotated[int, typer.Option("--stage", help="Stage number k (1-based).", show_default=False)],
-        step: Annotated[Optional[str], typer.Option(
-            "--step", help="Run this step (after the steps it needs, usually cached) and stop.")] = None,
-        cont: Annotated[bool, typer.Option("--continue", help="Resume an interrupted step from its last checkpoint.")] = False,
-        rerun: Annotated[bool, typer.Option("--rerun", help="Run the step(s) again from scratch, ignoring caches.")] = False,
-        wait: Annotated[bool, typer.Option("--wait", help="If another process runs the same step, wait for it.")] = False,
-        store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+def run(
+    workflow: WorkflowArg,
+    stage: Annotated[int, typer.Option("--stage", help="Stage number k (1-based).", show_default=False)],
+    step: Annotated[
+        Optional[str], typer.Option("--step", help="Run this step (after the steps it needs, usually cached) and stop.")
+    ] = None,
+    cont: Annotated[
+        bool, typer.Option("--continue", help="Resume an interrupted step from its last checkpoint.")
+    ] = False,
+    rerun: Annotated[
+        bool, typer.Option("--rerun", help="Run the step(s) again from scratch, ignoring caches.")
+    ] = False,
+    wait: Annotated[bool, typer.Option("--wait", help="If another process runs the same step, wait for it.")] = False,
+    store: StoreOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
     """Run stage K of WORKFLOW: finished steps are no-ops, interrupted ones need --continue or --rerun."""
     from stages.runner import Runner
     from stages.workflow import load_workflow
@@ -66,8 +77,12 @@ def run(workflow: WorkflowArg,
     runner = Runner(st, console=console() if not as_json else None, wait=wait)
     results = runner.run_plan(plan, only_step=step, mode=mode)
     if as_json:
-        print_json([{"step": r.step, "cached": r.cached, "record": r.record_id, "attempt": r.attempt,
-                     "outputs": r.outputs} for r in results])
+        print_json(
+            [
+                {"step": r.step, "cached": r.cached, "record": r.record_id, "attempt": r.attempt, "outputs": r.outputs}
+                for r in results
+            ]
+        )
 
 
 @stage_app.command("status")
@@ -81,7 +96,7 @@ def status(workflow: WorkflowArg, store: StoreOpt = None, as_json: JsonOpt = Fal
     wf = load_workflow(workflow)
     rows = workflow_status(open_store(store), wf)
     if as_json:
-        if wf.robot is not None:   # a hardware workflow: {"steps": [...], "hardware": sessions per step}
+        if wf.robot is not None:  # a hardware workflow: {"steps": [...], "hardware": sessions per step}
             from stages.steps.hw_status import hardware_status
 
             print_json({"steps": rows, "hardware": hardware_status(open_store(store), wf)})
@@ -91,13 +106,13 @@ def status(workflow: WorkflowArg, store: StoreOpt = None, as_json: JsonOpt = Fal
     table = Table(title=f"workflow {wf.name} ({wf.method}, {wf.num_stages} stages)", title_justify="left")
     for col in ("stage", "task", "step", "state", "record / detail"):
         table.add_column(col, overflow="fold")
-    colours = {"committed": "green", "running": "cyan", "failed": "red", "abandoned": "yellow",
-               "not run": "dim"}
+    colours = {"committed": "green", "running": "cyan", "failed": "red", "abandoned": "yellow", "not run": "dim"}
     for r in rows:
-        table.add_row(str(r["stage"]), r["task"], r["step"],
-                      f"[{colours.get(r['state'], 'white')}]{r['state']}[/]", r["detail"])
+        table.add_row(
+            str(r["stage"]), r["task"], r["step"], f"[{colours.get(r['state'], 'white')}]{r['state']}[/]", r["detail"]
+        )
     console().print(table)
-    if wf.robot is not None:      # a hardware workflow: sessions, running success, robot time, stop rule
+    if wf.robot is not None:  # a hardware workflow: sessions, running success, robot time, stop rule
         from cli.hw_status_view import print_hardware_status
 
         print_hardware_status(open_store(store), wf)

@@ -76,12 +76,24 @@ def add(
     path: Annotated[Path, typer.Argument(help="File or directory to ingest.", show_default=False)],
     kind: Annotated[str, typer.Option("--kind", help="Artifact kind, e.g. demos, episodes, base-policy.")],
     ref: Annotated[Optional[str], typer.Option("--ref", help="Also point this ref at it.")] = None,
-    workflow: Annotated[Optional[Path], typer.Option(
-        "--workflow", help="With --kind demos: a lerobot-record dataset, checked against this workflow's "
-                           "robot mapping and stored converted into accrue's demo layout.", show_default=False)] = None,
-    task: Annotated[Optional[str], typer.Option(
-        "--task", help="With --workflow: the workflow task the demonstrations are for (default: the one the "
-                       "dataset names, or the workflow's only task).", show_default=False)] = None,
+    workflow: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--workflow",
+            help="With --kind demos: a lerobot-record dataset, checked against this workflow's "
+            "robot mapping and stored converted into accrue's demo layout.",
+            show_default=False,
+        ),
+    ] = None,
+    task: Annotated[
+        Optional[str],
+        typer.Option(
+            "--task",
+            help="With --workflow: the workflow task the demonstrations are for (default: the one the "
+            "dataset names, or the workflow's only task).",
+            show_default=False,
+        ),
+    ] = None,
     store: StoreOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
@@ -94,7 +106,7 @@ def add(
     if task is not None and workflow is None:
         raise StoreError("--task goes with --workflow (the robot whose demonstrations are converted)")
     st = open_store(store)
-    if workflow is not None:       # a robot's demonstrations: mapped into accrue's demo layout, then stored
+    if workflow is not None:  # a robot's demonstrations: mapped into accrue's demo layout, then stored
         import shutil
         import tempfile
 

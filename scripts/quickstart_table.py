@@ -11,6 +11,7 @@ Every seed runs as its own workflow (`quickstart-s<seed>-<variant>`) in its seed
 policies through the step cache. Re-running
 resumes (committed steps are skipped). Results: benchmarks/results/quickstart-<variant>.json.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -63,10 +64,15 @@ def summarize(path: Path, store: Path) -> dict:
     run = load_run(Store(store), wf)
     s = summary_of(run)
     # stage-start: task k at stage k, env step 0 (the inherited actor with π_base^k), next to π_base^k alone
-    s["stage_start"] = [{"stage": st["stage"], "task": st["task"], "actor_at_e0": st["success"][st["task"]][0],
-                         "base_alone": next(e["base_success"][st["task"]] for e in s["evaluations"]
-                                            if e["stage"] == st["stage"])}
-                        for st in s["stages"]]
+    s["stage_start"] = [
+        {
+            "stage": st["stage"],
+            "task": st["task"],
+            "actor_at_e0": st["success"][st["task"]][0],
+            "base_alone": next(e["base_success"][st["task"]] for e in s["evaluations"] if e["stage"] == st["stage"]),
+        }
+        for st in s["stages"]
+    ]
     return s
 
 
@@ -80,28 +86,50 @@ def fmt(d: dict) -> str:
 
 def aggregate(summaries: list[dict]) -> dict:
     tasks = summaries[0]["tasks"]
-    per_task = {t: {key: spread([next(p for p in s["per_task"] if p["task"] == t)[key] for s in summaries])
-                    for key in ("base_success", "after_rl_success", "best_in_own_stage")} for t in tasks}
+    per_task = {
+        t: {
+            key: spread([next(p for p in s["per_task"] if p["task"] == t)[key] for s in summaries])
+            for key in ("base_success", "after_rl_success", "best_in_own_stage")
+        }
+        for t in tasks
+    }
     stage_start = {}
     for k in range(2, len(tasks) + 1):
         rows = [next(r for r in s["stage_start"] if r["stage"] == k) for s in summaries]
-        stage_start[k] = {"task": rows[0]["task"], "actor_at_e0": spread([r["actor_at_e0"] for r in rows]),
-                          "base_alone": spread([r["base_alone"] for r in rows])}
-    metrics = {m: spread([s["metrics"][m] for s in summaries]) for m in summaries[0]["metrics"]
-               if all(s["metrics"][m] is not None for s in summaries)}
+        stage_start[k] = {
+            "task": rows[0]["task"],
+            "actor_at_e0": spread([r["actor_at_e0"] for r in rows]),
+            "base_alone": spread([r["base_alone"] for r in rows]),
+        }
+    metrics = {
+        m: spread([s["metrics"][m] for s in summaries])
+        for m in summaries[0]["metrics"]
+        if all(s["metrics"][m] is not None for s in summaries)
+    }
     return {"per_task": per_task, "stage_start": stage_start, "metrics": metrics}
 
 
 def markdown(result: dict) -> str:
     agg, seeds = result["aggregate"], result["seeds"]
-    lines = [f"Seeds {', '.join(map(str, seeds))}; mean (min–max) over seeds; 100 evaluation episodes per task "
-             f"and point. Made by `{result['command']}`.", "",
-             "| task | base policy alone | base + RL actor | best during its stage |", "|---|---|---|---|"]
+    lines = [
+        f"Seeds {', '.join(map(str, seeds))}; mean (min–max) over seeds; 100 evaluation episodes per task "
+        f"and point. Made by `{result['command']}`.",
+        "",
+        "| task | base policy alone | base + RL actor | best during its stage |",
+        "|---|---|---|---|",
+    ]
     for t, row in agg["per_task"].items():
-        lines.append(f"| {t} | {fmt(row['base_success'])} | **{fmt(row['after_rl_success'])}** | "
-                     f"{fmt(row['best_in_own_stage'])} |")
-    lines += ["", "At the start of each later stage (env step 0), on the new task:", "",
-              "| stage | task | inherited actor + new base | new base alone |", "|---|---|---|---|"]
+        lines.append(
+            f"| {t} | {fmt(row['base_success'])} | **{fmt(row['after_rl_success'])}** | "
+            f"{fmt(row['best_in_own_stage'])} |"
+        )
+    lines += [
+        "",
+        "At the start of each later stage (env step 0), on the new task:",
+        "",
+        "| stage | task | inherited actor + new base | new base alone |",
+        "|---|---|---|---|",
+    ]
     for k, row in agg["stage_start"].items():
         lines.append(f"| {k} | {row['task']} | {fmt(row['actor_at_e0'])} | {fmt(row['base_alone'])} |")
     lines += ["", "Metrics (paper Sec. V-A): " + ", ".join(f"{m} {fmt(v)}" for m, v in agg["metrics"].items()) + "."]
@@ -112,11 +140,20 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--workflow", type=Path, default=ROOT / "workflows" / "quickstart.yaml")
-    ap.add_argument("--store", default=str(ROOT / "runs" / "quickstart-seeds" / "store-s{seed}"),
-                    help="store directory; {seed} is replaced by the seed")
+    ap.add_argument(
+        "--store",
+        default=str(ROOT / "runs" / "quickstart-seeds" / "store-s{seed}"),
+        help="store directory; {seed} is replaced by the seed",
+    )
     ap.add_argument("--variant", default="main", help="a name for the overrides (part of workflow names)")
-    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                    help="workflow override, dotted path, YAML value (repeatable)")
+    ap.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="workflow override, dotted path, YAML value (repeatable)",
+    )
     ap.add_argument("--no-run", action="store_true", help="only tabulate what the store already has")
     ap.add_argument("--readme", action="store_true", help="rewrite the README's quickstart table")
     ap.add_argument("--out", type=Path, default=None)
@@ -131,10 +168,18 @@ def main() -> None:
             run_workflow(path, store)
         summaries.append(summarize(path, store))
     command = "python scripts/quickstart_table.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])
-    result = {"command": command.strip(), "workflow": str(args.workflow.relative_to(ROOT)), "seeds": args.seeds,
-              "variant": args.variant, "overrides": args.overrides, "aggregate": aggregate(summaries),
-              "runs": [{k: s[k] for k in ("workflow", "seed", "metrics", "per_task", "stage_start", "success_matrix")}
-                       for s in summaries]}
+    result = {
+        "command": command.strip(),
+        "workflow": str(args.workflow.relative_to(ROOT)),
+        "seeds": args.seeds,
+        "variant": args.variant,
+        "overrides": args.overrides,
+        "aggregate": aggregate(summaries),
+        "runs": [
+            {k: s[k] for k in ("workflow", "seed", "metrics", "per_task", "stage_start", "success_matrix")}
+            for s in summaries
+        ],
+    }
     out = args.out or ROOT / "benchmarks" / "results" / f"quickstart-{args.variant}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=1) + "\n")

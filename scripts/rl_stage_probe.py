@@ -9,6 +9,7 @@ only the fraction F of its fixture's socket-estimate bias, its action held as on
 first step moves the target, the rest keep descending) — a reference with a systematic error the
 actor can learn to correct. Prints the success of the reference alone and the curve of the actor.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -19,8 +20,8 @@ import numpy as np
 import torch
 
 from accrue import rl_loop
-from accrue.learner_inputs import state_features
 from accrue.learner import LearnerConfig, ReplayBuffer, make_learner
+from accrue.learner_inputs import state_features
 from accrue.sim import get_task, make_expert, make_vec_env
 
 
@@ -28,7 +29,7 @@ def standin_reference(task_id: str, horizon: int, known_bias: float):
     bias = np.asarray(get_task(task_id).estimate_bias)
 
     def reference(obs: dict) -> np.ndarray:
-        expert = make_expert(task_id, quality=1.0, seed=0, correction=-bias * known_bias)   # fresh: stateless
+        expert = make_expert(task_id, quality=1.0, seed=0, correction=-bias * known_bias)  # fresh: stateless
         a = expert.act(obs["state"])
         chunk = np.zeros((len(a), horizon, 6), dtype=np.float32)
         chunk[:, 0] = a
@@ -59,14 +60,17 @@ def main() -> None:
     p.add_argument("--eval-episodes", type=int, default=40)
     p.add_argument("--warmup-episodes", type=int, default=16)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--learner", default="{}", help='LearnerConfig overrides as JSON, e.g. \'{"utd": 4}\'')
+    p.add_argument("--learner", default="{}", help="LearnerConfig overrides as JSON, e.g. '{\"utd\": 4}'")
     args = p.parse_args()
 
     torch.set_num_threads(1)
     torch.manual_seed(args.seed)
     H = args.horizon
-    reference = (standin_reference(args.task, H, args.standin) if args.standin is not None
-                 else base_reference(args.base, args.task, H))
+    reference = (
+        standin_reference(args.task, H, args.standin)
+        if args.standin is not None
+        else base_reference(args.base, args.task, H)
+    )
     cfg = LearnerConfig.from_dict({"seed": args.seed, **json.loads(args.learner)})
     env = make_vec_env(args.task, args.num_envs, seed=rl_loop.env_seed(args.seed, 1, "train"))
     features = state_features
@@ -77,16 +81,25 @@ def main() -> None:
     warm = rl_loop.warmup(collector, args.warmup_episodes)
     print(f"warmup: {warm.episodes} episodes, {warm.successes} successes, {len(buffer)} transitions")
     evaluator = rl_loop.Evaluator(
-        lambda t, n: make_vec_env(t, n, seed=rl_loop.env_seed(args.seed, 1, "eval", 0)), {args.task: reference},
-        features, args.eval_episodes, min(args.num_envs, 10), H, cfg.gamma)
+        lambda t, n: make_vec_env(t, n, seed=rl_loop.env_seed(args.seed, 1, "eval", 0)),
+        {args.task: reference},
+        features,
+        args.eval_episodes,
+        min(args.num_envs, 10),
+        H,
+        cfg.gamma,
+    )
     print(f"reference alone: {evaluator.success_rate(args.task):.3f}")
     started = time.monotonic()
 
     def show(st, info):
         if "eval" in info:
-            print(f"env steps {st.env_steps:6d}  updates {st.updates:5d}  train success "
-                  f"{st.successes / max(st.episodes, 1):.2f}  eval {info['eval'][args.task]:.3f}  "
-                  f"({time.monotonic() - started:.0f} s)", flush=True)
+            print(
+                f"env steps {st.env_steps:6d}  updates {st.updates:5d}  train success "
+                f"{st.successes / max(st.episodes, 1):.2f}  eval {info['eval'][args.task]:.3f}  "
+                f"({time.monotonic() - started:.0f} s)",
+                flush=True,
+            )
 
     settings = rl_loop.LoopSettings([args.task], args.env_steps, args.eval_every, 0)
     rl_loop.train_loop(learner, collector, evaluator, settings, on_progress=show)

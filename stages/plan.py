@@ -18,6 +18,7 @@ Each step's config holds only the settings it reads, so changing one setting re-
 that read it and those downstream (through their changed inputs). Earlier stages are reached through
 refs (`workflow/<name>/stage/<i>/<step>:<role>`), resolved and pinned when the step starts.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -50,8 +51,7 @@ def check_workflow(wf: Workflow) -> None:
     known = list_tasks()
     for i, task in enumerate(wf.tasks):
         if task not in known:
-            raise StageError(f"workflow {wf.name}: tasks[{i}]: unknown task {task!r} "
-                             f"(known: {', '.join(known)})")
+            raise StageError(f"workflow {wf.name}: tasks[{i}]: unknown task {task!r} (known: {', '.join(known)})")
     for task in wf.base_policy.demos:
         if task not in wf.tasks:
             raise StageError(f"workflow {wf.name}: base_policy.demos: {task!r} is not one of the workflow's tasks")
@@ -67,7 +67,7 @@ def _init_source(wf: Workflow, store) -> str | None:
     if init in SCRATCH_NAMES or parse_spec(init) is not None:
         return None
     path = Path(init).expanduser()
-    if path.is_dir():   # a checkpoint directory on disk is brought into the store (idempotent)
+    if path.is_dir():  # a checkpoint directory on disk is brought into the store (idempotent)
         from artifacts.ingest import add_path
 
         return add_path(store, path, "base-policy")[0]
@@ -87,8 +87,7 @@ def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
     steps: list[StepInvocation] = []
 
     def add(name: str, config: dict, inputs: dict, step=None) -> None:
-        steps.append(StepInvocation(step=step or STEPS[name], config=config, inputs=inputs,
-                                    workflow=wf.name, stage=k))
+        steps.append(StepInvocation(step=step or STEPS[name], config=config, inputs=inputs, workflow=wf.name, stage=k))
 
     # demos D^1..D^k: given artifacts, else recorded by the scripted expert (this stage records D^k);
     # none for the scripted stand-in reference, which is never fine-tuned
@@ -104,8 +103,14 @@ def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
         else:
             demos[f"demos-{i}"] = output_ref(wf, i, "record-demos", "demos")
     if task not in bp.demos and not scripted:
-        demo_config = {"task": task, "episodes": bp.demos_per_task, "seed": wf.seed,
-                       "quality": bp.demo_quality, "obs_mode": wf.obs_mode, "num_envs": DEMO_ENVS}
+        demo_config = {
+            "task": task,
+            "episodes": bp.demos_per_task,
+            "seed": wf.seed,
+            "quality": bp.demo_quality,
+            "obs_mode": wf.obs_mode,
+            "num_envs": DEMO_ENVS,
+        }
         # the demonstrator's kind enters the cache key only when it is not the default searching expert
         if not bp.demo_search or bp.demo_bias_known != 1.0:
             demo_config.update(search=bp.demo_search, bias_known=bp.demo_bias_known)
@@ -114,10 +119,23 @@ def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
     init = _init_source(wf, store) if k == 1 else output_ref(wf, k - 1, "finetune-base", "base-policy")
     ft_inputs = dict(demos, **({"init": init} if init is not None else {}))
     ft_step = dataclasses.replace(STEPS["finetune-base"], inputs=tuple(demos))
-    add("finetune-base", {"stage": k, "tasks": tasks, "init": bp.init if k == 1 else "previous-stage",
-                          "finetune": bp.finetune, "steps": bp.finetune_steps, "batch_size": bp.batch_size,
-                          "lr": bp.lr, "seed": wf.seed, "retention": bp.demo_retention, "chunk_size": wf.horizon},
-        ft_inputs, step=ft_step)
+    add(
+        "finetune-base",
+        {
+            "stage": k,
+            "tasks": tasks,
+            "init": bp.init if k == 1 else "previous-stage",
+            "finetune": bp.finetune,
+            "steps": bp.finetune_steps,
+            "batch_size": bp.batch_size,
+            "lr": bp.lr,
+            "seed": wf.seed,
+            "retention": bp.demo_retention,
+            "chunk_size": wf.horizon,
+        },
+        ft_inputs,
+        step=ft_step,
+    )
 
     previous_handoff = output_ref(wf, k - 1, "handoff", "handoff") if k > 1 else None
     from stages.steps.cache_teacher import skip_reason
@@ -126,36 +144,65 @@ def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
     teacher_config = {"stage": k, "method": method, "ablation": ablation, "seed": wf.seed}
     teacher_inputs = {"handoff": previous_handoff} if distills else {}
     distill_inputs = learner.get("distill_inputs", "stored")
-    if distills and distill_inputs != "stored":   # π_base^k's chunks at the retained states are cached too
+    if distills and distill_inputs != "stored":  # π_base^k's chunks at the retained states are cached too
         teacher_config.update(distill_inputs=distill_inputs, task_ids=tasks, encoder=wf.encoder, horizon=wf.horizon)
         teacher_inputs["base-policy"] = FromStep("finetune-base", "base-policy")
     add("cache-teacher", teacher_config, teacher_inputs)
 
     env = {"horizon": wf.horizon, "obs_mode": wf.obs_mode, "encoder": wf.encoder, "num_envs": b.num_envs}
-    if wf.task_features:      # in the cache key only when used, so workflows without it keep their keys
+    if wf.task_features:  # in the cache key only when used, so workflows without it keep their keys
         env["task_features"] = wf.task_features
-    add("warmup", {"stage": k, "task": task, "seed": wf.seed, "episodes": b.warmup_episodes, "gamma": gamma, **env},
-        {"base-policy": FromStep("finetune-base", "base-policy")})
+    add(
+        "warmup",
+        {"stage": k, "task": task, "seed": wf.seed, "episodes": b.warmup_episodes, "gamma": gamma, **env},
+        {"base-policy": FromStep("finetune-base", "base-policy")},
+    )
 
     train_inputs = {"base-policy": FromStep("finetune-base", "base-policy"), "replay": FromStep("warmup", "replay")}
     if previous_handoff is not None:
         train_inputs["handoff"] = previous_handoff
     if distills:
         train_inputs["teacher"] = FromStep("cache-teacher", "teacher")
-    add("train", {"stage": k, "task_ids": tasks, "seed": wf.seed, "learner": learner, "env_steps": b.env_steps,
-                  "eval_every": b.eval_every, "eval_episodes": b.eval_episodes,
-                  "checkpoint_every": b.checkpoint_every, **env}, train_inputs)
+    add(
+        "train",
+        {
+            "stage": k,
+            "task_ids": tasks,
+            "seed": wf.seed,
+            "learner": learner,
+            "env_steps": b.env_steps,
+            "eval_every": b.eval_every,
+            "eval_episodes": b.eval_episodes,
+            "checkpoint_every": b.checkpoint_every,
+            **env,
+        },
+        train_inputs,
+    )
 
-    add("evaluate-all", {"stage": k, "task_ids": tasks, "seed": wf.seed, "episodes": b.eval_episodes,
-                         "gamma": gamma, "method": method, "record_episodes": b.log_episodes, **env},
-        {"base-policy": FromStep("finetune-base", "base-policy"), "checkpoint": FromStep("train", "checkpoint")})
+    add(
+        "evaluate-all",
+        {
+            "stage": k,
+            "task_ids": tasks,
+            "seed": wf.seed,
+            "episodes": b.eval_episodes,
+            "gamma": gamma,
+            "method": method,
+            "record_episodes": b.log_episodes,
+            **env,
+        },
+        {"base-policy": FromStep("finetune-base", "base-policy"), "checkpoint": FromStep("train", "checkpoint")},
+    )
 
     handoff_inputs = {"checkpoint": FromStep("train", "checkpoint"), "replay": FromStep("train", "replay")}
     if previous_handoff is not None:
         handoff_inputs["handoff"] = previous_handoff
-    add("handoff", {"stage": k, "retained_episodes": b.retained_episodes, "method": method, "ablation": ablation,
-                    "seed": wf.seed}, handoff_inputs)
-    if wf.robot is not None:   # warmup, train and evaluate-all on a lerobot robot (stages/steps/hw_plan.py)
+    add(
+        "handoff",
+        {"stage": k, "retained_episodes": b.retained_episodes, "method": method, "ablation": ablation, "seed": wf.seed},
+        handoff_inputs,
+    )
+    if wf.robot is not None:  # warmup, train and evaluate-all on a lerobot robot (stages/steps/hw_plan.py)
         from stages.steps.hw_plan import hardware_steps
 
         steps = hardware_steps(wf, k, steps)
@@ -183,6 +230,7 @@ def apply_budget(wf: Workflow, budget: str | None) -> Workflow:
     ckpt = 0 if b.checkpoint_every == 0 else max(1, round(b.checkpoint_every * scale))
     budgets = b.model_copy(update={"env_steps": env_steps, "eval_every": eval_every, "checkpoint_every": ckpt})
     # the base policy's fine-tuning shrinks with the rest, so a GPU workflow can smoke-run on CPU
-    base = wf.base_policy.model_copy(update={"finetune_steps": max(1, round(wf.base_policy.finetune_steps
-                                                                            * min(scale, 1.0)))})
+    base = wf.base_policy.model_copy(
+        update={"finetune_steps": max(1, round(wf.base_policy.finetune_steps * min(scale, 1.0)))}
+    )
     return wf.model_copy(update={"budgets": budgets, "base_policy": base})

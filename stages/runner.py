@@ -7,6 +7,7 @@ A step's cache key has at most one attempt running (kernel lock per key). Publis
 commit: output objects -> artifact manifests -> step-record object -> attempt file -> log
 line -> workflow ref.
 """
+
 from __future__ import annotations
 
 import os
@@ -20,16 +21,14 @@ from rich.console import Console
 from artifacts.auditlog import append_event
 from artifacts.errors import StoreError
 from artifacts.locks import Timeout, store_lock
-from artifacts.manifests import (MANIFEST_FORMAT, materialize, now_iso, publish_artifact,
-                                 read_artifact, verify_artifact)
+from artifacts.manifests import MANIFEST_FORMAT, materialize, now_iso, publish_artifact, read_artifact, verify_artifact
 from artifacts.records import list_attempts, next_attempt_number, write_attempt
 from artifacts.refs import read_ref, set_ref
 from artifacts.resolve import resolve
 from artifacts.store import Store, remove_tree
 from stages.errors import StageError
 from stages.runner_context import StepContext
-from stages.runner_types import (FromRef, FromStep, StagePlan, StepInvocation, StepResult,
-                                 cache_key, code_version_of)
+from stages.runner_types import FromRef, FromStep, StagePlan, StepInvocation, StepResult, cache_key, code_version_of
 
 Mode = Literal["normal", "continue", "rerun"]
 MODES = ("normal", "continue", "rerun")
@@ -65,8 +64,9 @@ def reap_abandoned(store: Store, key: str, holding_lock: bool = False) -> int:
             if a["state"] == "running":
                 a.update(state="abandoned", finished=now_iso(), error="process died (lock was free)")
                 write_attempt(store, a)
-                append_event(store, "step-abandoned", step=a["step"], cache_key=key, attempt=a["attempt"],
-                             dead_pid=a.get("pid"))
+                append_event(
+                    store, "step-abandoned", step=a["step"], cache_key=key, attempt=a["attempt"], dead_pid=a.get("pid")
+                )
         return len(running)
     finally:
         if lock is not None:
@@ -74,8 +74,13 @@ def reap_abandoned(store: Store, key: str, holding_lock: bool = False) -> int:
 
 
 class Runner:
-    def __init__(self, store: Store, console: Console | None = None, wait: bool = False,
-                 verify_hits: Literal["full", "quick"] = "full") -> None:
+    def __init__(
+        self,
+        store: Store,
+        console: Console | None = None,
+        wait: bool = False,
+        verify_hits: Literal["full", "quick"] = "full",
+    ) -> None:
         self.store = store
         self.console = console or Console(stderr=True)
         self.wait = wait
@@ -89,16 +94,21 @@ class Runner:
             raise StageError(f"bad mode {mode!r} (use one of {', '.join(MODES)})")
         names = plan.names()
         if only_step is not None and only_step not in names:
-            raise StageError(f"stage {plan.stage} of workflow {plan.workflow} has no step {only_step!r} "
-                             f"(steps: {', '.join(names)})")
+            raise StageError(
+                f"stage {plan.stage} of workflow {plan.workflow} has no step {only_step!r} (steps: {', '.join(names)})"
+            )
         results: dict[str, StepResult] = {}
         for inv in plan.steps:
             name = inv.step.name
             inputs = {role: self._resolve_source(inv, role, src, results) for role, src in inv.inputs.items()}
             step_mode: Mode = mode if only_step in (None, name) else "normal"
-            labelled = StepInvocation(step=inv.step, config=inv.config, inputs=inputs,
-                                      workflow=inv.workflow or plan.workflow,
-                                      stage=inv.stage if inv.stage is not None else plan.stage)
+            labelled = StepInvocation(
+                step=inv.step,
+                config=inv.config,
+                inputs=inputs,
+                workflow=inv.workflow or plan.workflow,
+                stage=inv.stage if inv.stage is not None else plan.stage,
+            )
             result = self.run(labelled, mode=step_mode)
             results[name] = result
             ref = step_ref(plan.workflow, plan.stage, name)
@@ -112,19 +122,25 @@ class Runner:
         name = inv.step.name
         if isinstance(src, FromStep):
             if src.step not in results:
-                raise StageError(f"step {name}: input {role!r} is wired to step {src.step}, which does not "
-                                 "run before it in this plan")
+                raise StageError(
+                    f"step {name}: input {role!r} is wired to step {src.step}, which does not "
+                    "run before it in this plan"
+                )
             outputs = results[src.step].outputs
             if src.role not in outputs:
-                raise StageError(f"step {name}: input {role!r} wants output {src.role!r} of step {src.step}, "
-                                 f"which only has {', '.join(sorted(outputs)) or 'none'}")
+                raise StageError(
+                    f"step {name}: input {role!r} wants output {src.role!r} of step {src.step}, "
+                    f"which only has {', '.join(sorted(outputs)) or 'none'}"
+                )
             return outputs[src.role]
         if isinstance(src, FromRef):
             try:
                 return resolve(self.store, src.ref)
             except StoreError as exc:
-                raise StageError(f"step {name}: input {role!r} comes from {src.ref}, which cannot be read "
-                                 f"({exc}); run the earlier stage first") from None
+                raise StageError(
+                    f"step {name}: input {role!r} comes from {src.ref}, which cannot be read "
+                    f"({exc}); run the earlier stage first"
+                ) from None
         if isinstance(src, str):
             return src
         raise StageError(f"step {name}: input {role!r} has unsupported source {src!r}")
@@ -144,8 +160,10 @@ class Runner:
             if mode != "rerun":
                 hit = self._find_hit(step.name, key)
                 if hit is not None:
-                    self.console.print(f"step [bold]{step.name}[/]: cached — committed record "
-                                       f"{hit.record_id[:12]} (attempt {hit.attempt}); nothing to do")
+                    self.console.print(
+                        f"step [bold]{step.name}[/]: cached — committed record "
+                        f"{hit.record_id[:12]} (attempt {hit.attempt}); nothing to do"
+                    )
                     return hit
             resume = self._choose_checkpoint(step.name, key, mode)
             return self._attempt(inv, pinned, config, key, mode, resume)
@@ -157,8 +175,9 @@ class Runner:
         pinned: dict[str, str] = {}
         for role, src in inv.inputs.items():
             if not isinstance(src, str):
-                raise StageError(f"step {step.name}: input {role!r} is {src!r}; run it through run_plan "
-                                 "or pass an artifact id")
+                raise StageError(
+                    f"step {step.name}: input {role!r} is {src!r}; run it through run_plan or pass an artifact id"
+                )
             try:
                 oid = resolve(self.store, src)
                 read_artifact(self.store, oid)
@@ -171,8 +190,10 @@ class Runner:
             raise StageError(f"step {step.name}: missing input {', '.join(map(repr, missing))}")
         extra = sorted(set(pinned) - declared) if declared else []
         if extra:
-            raise StageError(f"step {step.name}: unexpected input {', '.join(map(repr, extra))} "
-                             f"(it takes: {', '.join(sorted(declared))})")
+            raise StageError(
+                f"step {step.name}: unexpected input {', '.join(map(repr, extra))} "
+                f"(it takes: {', '.join(sorted(declared))})"
+            )
         return pinned
 
     def _acquire(self, lock, name: str, key: str, wait: bool) -> None:
@@ -182,8 +203,11 @@ class Runner:
         except Timeout:
             pass
         holder = [a for a in list_attempts(self.store, key) if a["state"] == "running"]
-        who = (f"pid {holder[-1].get('pid')} on {holder[-1].get('host')}, attempt {holder[-1]['attempt']}"
-               if holder else "another process")
+        who = (
+            f"pid {holder[-1].get('pid')} on {holder[-1].get('host')}, attempt {holder[-1]['attempt']}"
+            if holder
+            else "another process"
+        )
         if not wait:
             raise StageError(f"step {name} is already running ({who}); wait for it or pass --wait")
         self.console.print(f"step [bold]{name}[/]: waiting for {who} to finish…")
@@ -196,61 +220,118 @@ class Runner:
                 continue
             try:
                 record = self.store.read_json(a["record_id"])
-                for role, oid in record["outputs"].items():
+                for oid in record["outputs"].values():
                     verify_artifact(self.store, oid, full=self.verify_hits == "full", quarantine=True)
             except StoreError as exc:
-                self.console.print(f"[yellow]step {name}: cached result of attempt {a['attempt']} is "
-                                   f"damaged ({exc}); it does not count[/]")
+                self.console.print(
+                    f"[yellow]step {name}: cached result of attempt {a['attempt']} is "
+                    f"damaged ({exc}); it does not count[/]"
+                )
                 continue
-            return StepResult(step=name, outputs=dict(record["outputs"]), cached=True,
-                              record_id=a["record_id"], cache_key=key, attempt=a["attempt"])
+            return StepResult(
+                step=name,
+                outputs=dict(record["outputs"]),
+                cached=True,
+                record_id=a["record_id"],
+                cache_key=key,
+                attempt=a["attempt"],
+            )
         return None
 
     def _choose_checkpoint(self, name: str, key: str, mode: Mode) -> tuple[str, dict] | None:
         if mode == "rerun":
             return None
-        candidates = [(a["attempt"], c) for a in list_attempts(self.store, key) if a["state"] != "committed"
-                      for c in a.get("checkpoints", [])]
+        candidates = [
+            (a["attempt"], c)
+            for a in list_attempts(self.store, key)
+            if a["state"] != "committed"
+            for c in a.get("checkpoints", [])
+        ]
         if not candidates:
             if mode == "continue":
-                other = [a for a in list_attempts(self.store, problems=[]) if a["step"] == name and
-                         a["cache_key"] != key and a["state"] != "committed" and a.get("checkpoints")]
-                why = (f" (attempt {other[-1]['attempt']} of key {other[-1]['cache_key'][:12]} has checkpoints, "
-                       "but its inputs, config or code version differ from this run's)") if other else ""
-                self.console.print(f"step [bold]{name}[/]: no checkpoint to continue from{why}; "
-                                   "starting at the beginning")
+                other = [
+                    a
+                    for a in list_attempts(self.store, problems=[])
+                    if a["step"] == name
+                    and a["cache_key"] != key
+                    and a["state"] != "committed"
+                    and a.get("checkpoints")
+                ]
+                why = (
+                    (
+                        f" (attempt {other[-1]['attempt']} of key {other[-1]['cache_key'][:12]} has checkpoints, "
+                        "but its inputs, config or code version differ from this run's)"
+                    )
+                    if other
+                    else ""
+                )
+                self.console.print(
+                    f"step [bold]{name}[/]: no checkpoint to continue from{why}; starting at the beginning"
+                )
             return None
         if mode == "normal":
             attempt, c = candidates[-1]
-            raise StageError(f"step {name} was interrupted (attempt {attempt}, last checkpoint at "
-                             f"{_progress_text(c['progress'])}); pass --continue to resume it or --rerun to start over")
+            raise StageError(
+                f"step {name} was interrupted (attempt {attempt}, last checkpoint at "
+                f"{_progress_text(c['progress'])}); pass --continue to resume it or --rerun to start over"
+            )
         for attempt, c in reversed(candidates):
             try:
                 verify_artifact(self.store, c["id"], full=True, quarantine=True)
             except StoreError as exc:
-                self.console.print(f"[yellow]step {name}: checkpoint {c['id'][:12]} is damaged ({exc}); "
-                                   "trying an older one[/]")
+                self.console.print(
+                    f"[yellow]step {name}: checkpoint {c['id'][:12]} is damaged ({exc}); trying an older one[/]"
+                )
                 continue
-            self.console.print(f"step [bold]{name}[/]: continuing from checkpoint {c['id'][:12]} "
-                               f"(attempt {attempt}, {_progress_text(c['progress'])})")
+            self.console.print(
+                f"step [bold]{name}[/]: continuing from checkpoint {c['id'][:12]} "
+                f"(attempt {attempt}, {_progress_text(c['progress'])})"
+            )
             return c["id"], c["progress"]
         self.console.print(f"[yellow]step {name}: every checkpoint is damaged; starting at the beginning[/]")
         return None
 
     # ================================================================= an attempt
-    def _attempt(self, inv: StepInvocation, pinned: dict[str, str], config: dict, key: str, mode: Mode,
-                 resume: tuple[str, dict] | None) -> StepResult:
+    def _attempt(
+        self,
+        inv: StepInvocation,
+        pinned: dict[str, str],
+        config: dict,
+        key: str,
+        mode: Mode,
+        resume: tuple[str, dict] | None,
+    ) -> StepResult:
         store, step = self.store, inv.step
         number = next_attempt_number(store, key)
         attempt: dict[str, Any] = {
-            "cache_key": key, "attempt": number, "step": step.name, "state": "running", "mode": mode,
-            "pid": os.getpid(), "host": socket.gethostname(), "started": now_iso(), "inputs": pinned,
-            "config": config, "code_version": code_version_of(step), "workflow": inv.workflow,
-            "stage": inv.stage, "checkpoints": [], "resumed_from": resume[0] if resume else None,
+            "cache_key": key,
+            "attempt": number,
+            "step": step.name,
+            "state": "running",
+            "mode": mode,
+            "pid": os.getpid(),
+            "host": socket.gethostname(),
+            "started": now_iso(),
+            "inputs": pinned,
+            "config": config,
+            "code_version": code_version_of(step),
+            "workflow": inv.workflow,
+            "stage": inv.stage,
+            "checkpoints": [],
+            "resumed_from": resume[0] if resume else None,
         }
         write_attempt(store, attempt)
-        append_event(store, "step-started", step=step.name, cache_key=key, attempt=number, mode=mode,
-                     inputs=pinned, workflow=inv.workflow, stage=inv.stage)
+        append_event(
+            store,
+            "step-started",
+            step=step.name,
+            cache_key=key,
+            attempt=number,
+            mode=mode,
+            inputs=pinned,
+            workflow=inv.workflow,
+            stage=inv.stage,
+        )
         self.console.print(f"step [bold]{step.name}[/]: running attempt {number} ({mode})")
         work_dir = store.new_tmp_dir(f"attempt-{key[:12]}-{number:04d}")
         started = time.monotonic()
@@ -259,17 +340,36 @@ class Runner:
             step.run(ctx)
             outputs = self._commit_outputs(inv, ctx, pinned, config, key, number)
             record = {
-                "type": "step-record", "format": MANIFEST_FORMAT, "step": step.name, "cache_key": key,
-                "attempt": number, "state": "committed", "inputs": pinned, "config": config,
-                "code_version": code_version_of(step), "outputs": outputs, "started": attempt["started"],
-                "finished": now_iso(), "host": attempt["host"], "pid": attempt["pid"],
-                "resumed_from": attempt["resumed_from"], "workflow": inv.workflow, "stage": inv.stage,
+                "type": "step-record",
+                "format": MANIFEST_FORMAT,
+                "step": step.name,
+                "cache_key": key,
+                "attempt": number,
+                "state": "committed",
+                "inputs": pinned,
+                "config": config,
+                "code_version": code_version_of(step),
+                "outputs": outputs,
+                "started": attempt["started"],
+                "finished": now_iso(),
+                "host": attempt["host"],
+                "pid": attempt["pid"],
+                "resumed_from": attempt["resumed_from"],
+                "workflow": inv.workflow,
+                "stage": inv.stage,
             }
             record_id = store.put_json(record)
             attempt.update(state="committed", record_id=record_id, finished=record["finished"], outputs=outputs)
             write_attempt(store, attempt)
-            append_event(store, "step-committed", step=step.name, cache_key=key, attempt=number,
-                         record=record_id, outputs=outputs)
+            append_event(
+                store,
+                "step-committed",
+                step=step.name,
+                cache_key=key,
+                attempt=number,
+                record=record_id,
+                outputs=outputs,
+            )
         except KeyboardInterrupt:
             self._close(attempt, "abandoned", "interrupted (Ctrl-C)")
             raise
@@ -278,23 +378,38 @@ class Runner:
             raise
         finally:
             remove_tree(work_dir)
-        self.console.print(f"step [bold]{step.name}[/]: committed record {record_id[:12]} "
-                           f"in {time.monotonic() - started:.1f} s")
-        return StepResult(step=step.name, outputs=outputs, cached=False, record_id=record_id,
-                          cache_key=key, attempt=number)
+        self.console.print(
+            f"step [bold]{step.name}[/]: committed record {record_id[:12]} in {time.monotonic() - started:.1f} s"
+        )
+        return StepResult(
+            step=step.name, outputs=outputs, cached=False, record_id=record_id, cache_key=key, attempt=number
+        )
 
     def _close(self, attempt: dict, state: str, error: str) -> None:
         attempt.update(state=state, finished=now_iso(), error=error)
         try:
             write_attempt(self.store, attempt)
-            append_event(self.store, "step-failed" if state == "failed" else "step-abandoned",
-                         step=attempt["step"], cache_key=attempt["cache_key"], attempt=attempt["attempt"],
-                         error=error)
+            append_event(
+                self.store,
+                "step-failed" if state == "failed" else "step-abandoned",
+                step=attempt["step"],
+                cache_key=attempt["cache_key"],
+                attempt=attempt["attempt"],
+                error=error,
+            )
         except Exception:  # noqa: BLE001 - the original error matters more; the lock rule reaps it
             pass
 
-    def _context(self, inv: StepInvocation, pinned: dict[str, str], config: dict, key: str,
-                 attempt: dict, work_dir: Path, resume: tuple[str, dict] | None) -> StepContext:
+    def _context(
+        self,
+        inv: StepInvocation,
+        pinned: dict[str, str],
+        config: dict,
+        key: str,
+        attempt: dict,
+        work_dir: Path,
+        resume: tuple[str, dict] | None,
+    ) -> StepContext:
         store, step = self.store, inv.step
         paths: dict[str, Path] = {}
         manifests: dict[str, dict] = {}
@@ -308,25 +423,50 @@ class Runner:
         def save_checkpoint(directory: Path, progress: dict) -> str:
             if not directory.is_dir():
                 raise StageError(f"step {step.name}: checkpoint {directory} is not a directory")
-            cid = publish_artifact(store, directory, "checkpoint",
-                                   producer={"step": step.name, "cache_key": key, "attempt": attempt["attempt"]},
-                                   inputs=pinned, config=config, code_version=attempt["code_version"],
-                                   meta={"progress": progress}, how="checked")
+            cid = publish_artifact(
+                store,
+                directory,
+                "checkpoint",
+                producer={"step": step.name, "cache_key": key, "attempt": attempt["attempt"]},
+                inputs=pinned,
+                config=config,
+                code_version=attempt["code_version"],
+                meta={"progress": progress},
+                how="checked",
+            )
             attempt["checkpoints"].append({"id": cid, "progress": progress, "time": now_iso()})
             write_attempt(store, attempt)
-            append_event(store, "checkpoint-saved", step=step.name, cache_key=key,
-                         attempt=attempt["attempt"], checkpoint=cid, progress=progress)
+            append_event(
+                store,
+                "checkpoint-saved",
+                step=step.name,
+                cache_key=key,
+                attempt=attempt["attempt"],
+                checkpoint=cid,
+                progress=progress,
+            )
             return cid
 
         def log_event(event: str, **fields: Any) -> None:
             append_event(store, event, step=step.name, cache_key=key, attempt=attempt["attempt"], **fields)
 
-        return StepContext(store=store, step=step.name, config=config, inputs=pinned, input_paths=paths,
-                           input_manifests=manifests, work_dir=work_dir, save_checkpoint=save_checkpoint,
-                           resume_from=resume, console=self.console, log_event=log_event)
+        return StepContext(
+            store=store,
+            step=step.name,
+            config=config,
+            inputs=pinned,
+            input_paths=paths,
+            input_manifests=manifests,
+            work_dir=work_dir,
+            save_checkpoint=save_checkpoint,
+            resume_from=resume,
+            console=self.console,
+            log_event=log_event,
+        )
 
-    def _commit_outputs(self, inv: StepInvocation, ctx: StepContext, pinned: dict[str, str],
-                        config: dict, key: str, number: int) -> dict[str, str]:
+    def _commit_outputs(
+        self, inv: StepInvocation, ctx: StepContext, pinned: dict[str, str], config: dict, key: str, number: int
+    ) -> dict[str, str]:
         step = inv.step
         missing = [r for r in step.outputs if r not in ctx.outputs]
         if missing:
@@ -336,10 +476,17 @@ class Runner:
                 raise StageError(f"step {step.name}: output {role!r} should be kind {kind}, got {ctx.outputs[role][0]}")
         outputs = {}
         for role, (kind, path) in sorted(ctx.outputs.items()):
-            oid = publish_artifact(self.store, path, kind,
-                                   producer={"step": step.name, "cache_key": key, "attempt": number},
-                                   inputs=pinned, config=config, code_version=code_version_of(step),
-                                   meta={"role": role}, how="adopt")
+            oid = publish_artifact(
+                self.store,
+                path,
+                kind,
+                producer={"step": step.name, "cache_key": key, "attempt": number},
+                inputs=pinned,
+                config=config,
+                code_version=code_version_of(step),
+                meta={"role": role},
+                how="adopt",
+            )
             append_event(self.store, "artifact-written", artifact=oid, kind=kind, role=role, step=step.name)
             outputs[role] = oid
         return outputs

@@ -1,5 +1,6 @@
 """StepContext: everything a step body may touch — verified inputs, its config, staging dirs for
 outputs, intra-step checkpoints, console and audit events."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -13,23 +14,34 @@ from stages.errors import StageError
 
 
 class StepContext:
-    def __init__(self, *, store: Store, step: str, config: Mapping[str, Any], inputs: dict[str, str],
-                 input_paths: dict[str, Path], input_manifests: dict[str, dict], work_dir: Path,
-                 save_checkpoint: Callable[[Path, dict], str], resume_from: tuple[str, dict] | None,
-                 console: Console, log_event: Callable[..., None]) -> None:
+    def __init__(
+        self,
+        *,
+        store: Store,
+        step: str,
+        config: Mapping[str, Any],
+        inputs: dict[str, str],
+        input_paths: dict[str, Path],
+        input_manifests: dict[str, dict],
+        work_dir: Path,
+        save_checkpoint: Callable[[Path, dict], str],
+        resume_from: tuple[str, dict] | None,
+        console: Console,
+        log_event: Callable[..., None],
+    ) -> None:
         self.store = store
         self.step = step
         self.config: Mapping[str, Any] = config
-        self.inputs = dict(inputs)            # role -> pinned artifact id
+        self.inputs = dict(inputs)  # role -> pinned artifact id
         self.console = console
-        self.work_dir = work_dir              # scratch space, removed after the attempt
+        self.work_dir = work_dir  # scratch space, removed after the attempt
         self._input_paths = input_paths
         self._input_manifests = input_manifests
         self._save = save_checkpoint
         self._resume_from = resume_from
         self._resume_path: Path | None = None
         self._log = log_event
-        self.outputs: dict[str, tuple[str, Path]] = {}   # role -> (kind, staging dir)
+        self.outputs: dict[str, tuple[str, Path]] = {}  # role -> (kind, staging dir)
 
     # ----------------------------------------------------------------- inputs
     def has_input(self, role: str) -> bool:
@@ -40,8 +52,9 @@ class StepContext:
         try:
             return self._input_paths[role]
         except KeyError:
-            raise StageError(f"step {self.step} has no input {role!r} "
-                             f"(it has: {', '.join(sorted(self.inputs)) or 'none'})") from None
+            raise StageError(
+                f"step {self.step} has no input {role!r} (it has: {', '.join(sorted(self.inputs)) or 'none'})"
+            ) from None
 
     def input_manifest(self, role: str) -> dict:
         self.input_path(role)
@@ -93,12 +106,24 @@ class StepContext:
     def progress(self):
         """A rich Progress on the step's console: `with ctx.progress() as p: t = p.add_task("train",
         total=n); p.advance(t)`."""
-        from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn,
-                                   TimeRemainingColumn)
+        from rich.progress import (
+            BarColumn,
+            MofNCompleteColumn,
+            Progress,
+            TextColumn,
+            TimeElapsedColumn,
+            TimeRemainingColumn,
+        )
 
-        return Progress(TextColumn(f"{self.step} [progress.description]{{task.description}}"), BarColumn(),
-                        MofNCompleteColumn(), TimeElapsedColumn(), TimeRemainingColumn(),
-                        console=self.console, transient=True)
+        return Progress(
+            TextColumn(f"{self.step} [progress.description]{{task.description}}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            TimeRemainingColumn(),
+            console=self.console,
+            transient=True,
+        )
 
     def log_event(self, event: str, **fields: Any) -> None:
         """Add a step-specific event to the audit log (e.g. an evaluation summary)."""

@@ -1,5 +1,6 @@
 """What `accrue stage status` shows: per stage and step, the committed record (from the workflow's
 refs) or the latest attempt (running, failed, or abandoned with its last checkpoint)."""
+
 from __future__ import annotations
 
 from artifacts.records import list_attempts
@@ -13,7 +14,7 @@ from stages.workflow import Workflow
 def workflow_status(store: Store, wf: Workflow) -> list[dict]:
     attempts = [a for a in list_attempts(store) if a.get("workflow") == wf.name]
     for key in {a["cache_key"] for a in attempts if a["state"] == "running"}:
-        if reap_abandoned(store, key):   # a dead process's attempt is abandoned on the next look
+        if reap_abandoned(store, key):  # a dead process's attempt is abandoned on the next look
             attempts = [a for a in list_attempts(store) if a.get("workflow") == wf.name]
     rows = []
     for k, task in enumerate(wf.tasks, 1):
@@ -24,8 +25,11 @@ def workflow_status(store: Store, wf: Workflow) -> list[dict]:
             record = read_ref(store, step_ref(wf.name, k, name))
             latest = mine[-1] if mine else None
             row = {"stage": k, "task": task, "step": name, "record": record, "state": "not run", "detail": ""}
-            if latest is not None and latest["state"] != "committed" and (
-                    record is None or latest.get("started", "") > _started_of(mine, record)):
+            if (
+                latest is not None
+                and latest["state"] != "committed"
+                and (record is None or latest.get("started", "") > _started_of(mine, record))
+            ):
                 row["state"] = latest["state"]
                 ckpts = latest.get("checkpoints", [])
                 detail = f"attempt {latest['attempt']} pid {latest.get('pid')}"

@@ -2,6 +2,7 @@
 
 The step-bodies package (stages/steps/, stages/plan.py) builds these; the runner executes them.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -34,6 +35,7 @@ class StepDef:
     inputs        the roles it requires (checked before the body runs); optional roles may be absent
     outputs       role -> artifact kind it must produce (checked when the body returns)
     """
+
     name: str
     code_version: str
     run: Callable[["StepContext"], None]
@@ -46,6 +48,7 @@ class StepDef:
 @dataclass(frozen=True)
 class FromStep:
     """Input wired to output `role` of an earlier step of the same plan."""
+
     step: str
     role: str
 
@@ -54,25 +57,28 @@ class FromStep:
 class FromRef:
     """Input read from a ref when the step starts (then pinned by id), e.g. the previous stage's
     handoff `workflow/quick/stage/1/handoff:handoff`. Any `accrue show` spelling is accepted."""
+
     ref: str
 
 
-InputSource = Union[str, FromStep, FromRef]   # a str is an artifact id (or unambiguous prefix)
+InputSource = Union[str, FromStep, FromRef]  # a str is an artifact id (or unambiguous prefix)
 
 
 @dataclass(frozen=True)
 class StepInvocation:
     """One step to run: its definition, resolved JSON-able config and inputs by role."""
+
     step: StepDef
     config: Mapping[str, Any]
     inputs: Mapping[str, InputSource] = field(default_factory=dict)
-    workflow: str | None = None      # labels: where the result's ref goes and what status shows
+    workflow: str | None = None  # labels: where the result's ref goes and what status shows
     stage: int | None = None
 
 
 @dataclass(frozen=True)
 class StagePlan:
     """The ordered steps of stage `stage` of a workflow (built by stages.plan.plan_stage)."""
+
     workflow: str
     stage: int
     steps: tuple[StepInvocation, ...]
@@ -84,9 +90,9 @@ class StagePlan:
 @dataclass(frozen=True)
 class StepResult:
     step: str
-    outputs: dict[str, str]          # role -> artifact id
+    outputs: dict[str, str]  # role -> artifact id
     cached: bool
-    record_id: str                   # the committed step-record object
+    record_id: str  # the committed step-record object
     cache_key: str
     attempt: int
 
@@ -102,7 +108,14 @@ def cache_key(step: StepDef, config: Mapping[str, Any], inputs: Mapping[str, str
     from artifacts.store import STORE_FORMAT
 
     try:
-        return hash_json({"step": step.name, "config": dict(config), "inputs": dict(inputs),
-                          "code_version": code_version_of(step), "store_format": STORE_FORMAT})
+        return hash_json(
+            {
+                "step": step.name,
+                "config": dict(config),
+                "inputs": dict(inputs),
+                "code_version": code_version_of(step),
+                "store_format": STORE_FORMAT,
+            }
+        )
     except (TypeError, ValueError) as exc:
         raise StageError(f"step {step.name}: config is not plain JSON ({exc})") from None

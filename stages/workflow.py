@@ -5,6 +5,7 @@
 Every mistake becomes one line naming the file, the field and the problem, e.g.
 `workflows/x.yaml: learner.batch_size: must be a positive integer (got -3)`.
 """
+
 from __future__ import annotations
 
 import re
@@ -15,6 +16,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from accrue.methods import METHODS
 from stages.errors import StageError
+
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,63}$")
 
 
@@ -45,29 +47,31 @@ def _is_number_type(annotation: Any) -> bool:
 
 class BasePolicySpec(_Strict):
     """Where π_base starts and how it is fine-tuned on the cumulative demos D^1..D^k each stage."""
-    init: str = "embedded-mlp"              # "embedded-mlp", "embedded-act", a lerobot checkpoint dir, or an artifact id/ref
+
+    init: str = "embedded-mlp"  # "embedded-mlp", "embedded-act", a lerobot checkpoint dir, or an artifact id/ref
     finetune: bool = True
     finetune_steps: int = Field(200, gt=0)
     batch_size: int = Field(16, gt=0)
     lr: float = Field(1e-4, gt=0)
     demos_per_task: int = Field(10, gt=0)
-    demos: dict[str, str] = {}              # task id -> artifact id/ref of recorded demos (else the expert's)
-    demo_quality: float = Field(1.0, ge=0, le=1)    # scripted expert's quality when it records demos
-    demo_search: bool = True                        # False: the demonstrator never searches (Markovian demos)
+    demos: dict[str, str] = {}  # task id -> artifact id/ref of recorded demos (else the expert's)
+    demo_quality: float = Field(1.0, ge=0, le=1)  # scripted expert's quality when it records demos
+    demo_search: bool = True  # False: the demonstrator never searches (Markovian demos)
     demo_bias_known: float = Field(1.0, ge=0, le=1)  # fraction of each fixture's estimate bias it corrects
     demo_retention: float = Field(1.0, gt=0, le=1)  # fraction of earlier tasks' demos kept (paper Table VI)
 
 
 class Budgets(_Strict):
     """Per-stage interaction budget and evaluation grid (paper Sec. V-A: shared budget, uniform grid)."""
+
     env_steps: int = Field(gt=0)
     eval_every: int = Field(gt=0)
     eval_episodes: int = Field(10, gt=0)
     warmup_episodes: int = Field(2, ge=0)
     num_envs: int = Field(8, gt=0)
-    retained_episodes: int = Field(20, ge=0)    # N: episodes per task kept in B^{<k+1} at handoff
-    checkpoint_every: int = Field(0, ge=0)      # env steps between intra-step checkpoints (0 = at eval points)
-    log_episodes: int = Field(1, ge=0)          # evaluation episodes per task recorded to MCAP (0 = none)
+    retained_episodes: int = Field(20, ge=0)  # N: episodes per task kept in B^{<k+1} at handoff
+    checkpoint_every: int = Field(0, ge=0)  # env steps between intra-step checkpoints (0 = at eval points)
+    log_episodes: int = Field(1, ge=0)  # evaluation episodes per task recorded to MCAP (0 = none)
 
     @model_validator(mode="after")
     def _grid(self) -> "Budgets":
@@ -79,38 +83,40 @@ class Budgets(_Strict):
 class RobotSpec(_Strict):
     """A lerobot robot runs warmup, train and evaluate-all (paper Sec. V-C; accrue/robot, stages/steps/hw_*).
     The fields from `operator` down are session settings: they do not enter any cache key."""
-    type: str                                   # a lerobot RobotConfig registry name, e.g. accrue_sim
-    config: dict[str, Any] = {}                 # that robot config's fields
-    imports: list[str] = []                     # modules registering a third-party robot type
-    state_keys: Optional[list[str]] = None      # observation key per accrue state column (default STATE_NAMES)
-    action_keys: Optional[list[str]] = None     # action key per delta axis (default dx dy dz droll dpitch dyaw)
+
+    type: str  # a lerobot RobotConfig registry name, e.g. accrue_sim
+    config: dict[str, Any] = {}  # that robot config's fields
+    imports: list[str] = []  # modules registering a third-party robot type
+    state_keys: Optional[list[str]] = None  # observation key per accrue state column (default STATE_NAMES)
+    action_keys: Optional[list[str]] = None  # action key per delta axis (default dx dy dz droll dpitch dyaw)
     action_limits: Optional[list[float]] = None  # robot units per unit of normalised action, per axis
-    done_key: Optional[str] = None              # observation key > 0.5 when the robot ends an episode itself
-    control_hz: Optional[float] = Field(None, gt=0)     # default: the task's
-    episode_steps: Optional[int] = Field(None, gt=0)    # default: the task's max_steps
-    safety: dict[str, Any] = {}                 # workspace_min_m/max_m [x,y,z], max_speed_m_s, max_force_n, max_torque_nm
-    stop_window: int = Field(20, gt=0)          # the running-success window ...
-    stop_successes: int = Field(19, gt=0)       # ... and the successes in it that end the stage (19/20)
-    budget_s: float = Field(3600.0, gt=0)       # RL robot time per stage (s) when the stop rule is not reached
+    done_key: Optional[str] = None  # observation key > 0.5 when the robot ends an episode itself
+    control_hz: Optional[float] = Field(None, gt=0)  # default: the task's
+    episode_steps: Optional[int] = Field(None, gt=0)  # default: the task's max_steps
+    safety: dict[str, Any] = {}  # workspace_min_m/max_m [x,y,z], max_speed_m_s, max_force_n, max_torque_nm
+    stop_window: int = Field(20, gt=0)  # the running-success window ...
+    stop_successes: int = Field(19, gt=0)  # ... and the successes in it that end the stage (19/20)
+    budget_s: float = Field(3600.0, gt=0)  # RL robot time per stage (s) when the stop rule is not reached
     max_episodes: int = Field(1000, gt=0)
-    retention_trials: int = Field(20, ge=0)     # evaluate-all: operator-labelled trials per earlier task
-    checkpoint_every: int = Field(200, gt=0)    # learner updates between sealed learner checkpoints
-    publish_every: int = Field(20, gt=0)        # learner updates between weight snapshots for the actor
+    retention_trials: int = Field(20, ge=0)  # evaluate-all: operator-labelled trials per earlier task
+    checkpoint_every: int = Field(200, gt=0)  # learner updates between sealed learner checkpoints
+    publish_every: int = Field(20, gt=0)  # learner updates between weight snapshots for the actor
     operator: Literal["terminal", "scripted"] = "terminal"
     operator_name: str = ""
-    scripted: dict[str, Any] = {}               # scripted operator: delay_s, mistakes [episode], corrects, abort_before
-    learner_address: Optional[str] = None       # host:port of `accrue robot learner` (two hosts); none: local process
-    clock: float = Field(1.0, ge=0)             # accrue_sim only: k times real time (0 = as fast as it goes)
-    faults: dict[str, Any] = {}                 # accrue_sim only: disconnect_after_steps, late_observation_steps...
-    timeouts: dict[str, float] = {}             # connect_s, observation_s, action_s, reconnect_attempts
+    scripted: dict[str, Any] = {}  # scripted operator: delay_s, mistakes [episode], corrects, abort_before
+    learner_address: Optional[str] = None  # host:port of `accrue robot learner` (two hosts); none: local process
+    clock: float = Field(1.0, ge=0)  # accrue_sim only: k times real time (0 = as fast as it goes)
+    faults: dict[str, Any] = {}  # accrue_sim only: disconnect_after_steps, late_observation_steps...
+    timeouts: dict[str, float] = {}  # connect_s, observation_s, action_s, reconnect_attempts
 
     @model_validator(mode="after")
     def _consistent(self) -> "RobotSpec":
         if self.stop_successes > self.stop_window:
             raise ValueError(f"stop_successes must be <= stop_window ({self.stop_window}) (got {self.stop_successes})")
         if self.type != "accrue_sim" and (self.clock != 1.0 or self.faults):
-            raise ValueError("clock and faults apply to the simulated robot (type accrue_sim) only "
-                             f"(got type {self.type!r})")
+            raise ValueError(
+                f"clock and faults apply to the simulated robot (type accrue_sim) only (got type {self.type!r})"
+            )
         return self
 
 
@@ -120,16 +126,16 @@ class Workflow(_Strict):
     tasks: list[str] = Field(min_length=1)
     method: Literal[METHODS]  # type: ignore[valid-type]
     seed: int = Field(0, ge=0)
-    horizon: int = Field(8, gt=0)               # action chunk length H
+    horizon: int = Field(8, gt=0)  # action chunk length H
     obs_mode: Literal["state", "state+image"] = "state"
-    encoder: str = "none"                       # "none" or "dinov2-small:/path/weights.safetensors"
+    encoder: str = "none"  # "none" or "dinov2-small:/path/weights.safetensors"
     # size of a frozen embedding of the task's instruction appended to the learner's s (0 = none): in
     # state-only runs nothing else tells the actor which part is in the gripper (a camera would)
     task_features: int = Field(0, ge=0, le=256)
     base_policy: BasePolicySpec = BasePolicySpec()
-    learner: dict[str, Any] = {}                # LearnerConfig fields (accrue.learner.config)
+    learner: dict[str, Any] = {}  # LearnerConfig fields (accrue.learner.config)
     budgets: Budgets
-    robot: Optional[RobotSpec] = None          # a robot instead of the simulator (hardware steps)
+    robot: Optional[RobotSpec] = None  # a robot instead of the simulator (hardware steps)
 
     @field_validator("name")
     @classmethod
@@ -167,22 +173,31 @@ class Workflow(_Strict):
 
 # ------------------------------------------------------------------------- loading
 _PHRASES = {
-    "greater_than": "must be > {gt}", "greater_than_equal": "must be >= {ge}",
-    "less_than": "must be < {lt}", "less_than_equal": "must be <= {le}",
-    "missing": "required field is missing", "extra_forbidden": "unknown field",
-    "too_short": "must not be empty", "literal_error": "must be one of {expected}",
+    "greater_than": "must be > {gt}",
+    "greater_than_equal": "must be >= {ge}",
+    "less_than": "must be < {lt}",
+    "less_than_equal": "must be <= {le}",
+    "missing": "required field is missing",
+    "extra_forbidden": "unknown field",
+    "too_short": "must not be empty",
+    "literal_error": "must be one of {expected}",
 }
 
 
 def _format_error(err: dict) -> str:
     from artifacts.errors import quote
 
-    loc = ".".join(str(p) if re.fullmatch(r"[\w/.+-]{1,100}", str(p)) else quote(p, 60)  # a key may be anything
-                   for p in err["loc"]) or "(top level)"
+    loc = (
+        ".".join(
+            str(p) if re.fullmatch(r"[\w/.+-]{1,100}", str(p)) else quote(p, 60)  # a key may be anything
+            for p in err["loc"]
+        )
+        or "(top level)"
+    )
     phrase = _PHRASES.get(err["type"])
     msg = phrase.format(**(err.get("ctx") or {})) if phrase else err["msg"]
     if msg.startswith("Value error, "):
-        msg = msg[len("Value error, "):]
+        msg = msg[len("Value error, ") :]
     elif not phrase:
         msg = msg[:1].lower() + msg[1:]
     if err["type"] not in ("missing", "extra_forbidden") and "(got" not in msg:
@@ -212,8 +227,10 @@ def _check_learner(wf: Workflow, source: str) -> None:
     from accrue.errors import AccrueError
 
     if "method" in wf.learner and wf.learner["method"] != wf.method:
-        raise StageError(f"{source}: learner.method: differs from the workflow's method "
-                         f"{wf.method!r} (got {wf.learner['method']!r}); set it once, at the top")
+        raise StageError(
+            f"{source}: learner.method: differs from the workflow's method "
+            f"{wf.method!r} (got {wf.learner['method']!r}); set it once, at the top"
+        )
     try:
         LearnerConfig.from_dict(wf.learner_settings())
     except AccrueError as exc:
@@ -265,8 +282,9 @@ def _unique_keys_loader():
             if duplicate:
                 from artifacts.errors import quote
 
-                raise yaml.constructor.ConstructorError(None, None, f"duplicate key {quote(key, 100)}",
-                                                        key_node.start_mark)
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"duplicate key {quote(key, 100)}", key_node.start_mark
+                )
         return loader.construct_mapping(node, deep=deep)
 
     UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, mapping)

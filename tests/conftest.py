@@ -1,4 +1,5 @@
 """Test-wide settings: nothing reaches the network, rendering is headless."""
+
 import os
 
 import pytest

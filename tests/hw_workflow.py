@@ -1,4 +1,5 @@
 """A tiny hardware workflow on the simulated robot for the tests (not a test module itself)."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -28,8 +29,9 @@ robot:
 """
 
 
-def write_hw_workflow(path: Path, calib: Path, name: str = "hw", clock: float = 0, faults: str = "{}",
-                      scripted: str = "{}") -> Path:
+def write_hw_workflow(
+    path: Path, calib: Path, name: str = "hw", clock: float = 0, faults: str = "{}", scripted: str = "{}"
+) -> Path:
     path.write_text(HW.format(name=name, calib=calib, clock=clock, faults=faults, scripted=scripted))
     return path
 
@@ -53,5 +55,8 @@ def robot_events(store_path: Path, name: str | None = None) -> list[dict]:
     from artifacts.auditlog import iter_events
     from artifacts.store import Store
 
-    return [e for e in iter_events(Store.open(store_path))
-            if e.get("event", "").startswith("robot-") and (name is None or e["event"] == name)]
+    return [
+        e
+        for e in iter_events(Store.open(store_path))
+        if e.get("event", "").startswith("robot-") and (name is None or e["event"] == name)
+    ]

@@ -1,4 +1,5 @@
 """The CLI entry point: exit codes and one-line errors for user mistakes."""
+
 import subprocess
 import sys
 
@@ -43,8 +44,7 @@ def test_user_error_is_one_line_and_exit_2(extra_commands, monkeypatch, capsys):
 
 
 def test_unknown_command_is_a_one_line_usage_error():
-    proc = subprocess.run([sys.executable, "-m", "cli.main", "no-such-command"],
-                          capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, "-m", "cli.main", "no-such-command"], capture_output=True, text=True)
     assert proc.returncode == 2
     assert proc.stderr.strip().splitlines() == ["error: No such command 'no-such-command'."]
     assert "Traceback" not in proc.stderr

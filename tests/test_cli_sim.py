@@ -1,4 +1,5 @@
 """`accrue sim` through the real CLI entry (cli.main) with the small fake simulator of test_demos_writer."""
+
 from __future__ import annotations
 
 import json
@@ -6,10 +7,10 @@ import sys
 from pathlib import Path
 
 import pytest
+from test_demos_writer import fake_sim  # tests/ is on sys.path (rootdir conftest, no package)
 from typer.testing import CliRunner
 
 from accrue.sim import demos
-from test_demos_writer import fake_sim  # tests/ is on sys.path (rootdir conftest, no package)
 
 
 @pytest.fixture
@@ -36,8 +37,16 @@ def test_tasks_json_and_table(fake) -> None:
 
     result = CliRunner().invoke(app, ["sim", "tasks", "--json"])
     assert result.exit_code == 0, result.output
-    assert json.loads(result.stdout) == [{"family": "fake", "task_id": "fake/peg", "instruction": "insert the fake peg",
-                                          "clearance_mm": 0.3, "max_steps": 6, "control_hz": 20.0}]
+    assert json.loads(result.stdout) == [
+        {
+            "family": "fake",
+            "task_id": "fake/peg",
+            "instruction": "insert the fake peg",
+            "clearance_mm": 0.3,
+            "max_steps": 6,
+            "control_hz": 20.0,
+        }
+    ]
     table = CliRunner().invoke(app, ["sim", "tasks"], env={"COLUMNS": "200"})
     assert table.exit_code == 0
     assert "fake/peg" in table.stdout and "0.30 mm" in table.stdout and "6 (0.3 s)" in table.stdout
@@ -49,8 +58,9 @@ def test_demos_through_cli_load_with_lerobot(fake, tmp_path: Path) -> None:
     from cli.main import app
 
     out = tmp_path / "demos"
-    result = CliRunner().invoke(app, ["sim", "demos", "fake/peg", "--episodes", "3", "--out", str(out), "--seed", "2",
-                                      "--images", "--quiet"])
+    result = CliRunner().invoke(
+        app, ["sim", "demos", "fake/peg", "--episodes", "3", "--out", str(out), "--seed", "2", "--images", "--quiet"]
+    )
     assert result.exit_code == 0, result.output
     assert "wrote 3 episodes" in result.stdout and "expert success rate:" in result.stdout
     ds = LeRobotDataset("accrue/fake_peg", root=out, video_backend="pyav")
@@ -68,14 +78,17 @@ def test_demos_through_cli_load_with_lerobot(fake, tmp_path: Path) -> None:
 def test_demos_shortfall_exits_1_with_warning(fake, tmp_path: Path) -> None:
     from cli.main import app
 
-    result = CliRunner().invoke(app, ["sim", "demos", "fake/peg", "-n", "40", "-o", str(tmp_path / "d"),
-                                      "--max-attempts", "6", "-q"])
+    result = CliRunner().invoke(
+        app, ["sim", "demos", "fake/peg", "-n", "40", "-o", str(tmp_path / "d"), "--max-attempts", "6", "-q"]
+    )
     assert result.exit_code == 1
     assert "attempt bound reached" in result.output
 
 
 def test_user_mistakes_are_one_line_errors(fake, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
-    code, out, err = run_main(monkeypatch, capsys, "sim", "demos", "nope/x", "--episodes", "1", "--out", str(tmp_path / "a"))
+    code, out, err = run_main(
+        monkeypatch, capsys, "sim", "demos", "nope/x", "--episodes", "1", "--out", str(tmp_path / "a")
+    )
     assert code == 2 and err.startswith("error: unknown task id 'nope/x'") and err.count("\n") == 1
     (tmp_path / "full").mkdir()
     (tmp_path / "full" / "x").write_text("x")

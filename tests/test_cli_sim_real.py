@@ -1,4 +1,5 @@
 """`accrue sim` on the real MuJoCo tasks: demos load with lerobot, watch writes .rrd + MCAP, errors are one line."""
+
 from __future__ import annotations
 
 import json
@@ -24,9 +25,14 @@ def test_tasks_json_lists_the_registry() -> None:
     assert [r["task_id"] for r in rows] == list_tasks()
     cross = next(r for r in rows if r["task_id"] == TASK)
     spec = get_task(TASK)
-    assert cross == {"family": spec.family, "task_id": TASK, "instruction": spec.instruction,
-                     "clearance_mm": round(spec.clearance * 1e3, 3), "max_steps": spec.max_steps,
-                     "control_hz": spec.control_hz}
+    assert cross == {
+        "family": spec.family,
+        "task_id": TASK,
+        "instruction": spec.instruction,
+        "clearance_mm": round(spec.clearance * 1e3, 3),
+        "max_steps": spec.max_steps,
+        "control_hz": spec.control_hz,
+    }
     nist = CliRunner().invoke(app, ["sim", "tasks", "--json", "--family", "nist"])
     assert {r["family"] for r in json.loads(nist.stdout)} == {"nist"}
 
@@ -68,8 +74,10 @@ def test_watch_writes_rerun_and_mcap(tmp_path: Path) -> None:
     from accrue.logs.rerun_log import read_rrd_table
 
     rrd, logs = tmp_path / "w.rrd", tmp_path / "mcap"
-    result = CliRunner().invoke(app, ["sim", "watch", TASK, "--policy", "random", "--seed", "2", "--images",
-                                      "--out", str(rrd), "--mcap", str(logs)])
+    result = CliRunner().invoke(
+        app,
+        ["sim", "watch", TASK, "--policy", "random", "--seed", "2", "--images", "--out", str(rrd), "--mcap", str(logs)],
+    )
     assert result.exit_code == 0, result.output
     table = read_rrd_table(rrd)
     steps = table["step"]
@@ -79,7 +87,10 @@ def test_watch_writes_rerun_and_mcap(tmp_path: Path) -> None:
     (episode_file,) = sorted(logs.glob("episode-*.mcap"))
     log = read_episode(episode_file)
     assert len(log.messages["/state"]) == len(steps)
-    assert log.image(0, "/camera/front").shape == (64, 64, 3) and log.schemas["/camera/front"] == "foxglove.CompressedImage"
+    assert (
+        log.image(0, "/camera/front").shape == (64, 64, 3)
+        and log.schemas["/camera/front"] == "foxglove.CompressedImage"
+    )
     assert log.schemas["/ee/pose"] == "foxglove.PoseInFrame" and log.schemas["/wrist/wrench"] == "accrue.Wrench"
     assert log.episode["task_id"] == TASK and log.episode["policy"] == "random"
     assert json.loads(log.episode["length"]) == len(steps)

@@ -3,6 +3,7 @@
 The fake follows the accrue.sim contract (docs/INTERFACES.md) so the writer's bookkeeping can be
 checked exactly; tests/test_demos_sim.py runs the same writer on the real simulator.
 """
+
 from __future__ import annotations
 
 import json
@@ -57,7 +58,9 @@ class FakeVecEnv:
         state[:, 0], state[:, 4] = self.ep, self.t
         obs = {"state": state}
         if self.obs_mode == "state+image":
-            obs["image"] = np.broadcast_to((self.ep % 256).astype(np.uint8)[:, None, None, None], (self.n, *self.image_hw, 3)).copy()
+            obs["image"] = np.broadcast_to(
+                (self.ep % 256).astype(np.uint8)[:, None, None, None], (self.n, *self.image_hw, 3)
+            ).copy()
         return obs
 
     def reset(self, mask: np.ndarray | None = None) -> dict:
@@ -76,8 +79,14 @@ class FakeVecEnv:
 
 def fake_sim(p_success: float = 1.0, image_hw: tuple[int, int] = (8, 10)) -> SimpleNamespace:
     envs: list[FakeVecEnv] = []
-    spec = SimpleNamespace(task_id="fake/peg", family="fake", instruction="insert the fake peg", control_hz=20.0,
-                           max_steps=6, clearance=0.0003)
+    spec = SimpleNamespace(
+        task_id="fake/peg",
+        family="fake",
+        instruction="insert the fake peg",
+        control_hz=20.0,
+        max_steps=6,
+        clearance=0.0003,
+    )
 
     def get_task(task_id: str):
         if task_id != "fake/peg":
@@ -89,9 +98,16 @@ def fake_sim(p_success: float = 1.0, image_hw: tuple[int, int] = (8, 10)) -> Sim
         return envs[-1]
 
     expert = SimpleNamespace(act=lambda state: np.full((len(state), 6), 2.0, np.float32))  # clipped by writer
-    return SimpleNamespace(get_task=get_task, make_vec_env=make_vec_env, list_tasks=lambda: ["fake/peg"],
-                           make_expert=lambda task_id, quality, seed, **kind: expert, STATE_NAMES=STATE_NAMES,
-                           STATE_DIM=len(STATE_NAMES), ACTION_DIM=6, envs=envs)
+    return SimpleNamespace(
+        get_task=get_task,
+        make_vec_env=make_vec_env,
+        list_tasks=lambda: ["fake/peg"],
+        make_expert=lambda task_id, quality, seed, **kind: expert,
+        STATE_NAMES=STATE_NAMES,
+        STATE_DIM=len(STATE_NAMES),
+        ACTION_DIM=6,
+        envs=envs,
+    )
 
 
 def _frames(root: Path):
@@ -188,12 +204,17 @@ def _edit_info(root: Path, change) -> None:
     ("change", "message"),
     [
         (lambda f: f.pop("action"), "lacks feature 'action'"),
-        (lambda f: f["observation.state"].update(shape=[7]), r"feature 'observation.state' has shape \[7\], expected \[5\]"),
+        (
+            lambda f: f["observation.state"].update(shape=[7]),
+            r"feature 'observation.state' has shape \[7\], expected \[5\]",
+        ),
         (lambda f: f["next.reward"].update(dtype="float64"), "feature 'next.reward' has dtype float64"),
         (lambda f: f.pop("next.success"), "lacks feature 'next.success'"),
     ],
 )
-def test_read_demo_info_names_the_wrong_feature(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, change, message) -> None:
+def test_read_demo_info_names_the_wrong_feature(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, change, message
+) -> None:
     monkeypatch.setattr(demos, "_sim_api", lambda: fake_sim())
     root = tmp_path / "d"
     demos.write_demos("fake/peg", 1, root, progress=False)

@@ -2,6 +2,7 @@
 report's format, a second run is a no-op, changing one setting re-runs exactly what reads it, a
 handoff's lineage reaches the demos and the seed, and a `kill -9` during `train` followed by
 `--continue` ends with the same artifact contents as a run that was never interrupted."""
+
 from __future__ import annotations
 
 import json
@@ -32,10 +33,20 @@ budgets: {{env_steps: {env_steps}, eval_every: {eval_every}, eval_episodes: 2, n
 FINETUNE = "{init: embedded-mlp, finetune_steps: 2, batch_size: 8, demos_per_task: 2}"
 
 
-def write_workflow(path: Path, name="tiny", seed=3, base_policy=FINETUNE, env_steps=160, eval_every=80,
-                   retained=2, ckpt=0) -> Path:
-    path.write_text(TINY.format(name=name, seed=seed, base_policy=base_policy, env_steps=env_steps,
-                                eval_every=eval_every, retained=retained, ckpt=ckpt))
+def write_workflow(
+    path: Path, name="tiny", seed=3, base_policy=FINETUNE, env_steps=160, eval_every=80, retained=2, ckpt=0
+) -> Path:
+    path.write_text(
+        TINY.format(
+            name=name,
+            seed=seed,
+            base_policy=base_policy,
+            env_steps=env_steps,
+            eval_every=eval_every,
+            retained=retained,
+            ckpt=ckpt,
+        )
+    )
     return path
 
 
@@ -86,8 +97,9 @@ def test_every_step_of_both_stages_commits_in_order(tiny):
     assert steps == [(k, s) for k in (1, 2) for s in order]
     assert not any(r["cached"] for r in tiny["results"])
     status = run_json(tiny["store"], "stage", "status", str(tiny["wf"]))
-    assert {(r["stage"], r["step"]): r["state"] for r in status if r["step"] in order} == \
-        {(k, s): "committed" for k in (1, 2) for s in order}
+    assert {(r["stage"], r["step"]): r["state"] for r in status if r["step"] in order} == {
+        (k, s): "committed" for k in (1, 2) for s in order
+    }
 
 
 def test_artifacts_follow_the_report_format(tiny, tmp_path):
@@ -99,22 +111,28 @@ def test_artifacts_follow_the_report_format(tiny, tmp_path):
     for task in curve["task_ids"]:
         assert len(curve["success"][task]) == 3
         assert all(v in (0.0, 0.5, 1.0) for v in curve["success"][task])
-    ev = json.loads((artifact_dir(store, "workflow/tiny/stage/2/evaluate-all:eval", tmp_path) / "eval.json").read_text())
+    ev = json.loads(
+        (artifact_dir(store, "workflow/tiny/stage/2/evaluate-all:eval", tmp_path) / "eval.json").read_text()
+    )
     assert ev["stage"] == 2 and set(ev["success"]) == set(ev["base_success"]) == set(curve["task_ids"])
     assert ev["episodes"] == 2 and ev["method"] == "accrue" and ev["seed"] == 3
     logs = artifact_dir(store, "workflow/tiny/stage/2/evaluate-all:episodes", tmp_path)
-    assert len(list(logs.rglob("episode-*.mcap"))) == 2            # one logged episode per task
-    teacher1 = json.loads((artifact_dir(store, "workflow/tiny/stage/1/cache-teacher:teacher", tmp_path)
-                           / "teacher.json").read_text())
+    assert len(list(logs.rglob("episode-*.mcap"))) == 2  # one logged episode per task
+    teacher1 = json.loads(
+        (artifact_dir(store, "workflow/tiny/stage/1/cache-teacher:teacher", tmp_path) / "teacher.json").read_text()
+    )
     assert teacher1["skipped"] and "stage 1" in teacher1["reason"]
-    teacher2 = json.loads((artifact_dir(store, "workflow/tiny/stage/2/cache-teacher:teacher", tmp_path)
-                           / "teacher.json").read_text())
-    handoff1 = json.loads((artifact_dir(store, "workflow/tiny/stage/1/handoff:handoff", tmp_path)
-                           / "handoff.json").read_text())
+    teacher2 = json.loads(
+        (artifact_dir(store, "workflow/tiny/stage/2/cache-teacher:teacher", tmp_path) / "teacher.json").read_text()
+    )
+    handoff1 = json.loads(
+        (artifact_dir(store, "workflow/tiny/stage/1/handoff:handoff", tmp_path) / "handoff.json").read_text()
+    )
     assert not teacher2["skipped"] and teacher2["rows"] == handoff1["memory_rows"] > 0
-    handoff2 = json.loads((artifact_dir(store, "workflow/tiny/stage/2/handoff:handoff", tmp_path)
-                           / "handoff.json").read_text())
-    assert handoff2["memory_tasks"] == [0, 1]                        # B^{<3} holds both tasks
+    handoff2 = json.loads(
+        (artifact_dir(store, "workflow/tiny/stage/2/handoff:handoff", tmp_path) / "handoff.json").read_text()
+    )
+    assert handoff2["memory_tasks"] == [0, 1]  # B^{<3} holds both tasks
 
 
 def test_a_second_run_is_a_no_op(tiny):
@@ -140,12 +158,12 @@ def test_handoff_lineage_reaches_demos_and_seed(tiny):
 
 
 def test_changing_one_setting_reruns_exactly_its_readers(tiny, tmp_path):
-    wf = write_workflow(tmp_path / "tiny.yaml", retained=1)       # same name, N 2 -> 1
+    wf = write_workflow(tmp_path / "tiny.yaml", retained=1)  # same name, N 2 -> 1
     results = run_json(tiny["store"], "run", str(wf))
     rerun = {(r["stage"], r["step"]) for r in results if not r["cached"]}
     # N is read by handoff; stage 2's teacher, train, evaluation and handoff read handoff 1
     assert rerun == {(1, "handoff"), (2, "cache-teacher"), (2, "train"), (2, "evaluate-all"), (2, "handoff")}
-    run_json(tiny["store"], "run", str(tiny["wf"]))                 # back to the original (all cached)
+    run_json(tiny["store"], "run", str(tiny["wf"]))  # back to the original (all cached)
 
 
 def events(store: Path) -> list[dict]:
@@ -159,8 +177,15 @@ def test_kill_9_during_train_then_continue_matches_an_uninterrupted_run(tiny, tm
     store = tiny["store"]
     base = [r for r in tiny["results"] if r["stage"] == 1 and r["step"] == "finetune-base"][0]
     policy_id = base["outputs"]["base-policy"]
-    wf = write_workflow(tmp_path / "resume.yaml", name="resume", seed=5, env_steps=640, eval_every=320, ckpt=80,
-                        base_policy=f"{{init: {policy_id}, finetune: false}}")
+    wf = write_workflow(
+        tmp_path / "resume.yaml",
+        name="resume",
+        seed=5,
+        env_steps=640,
+        eval_every=320,
+        ckpt=80,
+        base_policy=f"{{init: {policy_id}, finetune: false}}",
+    )
     run_json(store, "stage", "run", str(wf), "--stage", "1", "--step", "warmup")
     env = {**os.environ, "ACCRUE_STORE": str(store), "OMP_NUM_THREADS": "1"}
 
@@ -168,8 +193,13 @@ def test_kill_9_during_train_then_continue_matches_an_uninterrupted_run(tiny, tm
         return [e for e in events(store) if e.get("event") == "checkpoint-saved" and e.get("step") == "train"]
 
     before = len(checkpoints())
-    proc = subprocess.Popen([*ACCRUE, "stage", "run", str(wf), "--stage", "1", "--step", "train"], cwd=ROOT,
-                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [*ACCRUE, "stage", "run", str(wf), "--stage", "1", "--step", "train"],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     deadline = time.monotonic() + 600
     try:
         while len(checkpoints()) == before:
@@ -198,14 +228,17 @@ def test_kill_9_during_train_then_continue_matches_an_uninterrupted_run(tiny, tm
     assert again["cached"]
 
 
-@pytest.mark.parametrize("yaml_text, budget, message", [
-    ("tasks: [nist/nope]", None, "tasks[0]: unknown task 'nist/nope'"),
-    ("budgets: {env_steps: 10, eval_every: 20}", None, "eval_every must be <= env_steps"),
-    ("method: bogus", None, "method: must be one of"),
-    ("learner: {beta: -1}", None, "learner.beta: must be non-negative"),
-    ("", "-3", "--budget: must be positive"),
-    ("", "lots", "--budget: expected a fraction"),
-])
+@pytest.mark.parametrize(
+    "yaml_text, budget, message",
+    [
+        ("tasks: [nist/nope]", None, "tasks[0]: unknown task 'nist/nope'"),
+        ("budgets: {env_steps: 10, eval_every: 20}", None, "eval_every must be <= env_steps"),
+        ("method: bogus", None, "method: must be one of"),
+        ("learner: {beta: -1}", None, "learner.beta: must be non-negative"),
+        ("", "-3", "--budget: must be positive"),
+        ("", "lots", "--budget: expected a fraction"),
+    ],
+)
 def test_bad_workflow_values_give_one_line_errors(tmp_path, yaml_text, budget, message):
     import yaml
 

@@ -1,4 +1,5 @@
 """Frozen timm encoders loaded offline from a local safetensors file, with a frame-feature cache."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -42,8 +43,13 @@ def test_encoder_loads_weights_from_local_file(weights, tmp_path, monkeypatch):
     features = encoder.encode(images)
     assert features.shape == (3, encoder.feature_dim) == (3, 192) and features.dtype == np.float32
 
-    x = F.interpolate(torch.from_numpy(images).permute(0, 3, 1, 2).float() / 255, size=(32, 32),
-                      mode="bilinear", align_corners=False, antialias=True)
+    x = F.interpolate(
+        torch.from_numpy(images).permute(0, 3, 1, 2).float() / 255,
+        size=(32, 32),
+        mode="bilinear",
+        align_corners=False,
+        antialias=True,
+    )
     with torch.no_grad():
         want = reference.eval()((x - 0.5) / 0.5).numpy()
     np.testing.assert_allclose(features, want, atol=1e-5)

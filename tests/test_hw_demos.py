@@ -2,6 +2,7 @@
 with hw_to_dataset_features of a robot's features, as lerobot-record writes it) is converted through the
 workflow's robot mapping into accrue's demo layout, stored, and trained on; one from another robot is refused
 in one line."""
+
 from __future__ import annotations
 
 import json
@@ -12,8 +13,8 @@ import pytest
 from hw_workflow import write_hw_workflow
 from test_cli_store import accrue, one_line_error
 
-pytestmark = pytest.mark.slow      # lerobot writes the datasets and lerobot-train fine-tunes: ~30 s of imports each
-LIMITS = [0.5, 0.5, 0.5, 1.0, 1.0, 2.0]    # robot units per unit of normalised action, per axis
+pytestmark = pytest.mark.slow  # lerobot writes the datasets and lerobot-train fine-tunes: ~30 s of imports each
+LIMITS = [0.5, 0.5, 0.5, 1.0, 1.0, 2.0]  # robot units per unit of normalised action, per axis
 EPISODE_FRAMES = (6, 4)
 
 
@@ -22,18 +23,26 @@ def record(root: Path, robot_type: str, observation: dict, action: dict, seed: i
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
     from lerobot.datasets.utils import build_dataset_frame, hw_to_dataset_features
 
-    features = {**hw_to_dataset_features(observation, "observation", use_video=False),
-                **hw_to_dataset_features(action, "action", use_video=False)}
-    ds = LeRobotDataset.create(repo_id=f"local/{robot_type}", fps=10, features=features, root=root,
-                               robot_type=robot_type, use_videos=False)
+    features = {
+        **hw_to_dataset_features(observation, "observation", use_video=False),
+        **hw_to_dataset_features(action, "action", use_video=False),
+    }
+    ds = LeRobotDataset.create(
+        repo_id=f"local/{robot_type}", fps=10, features=features, root=root, robot_type=robot_type, use_videos=False
+    )
     rng = np.random.default_rng(seed)
     sent = []
     for frames in EPISODE_FRAMES:
         for _ in range(frames):
             obs = {k: float(rng.uniform(-2, 2)) for k in observation}
-            act = {k: float(rng.uniform(-1.5, 1.5)) for k in action}     # some beyond the limits: clipped
-            ds.add_frame({**build_dataset_frame(ds.features, obs, prefix="observation"),
-                          **build_dataset_frame(ds.features, act, prefix="action"), "task": "insert"})
+            act = {k: float(rng.uniform(-1.5, 1.5)) for k in action}  # some beyond the limits: clipped
+            ds.add_frame(
+                {
+                    **build_dataset_frame(ds.features, obs, prefix="observation"),
+                    **build_dataset_frame(ds.features, act, prefix="action"),
+                    "task": "insert",
+                }
+            )
             sent.append((obs, act))
         ds.save_episode()
     ds.finalize()
@@ -47,8 +56,10 @@ def datasets(tmp_path_factory):
     root = tmp_path_factory.mktemp("demos")
     sim = AccrueSim(AccrueSimConfig(calibration_dir=root / "calib"))
     ours, sent = record(root / "sim", "accrue_sim", sim.observation_features, sim.action_features)
-    joints = {f"{j}.pos": float for j in ("shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex",
-                                          "wrist_roll", "gripper")}
+    joints = {
+        f"{j}.pos": float
+        for j in ("shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll", "gripper")
+    }
     theirs, _ = record(root / "so101", "so101_follower", joints, joints)
     wf = write_hw_workflow(root / "hw.yaml", root / "calib")
     wf.write_text(wf.read_text() + f"  action_limits: {LIMITS}\n")
@@ -67,12 +78,14 @@ def test_dataset_from_another_robot_is_refused_in_one_line(datasets):
     # lerobot-record's task text ("insert") names neither workflow task: the user must say which
     line = one_line_error(accrue("add", str(ours), "--kind", "demos", "--workflow", str(wf), store=store))
     assert "--task" in line and "nist/rect_peg" in line
-    line = one_line_error(accrue("add", str(ours), "--kind", "demos", "--workflow", str(wf), "--task", "nist/gear",
-                                 store=store))
+    line = one_line_error(
+        accrue("add", str(ours), "--kind", "demos", "--workflow", str(wf), "--task", "nist/gear", store=store)
+    )
     assert "not one of workflow hw's tasks" in line
-    assert "--workflow" in one_line_error(accrue("add", str(ours), "--kind", "demos", "--task", "nist/rect_peg",
-                                                 store=store))
-    assert sorted(Store.open(store).iter_object_ids()) == objects         # nothing stored by a refusal
+    assert "--workflow" in one_line_error(
+        accrue("add", str(ours), "--kind", "demos", "--task", "nist/rect_peg", store=store)
+    )
+    assert sorted(Store.open(store).iter_object_ids()) == objects  # nothing stored by a refusal
 
 
 def test_recorded_demos_are_converted_stored_and_trained_on(datasets, tmp_path):
@@ -85,13 +98,24 @@ def test_recorded_demos_are_converted_stored_and_trained_on(datasets, tmp_path):
     root, ours, _, sent, wf = datasets
     store = tmp_path / "store"
     assert accrue("init", store=store).returncode == 0
-    added = accrue("add", str(ours), "--kind", "demos", "--workflow", str(wf), "--task", "nist/rect_peg",
-                   "--ref", "robot-demos/rect", store=store)
+    added = accrue(
+        "add",
+        str(ours),
+        "--kind",
+        "demos",
+        "--workflow",
+        str(wf),
+        "--task",
+        "nist/rect_peg",
+        "--ref",
+        "robot-demos/rect",
+        store=store,
+    )
     assert added.returncode == 0, added.stderr
     artifact = added.stdout.strip()
     assert len(artifact) == 64
 
-    demos = materialize(Store.open(store), artifact, tmp_path / "demos")    # what finetune-base is given
+    demos = materialize(Store.open(store), artifact, tmp_path / "demos")  # what finetune-base is given
     info = read_demo_info(demos)
     assert info.task_id == "nist/rect_peg" and info.num_episodes == len(EPISODE_FRAMES)
     assert info.instruction == get_task("nist/rect_peg").instruction
@@ -108,7 +132,7 @@ def test_recorded_demos_are_converted_stored_and_trained_on(datasets, tmp_path):
     from accrue.sim import ACTION_NAMES
 
     mapping = RobotMapping(action_limits=tuple(LIMITS))
-    for i in (0, 3, 5, 9):                       # by hand: the mapping applied to what was recorded
+    for i in (0, 3, 5, 9):  # by hand: the mapping applied to what was recorded
         obs, act = sent[i]
         np.testing.assert_allclose(states[i], mapping.state({k: np.float32(v) for k, v in obs.items()}))
         expected = [np.clip(np.float32(act[n]) / lim, -1, 1) for n, lim in zip(ACTION_NAMES, LIMITS)]
@@ -125,15 +149,21 @@ def test_recorded_demos_are_converted_stored_and_trained_on(datasets, tmp_path):
     from stages.plan import plan_stage
     from stages.workflow import load_workflow
 
-    text = wf.read_text().replace('base_policy: {init: "scripted-reference:1.0"}',
-                                  'base_policy: {init: embedded-mlp, demos: {nist/rect_peg: robot-demos/rect}}')
+    text = wf.read_text().replace(
+        'base_policy: {init: "scripted-reference:1.0"}',
+        "base_policy: {init: embedded-mlp, demos: {nist/rect_peg: robot-demos/rect}}",
+    )
     (tmp_path / "hw.yaml").write_text(text)
     plan = plan_stage(load_workflow(tmp_path / "hw.yaml"), 1, Store.open(store))
     ft = next(inv for inv in plan.steps if inv.step.name == "finetune-base")
     assert ft.inputs["demos-1"] == "robot-demos/rect"
 
-    out = finetune("embedded-mlp", [demos], tmp_path / "policy",
-                   FinetuneSettings(steps=2, batch_size=4, chunk_size=4, num_workers=0))
+    out = finetune(
+        "embedded-mlp",
+        [demos],
+        tmp_path / "policy",
+        FinetuneSettings(steps=2, batch_size=4, chunk_size=4, num_workers=0),
+    )
     record = json.loads((out / "accrue_finetune.json").read_text())
     assert record["training_set"]["instructions"] == [info.instruction]
     assert (out / "model.safetensors").is_file()
@@ -157,7 +187,7 @@ def test_conversion_reads_columns_by_name(datasets, tmp_path):
         mapped_states(recorded[:, :-1], names, mapping)
     meta = convert_robot_dataset(ours, tmp_path / "out", mapping, "accrue_sim", "nist/round_peg", "insert it")
     assert meta["episodes"] == 2 and meta["mapping"]["state_keys"][0] == STATE_NAMES[-1]
-    assert meta["clipped_action_values"] > 0          # limits of 1.0: recorded values beyond +-1 are clipped
+    assert meta["clipped_action_values"] > 0  # limits of 1.0: recorded values beyond +-1 are clipped
     with pytest.raises(AccrueError, match="not empty"):
         convert_robot_dataset(ours, tmp_path / "out", mapping, "accrue_sim", "nist/round_peg", "insert it")
 

@@ -2,6 +2,7 @@
 the actor mid-episode, of the learner mid-update, and of both, each followed by `--continue` (or, for the
 learner alone, by the actor restarting it): no sealed episode is lost or counted twice, the half-finished
 episode is discarded and the log says so, and robot time, the 20-episode window and the sessions continue."""
+
 from __future__ import annotations
 
 import json
@@ -25,7 +26,7 @@ def alive(pid: int) -> bool:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
-    try:                              # a zombie child of ours counts as gone
+    try:  # a zombie child of ours counts as gone
         return os.waitpid(pid, os.WNOHANG) == (0, 0)
     except ChildProcessError:
         return True
@@ -43,21 +44,33 @@ def wait_for(check, timeout: float, what: str):
 
 def start_actor(store: Path, wf: Path, stage: int) -> subprocess.Popen:
     env = {**os.environ, "ACCRUE_STORE": str(store), "OMP_NUM_THREADS": "1"}
-    return subprocess.Popen([sys.executable, "-m", "cli.main", "stage", "run", str(wf), "--stage", str(stage),
-                             "--step", "train"], cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
+    return subprocess.Popen(
+        [sys.executable, "-m", "cli.main", "stage", "run", str(wf), "--stage", str(stage), "--step", "train"],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
 
 
 def mid_episode(store: Path, stage: int, after: int) -> int:
     """Wait until a train episode has started and is not sealed yet (at least `after` sealed); its index."""
+
     def check():
-        sealed = {e["index"] for e in robot_events(store, "robot-episode-sealed")
-                  if e["stage"] == stage and e["phase"] == "train"}
-        started = [e["index"] for e in robot_events(store, "robot-episode-started")
-                   if e["stage"] == stage and e["phase"] == "train"]
+        sealed = {
+            e["index"]
+            for e in robot_events(store, "robot-episode-sealed")
+            if e["stage"] == stage and e["phase"] == "train"
+        }
+        started = [
+            e["index"]
+            for e in robot_events(store, "robot-episode-started")
+            if e["stage"] == stage and e["phase"] == "train"
+        ]
         if len(sealed) >= after and started and started[-1] not in sealed:
             return started[-1]
         return None
+
     return wait_for(check, 400, f"a train episode of stage {stage} in progress")
 
 
@@ -66,8 +79,11 @@ def learner_pids(store: Path, stage: int) -> list[int]:
 
 
 def sealed_train(store: Path, stage: int) -> dict[int, dict]:
-    return {e["index"]: e for e in robot_events(store, "robot-episode-sealed")
-            if e["stage"] == stage and e["phase"] == "train"}
+    return {
+        e["index"]: e
+        for e in robot_events(store, "robot-episode-sealed")
+        if e["stage"] == stage and e["phase"] == "train"
+    }
 
 
 def curve_of(store: Path, result) -> dict:
@@ -82,8 +98,8 @@ def curve_of(store: Path, result) -> dict:
 def check_resumed(store: Path, stage: int, before: dict[int, dict], killed: int, result) -> dict:
     curve = curve_of(store, result)
     indices = [e["index"] for e in curve["episodes"]]
-    assert len(indices) == len(set(indices)) == len(sealed_train(store, stage))    # none counted twice
-    assert set(before) <= set(indices)                                             # none lost
+    assert len(indices) == len(set(indices)) == len(sealed_train(store, stage))  # none counted twice
+    assert set(before) <= set(indices)  # none lost
     for e in curve["episodes"]:
         if e["index"] in before:
             assert e["robot_time_s"] == pytest.approx(before[e["index"]]["robot_time_s"], abs=1e-3)
@@ -91,8 +107,9 @@ def check_resumed(store: Path, stage: int, before: dict[int, dict], killed: int,
     assert curve["rl_robot_time_s"] == pytest.approx(sum(e["robot_time_s"] for e in curve["episodes"]))
     # the window runs over the sealed episodes of both sessions, in order
     labels = [e["success"] for e in curve["episodes"]]
-    assert [e["window_success"] for e in curve["episodes"]] == [sum(labels[max(0, i - 19):i + 1])
-                                                                  for i in range(len(labels))]
+    assert [e["window_success"] for e in curve["episodes"]] == [
+        sum(labels[max(0, i - 19) : i + 1]) for i in range(len(labels))
+    ]
     assert killed not in indices
     discarded = [e for e in robot_events(store, "robot-episode-discarded") if e["stage"] == stage]
     assert [e["index"] for e in discarded] == [killed]
@@ -122,7 +139,7 @@ def test_kill_actor_mid_episode_then_learner_mid_update(setup):
     actor.wait(timeout=30)
     before = sealed_train(store, 1)
     assert killed not in before
-    for pid in learner_pids(store, 1):                      # its learner notices and exits
+    for pid in learner_pids(store, 1):  # its learner notices and exits
         wait_for(lambda pid=pid: not alive(pid), 30, f"learner {pid} to exit after its actor died")
 
     old = set(learner_pids(store, 1))
@@ -131,21 +148,26 @@ def test_kill_actor_mid_episode_then_learner_mid_update(setup):
     since = max([e["seq"] for e in robot_events(store)], default=0)
 
     def kill_learner_mid_update():
-        def updating():      # the restarted learner has sealed a checkpoint: it is training
+        def updating():  # the restarted learner has sealed a checkpoint: it is training
             new = [p for p in learner_pids(store, 1) if p not in old]
-            trained = [e for e in robot_events(store, "robot-learner-checkpoint")
-                       if e["stage"] == 1 and e["seq"] > since and e["updates"] > 0]
+            trained = [
+                e
+                for e in robot_events(store, "robot-learner-checkpoint")
+                if e["stage"] == 1 and e["seq"] > since and e["updates"] > 0
+            ]
             return new[-1] if new and trained else None
+
         pid = wait_for(updating, 300, "the restarted learner to train")
         os.kill(pid, signal.SIGKILL)
         killed_learner["pid"] = pid
+
     thread = threading.Thread(target=kill_learner_mid_update, daemon=True)
     thread.start()
     result = run_stage(store, fast, 1, step="train", mode="continue")["train"]
     thread.join(timeout=5)
     curve = check_resumed(store, 1, before, killed, result)
     assert curve["stopped"].startswith("stop rule")
-    if killed_learner:                                      # the stage may have ended before the learner trained
+    if killed_learner:  # the stage may have ended before the learner trained
         lost = [e for e in robot_events(store, "robot-learner-lost") if e["stage"] == 1]
         assert lost, "the dead learner was not reported"
         restarted = [p for p in learner_pids(store, 1) if p not in old and p != killed_learner["pid"]]
@@ -154,7 +176,7 @@ def test_kill_actor_mid_episode_then_learner_mid_update(setup):
 
 def test_kill_both_then_continue(setup):
     store, fast, slow = setup
-    run_stage(store, fast, 1)                               # the rest of stage 1 (its train step is done)
+    run_stage(store, fast, 1)  # the rest of stage 1 (its train step is done)
     run_stage(store, fast, 2, step="warmup")
     actor = start_actor(store, slow, 2)
     killed = mid_episode(store, 2, after=2)

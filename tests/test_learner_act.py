@@ -1,4 +1,5 @@
 """Acting: shapes and bounds, residual start at the reference, per-env noise, no-reference ablation, dropout."""
+
 import numpy as np
 import pytest
 import torch
@@ -16,7 +17,7 @@ def test_act_starts_at_reference_and_stays_in_bounds(algo):
     s, ref = torch.randn(16, D, generator=g), torch.rand(16, H, A, generator=g) * 1.8 - 0.9
     greedy = lr.act(s, ref, explore=False)
     assert greedy.shape == (16, H, A)
-    assert (greedy - ref).abs().max() < 0.05          # residual actor: a ≈ ã before any training
+    assert (greedy - ref).abs().max() < 0.05  # residual actor: a ≈ ã before any training
     explore = lr.act(s.numpy(), ref.numpy(), explore=True)
     assert isinstance(explore, np.ndarray) and explore.dtype == np.float32
     assert np.abs(explore).max() <= 1.0 and not np.allclose(explore, greedy.numpy())
@@ -40,8 +41,10 @@ def test_no_reference_ablation_actor_ignores_reference():
     a2 = lr.act(s, torch.full((4, H, A), -0.5), explore=False)
     assert torch.equal(a1, a2)
     normal = make_learner(LearnerConfig(**SMALL), D, H, A)
-    assert not torch.equal(normal.act(s, torch.full((4, H, A), 0.5), explore=False),
-                           normal.act(s, torch.full((4, H, A), -0.5), explore=False))
+    assert not torch.equal(
+        normal.act(s, torch.full((4, H, A), 0.5), explore=False),
+        normal.act(s, torch.full((4, H, A), -0.5), explore=False),
+    )
 
 
 def test_reference_dropout_fraction():

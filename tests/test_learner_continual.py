@@ -1,29 +1,46 @@
 """The continual rules: ACCRUE's critic never reads B^{<k}; distillation holds retained behaviour; baselines."""
+
 import dataclasses
 
 import pytest
 import torch
 
 from accrue.errors import AccrueError
-from accrue.learner import (Batch, LearnerConfig, ReplayBuffer, begin_stage, compute_teacher_targets, end_stage,
-                            estimate_fisher, make_learner, retain_last_episodes)
+from accrue.learner import (
+    Batch,
+    LearnerConfig,
+    ReplayBuffer,
+    begin_stage,
+    compute_teacher_targets,
+    end_stage,
+    estimate_fisher,
+    make_learner,
+    retain_last_episodes,
+)
 from accrue.methods import rules
 
 D, H, A = 6, 2, 3
-SMALL = dict(actor_hidden=[32, 32], critic_hidden=[32], projector_dim=16, batch_size=32, num_atoms=21,
-             utd=1, policy_frequency=1)
+SMALL = dict(
+    actor_hidden=[32, 32], critic_hidden=[32], projector_dim=16, batch_size=32, num_atoms=21, utd=1, policy_frequency=1
+)
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
-
 
 
 def make_buffer(task, n=256, seed=0, shift=0.0):
     g = torch.Generator().manual_seed(seed)
     buf = ReplayBuffer(D, H, A)
-    buf.add(torch.randn(n, D, generator=g) + shift, torch.rand(n, H, A, generator=g) * 2 - 1,
-            torch.rand(n, H, A, generator=g) * 1.6 - 0.8, (torch.rand(n, generator=g) > 0.7).float() * 3,
-            torch.randn(n, D, generator=g) + shift, torch.rand(n, H, A, generator=g) * 1.6 - 0.8,
-            torch.rand(n, generator=g) > 0.9, task, torch.arange(n) // 8)
+    buf.add(
+        torch.randn(n, D, generator=g) + shift,
+        torch.rand(n, H, A, generator=g) * 2 - 1,
+        torch.rand(n, H, A, generator=g) * 1.6 - 0.8,
+        (torch.rand(n, generator=g) > 0.7).float() * 3,
+        torch.randn(n, D, generator=g) + shift,
+        torch.rand(n, H, A, generator=g) * 1.6 - 0.8,
+        torch.rand(n, generator=g) > 0.9,
+        task,
+        torch.arange(n) // 8,
+    )
     return buf
 
 
@@ -52,17 +69,17 @@ def test_accrue_critic_never_reads_prior_batch(algo):
     critic_inputs = []
     learner.critic.register_forward_pre_hook(lambda m, args: critic_inputs.append(args[0].shape[0]))
     learner._critic_update(cur.sample(32, g))
-    assert object.__getattribute__(prior, "_reads") == set()           # nothing of B^{<k} touched
+    assert object.__getattribute__(prior, "_reads") == set()  # nothing of B^{<k} touched
     learner._update(cur.sample(32, g), prior)
     reads = object.__getattribute__(prior, "_reads")
-    assert reads == {"state", "ref", "teacher"}                        # the actor's distillation inputs only
-    assert all(n == 32 for n in critic_inputs)                         # critic never saw a 64-row batch
+    assert reads == {"state", "ref", "teacher"}  # the actor's distillation inputs only
+    assert all(n == 32 for n in critic_inputs)  # critic never saw a 64-row batch
 
     # whereas the critic-all-replay ablation and ER do feed B^{<k} to the critic
     for kw in (dict(method="accrue", ablation="critic-all-replay"), dict(method="er")):
         other = make_learner(LearnerConfig(algo=algo, **SMALL, **kw), D, H, A)
         sizes = []
-        other.critic.register_forward_pre_hook(lambda m, args: sizes.append(args[0].shape[0]))
+        other.critic.register_forward_pre_hook(lambda m, args, sizes=sizes: sizes.append(args[0].shape[0]))
         pr = recording(prior_buf.sample(32, g).with_teacher(teacher))
         other._update(cur.sample(32, g), pr)
         assert 64 in sizes and "reward" in object.__getattribute__(pr, "_reads")
@@ -91,7 +108,7 @@ def drift_after_new_task(method, algo):
 def test_distillation_holds_retained_outputs_while_sequential_drifts(algo):
     accrue = drift_after_new_task("accrue", algo)
     sequential = drift_after_new_task("sequential", algo)
-    assert sequential > 0.05                      # the new task really moves the actor
+    assert sequential > 0.05  # the new task really moves the actor
     assert accrue < 0.25 * sequential, (accrue, sequential)
 
 
@@ -104,7 +121,7 @@ def test_stage_start_rules():
     assert inherit.stage == 1
     assert all(torch.equal(p, q) for p, q in zip(prev.actor.state_dict().values(), inherit.actor.state_dict().values()))
     assert all(torch.equal(p, q) for p, q in zip(prev.critic.parameters(), inherit.critic.parameters()))
-    assert inherit.counters["updates"] == 0 and not inherit.actor_opt.state   # optimiser moments reset
+    assert inherit.counters["updates"] == 0 and not inherit.actor_opt.state  # optimiser moments reset
 
     fresh = begin_stage(prev, cfg.replace(method="single-task"), D, H, A)
     assert not torch.equal(next(fresh.actor.parameters()), next(prev.actor.parameters()))
@@ -140,6 +157,7 @@ def test_ewc_fisher_and_penalty_hold_parameters():
         for _ in range(40):
             lr.train_step(new)
         return sum((p - q).square().sum().item() for p, q in zip(lr.actor.parameters(), prev.actor.parameters()))
+
     assert drift("ewc") < 0.5 * drift("sequential")
 
 

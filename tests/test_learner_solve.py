@@ -6,6 +6,7 @@ imitating the reference cannot solve it) and noise σ = 0.1 per entry. Executing
 terminates when ‖a − T(s)‖ < ε = 0.3, else 0 — sparse, like the assembly tasks. The actor must learn the
 state-dependent correction from the sparse reward through the critic.
 """
+
 import pytest
 import torch
 
@@ -38,9 +39,23 @@ class RefineTask:
 
 def train_and_evaluate(algo):
     task = RefineTask(0)
-    cfg = LearnerConfig(algo=algo, actor_hidden=[128, 128], critic_hidden=[128, 128], projector_dim=32,
-                        batch_size=128, num_atoms=21, v_min=-0.5, v_max=1.5, utd=2, policy_frequency=2,
-                        std_max=0.2, ref_dropout=0.1, actor_lr=1e-3, critic_lr=1e-3, seed=0)
+    cfg = LearnerConfig(
+        algo=algo,
+        actor_hidden=[128, 128],
+        critic_hidden=[128, 128],
+        projector_dim=32,
+        batch_size=128,
+        num_atoms=21,
+        v_min=-0.5,
+        v_max=1.5,
+        utd=2,
+        policy_frequency=2,
+        std_max=0.2,
+        ref_dropout=0.1,
+        actor_lr=1e-3,
+        critic_lr=1e-3,
+        seed=0,
+    )
     learner = make_learner(cfg, D, H, A)
     buf = ReplayBuffer(D, H, A)
     n_env, episode = 32, 0
@@ -48,11 +63,20 @@ def train_and_evaluate(algo):
         s, ref = task.observe(n_env)
         a = learner.act(s, ref, explore=True, reset_mask=torch.ones(n_env, dtype=torch.bool))
         r = task.reward(s, a)
-        s_next, ref_next = task.observe(n_env)      # unused: every episode terminates after one chunk
-        buf.add(s, a, ref, r, s_next, ref_next, torch.ones(n_env, dtype=torch.bool), 0,
-                torch.arange(episode, episode + n_env))
+        s_next, ref_next = task.observe(n_env)  # unused: every episode terminates after one chunk
+        buf.add(
+            s,
+            a,
+            ref,
+            r,
+            s_next,
+            ref_next,
+            torch.ones(n_env, dtype=torch.bool),
+            0,
+            torch.arange(episode, episode + n_env),
+        )
         episode += n_env
-        if step >= 10:                              # warmup collection first
+        if step >= 10:  # warmup collection first
             learner.train_step(buf)
     s, ref = task.observe(2000)
     actor_success = task.reward(s, learner.act(s, ref, explore=False)).mean().item()

@@ -1,4 +1,5 @@
 """MCAP episode logs: topics/schemas as documented, metadata, sealing, and crash safety."""
+
 from __future__ import annotations
 
 import json
@@ -22,9 +23,15 @@ def _record(rec: EpisodeRecorder, env: int, steps: int, *, image: bool = False, 
     for t in range(steps):
         img = np.full((12, 16, 3), 40 * env + t, dtype=np.uint8) if image else None
         rec.log_step(
-            env, t, state=np.arange(4) + t, action=np.full(6, 0.1 * env),
-            reference=np.zeros((3, 6)) + t, reward=1.0 if t == steps - 1 else 0.0, image=img,
-            ee_pose=[0.1, 0.2, 0.3 + t, 0, 0, 0, 1], socket_pose=[0.0, 0.0, 0.0],
+            env,
+            t,
+            state=np.arange(4) + t,
+            action=np.full(6, 0.1 * env),
+            reference=np.zeros((3, 6)) + t,
+            reward=1.0 if t == steps - 1 else 0.0,
+            image=img,
+            ee_pose=[0.1, 0.2, 0.3 + t, 0, 0, 0, 1],
+            socket_pose=[0.0, 0.0, 0.0],
             wrench=[1, 2, 3, 4, 5, 6],
         )
     return rec.end(env, success=success)
@@ -151,7 +158,9 @@ _CRASHING_WRITER = textwrap.dedent(
 
 def test_killed_recorder_keeps_sealed_episodes_and_no_half_file(tmp_path: Path) -> None:
     out = tmp_path / "logs"
-    proc = subprocess.run([sys.executable, "-c", _CRASHING_WRITER, str(out)], capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(
+        [sys.executable, "-c", _CRASHING_WRITER, str(out)], capture_output=True, text=True, timeout=120
+    )
     assert proc.returncode == -signal.SIGKILL, proc.stderr
     assert "about to crash" in proc.stdout
     sealed = list_episodes(out)

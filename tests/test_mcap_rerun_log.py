@@ -1,4 +1,5 @@
 """The rerun helper writes a .rrd file (never a viewer) that reads back with rerun's dataframe API."""
+
 from __future__ import annotations
 
 from pathlib import Path

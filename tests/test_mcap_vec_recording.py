@@ -1,4 +1,5 @@
 """Recording a real vectorised accrue.sim loop (single steps and action chunks) as MCAP episodes."""
+
 from __future__ import annotations
 
 import json
@@ -19,8 +20,9 @@ def test_expert_steps_are_sealed_per_episode_with_labels(tmp_path: Path) -> None
 
     env = make_vec_env(TASK, num_envs=2, seed=4)
     expert = make_expert(TASK, seed=4)
-    logger = VecEpisodeLogger(EpisodeRecorder(tmp_path, control_hz=get_task(TASK).control_hz), 2,
-                              {"task_id": TASK, "policy": "expert"})
+    logger = VecEpisodeLogger(
+        EpisodeRecorder(tmp_path, control_hz=get_task(TASK).control_hz), 2, {"task_id": TASK, "policy": "expert"}
+    )
     obs = env.reset()
     logger.begin()
     ends: list[tuple[Path, bool, int]] = []  # (file, success, length) of each ended episode
@@ -84,9 +86,13 @@ def test_euler_quaternion_matches_rotation_order() -> None:
     # R = Rz Ry Rx: rotate (1,0,0) by roll then pitch then yaw
     roll, pitch, yaw = 0.3, -0.2, 1.1
     x, y, z, w = euler_to_quat_xyzw(roll, pitch, yaw)
-    rot = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                    [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                    [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+    rot = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
     c, s = np.cos, np.sin
     rz = np.array([[c(yaw), -s(yaw), 0], [s(yaw), c(yaw), 0], [0, 0, 1]])
     ry = np.array([[c(pitch), 0, s(pitch)], [0, 1, 0], [-s(pitch), 0, c(pitch)]])

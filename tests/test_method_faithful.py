@@ -1,6 +1,7 @@
 """The method as the paper writes it (issue 10): H-step bootstrap, Polyak, reference dropout in both networks,
 the no-reference ablation, Eq. 3 at the stored inputs, the distillation-input switch, the normaliser across
 stages, RETAIN scored as deployed, and one table of method rules."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -8,15 +9,30 @@ import pytest
 import torch
 
 from accrue import rl_loop
-from accrue.learner import (Batch, LearnerConfig, ReplayBuffer, begin_stage, end_stage, load_learner, make_learner,
-                            save_learner)
+from accrue.learner import (
+    Batch,
+    LearnerConfig,
+    ReplayBuffer,
+    begin_stage,
+    end_stage,
+    load_learner,
+    make_learner,
+    save_learner,
+)
 from accrue.learner.distributional import expected_value
 from accrue.methods import ABLATIONS, METHOD_RULES, METHODS, rules
 from accrue.stage_rl import cache_teacher, hand_over
 
 D, H, A = 4, 4, 2
-SMALL = dict(actor_hidden=[32, 32], critic_hidden=[64, 64], projector_dim=16, batch_size=64, num_atoms=51,
-             utd=1, policy_frequency=1)
+SMALL = dict(
+    actor_hidden=[32, 32],
+    critic_hidden=[64, 64],
+    projector_dim=16,
+    batch_size=64,
+    num_atoms=51,
+    utd=1,
+    policy_frequency=1,
+)
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
@@ -24,10 +40,18 @@ pytestmark = pytest.mark.usefixtures("one_torch_thread")
 def random_buffer(n=256, seed=0, task=0, state_dim=D, shift=0.0):
     g = torch.Generator().manual_seed(seed)
     buf = ReplayBuffer(state_dim, H, A)
-    buf.add(torch.randn(n, state_dim, generator=g) + shift, torch.rand(n, H, A, generator=g) * 2 - 1,
-            torch.rand(n, H, A, generator=g) * 1.6 - 0.8, torch.zeros(n), torch.randn(n, state_dim, generator=g),
-            torch.rand(n, H, A, generator=g) * 1.6 - 0.8, torch.zeros(n, dtype=torch.bool), task,
-            torch.arange(n) // 8, ended=(torch.arange(n) % 8) == 7)
+    buf.add(
+        torch.randn(n, state_dim, generator=g) + shift,
+        torch.rand(n, H, A, generator=g) * 2 - 1,
+        torch.rand(n, H, A, generator=g) * 1.6 - 0.8,
+        torch.zeros(n),
+        torch.randn(n, state_dim, generator=g),
+        torch.rand(n, H, A, generator=g) * 1.6 - 0.8,
+        torch.zeros(n, dtype=torch.bool),
+        task,
+        torch.arange(n) // 8,
+        ended=(torch.arange(n) % 8) == 7,
+    )
     return buf
 
 
@@ -42,10 +66,17 @@ def test_one_row_per_method_and_the_ablations_change_one_rule_of_accrue():
     assert set(METHODS) == set(METHOD_RULES)
     accrue = rules("accrue")
     assert accrue.distill and accrue.uses_prior_memory and not accrue.critic_on_prior
-    changed = {a: {f for f in accrue.__dataclass_fields__ if getattr(rules("accrue", a), f) != getattr(accrue, f)}
-               for a in ABLATIONS}
-    assert changed == {"none": set(), "no-reference": {"use_reference"}, "beta0": {"zero_beta"},
-                       "reset-critic": {"inherit_critic"}, "critic-all-replay": {"critic_on_prior"}}
+    changed = {
+        a: {f for f in accrue.__dataclass_fields__ if getattr(rules("accrue", a), f) != getattr(accrue, f)}
+        for a in ABLATIONS
+    }
+    assert changed == {
+        "none": set(),
+        "no-reference": {"use_reference"},
+        "beta0": {"zero_beta"},
+        "reset-critic": {"inherit_critic"},
+        "critic-all-replay": {"critic_on_prior"},
+    }
     with pytest.raises(ValueError):
         rules("er", "beta0")
 
@@ -57,18 +88,37 @@ def two_chunk_chain(n: int) -> ReplayBuffer:
     buf = ReplayBuffer(D, H, A)
     g = torch.Generator().manual_seed(0)
     half = n // 2
-    chunk = lambda m: torch.rand(m, H, A, generator=g) * 1.6 - 0.8   # noqa: E731
-    buf.add(a_state.repeat(half, 1), chunk(half), chunk(half), torch.zeros(half), b_state.repeat(half, 1),
-            chunk(half), torch.zeros(half, dtype=torch.bool), 0, torch.arange(half))
-    buf.add(b_state.repeat(half, 1), chunk(half), chunk(half), torch.ones(half), a_state.repeat(half, 1),
-            chunk(half), torch.ones(half, dtype=torch.bool), 0, torch.arange(half))
+    chunk = lambda m: torch.rand(m, H, A, generator=g) * 1.6 - 0.8  # noqa: E731
+    buf.add(
+        a_state.repeat(half, 1),
+        chunk(half),
+        chunk(half),
+        torch.zeros(half),
+        b_state.repeat(half, 1),
+        chunk(half),
+        torch.zeros(half, dtype=torch.bool),
+        0,
+        torch.arange(half),
+    )
+    buf.add(
+        b_state.repeat(half, 1),
+        chunk(half),
+        chunk(half),
+        torch.ones(half),
+        a_state.repeat(half, 1),
+        chunk(half),
+        torch.ones(half, dtype=torch.bool),
+        0,
+        torch.arange(half),
+    )
     return buf
 
 
 def test_h_step_backup_bootstraps_with_gamma_to_the_h_when_not_done():
     gamma = 0.9
-    cfg = LearnerConfig(**SMALL, gamma=gamma, v_min=-0.5, v_max=1.5, obs_normalization=False, tau=0.2,
-                        critic_lr=3e-3, ref_dropout=0.0)
+    cfg = LearnerConfig(
+        **SMALL, gamma=gamma, v_min=-0.5, v_max=1.5, obs_normalization=False, tau=0.2, critic_lr=3e-3, ref_dropout=0.0
+    )
     learner = make_learner(cfg, D, H, A)
     buf = two_chunk_chain(512)
     for _ in range(600):
@@ -76,8 +126,8 @@ def test_h_step_backup_bootstraps_with_gamma_to_the_h_when_not_done():
     probe = buf.gather(torch.arange(0, 512, 37))
     q = q_value(learner, probe.state, probe.action, probe.ref)
     is_a = probe.state[:, 0] == 1
-    assert q[~is_a].mean().item() == pytest.approx(1.0, abs=0.08)              # terminal: no bootstrap
-    assert q[is_a].mean().item() == pytest.approx(gamma ** H, abs=0.08)        # 0.656: γ^H, not γ (0.9)
+    assert q[~is_a].mean().item() == pytest.approx(1.0, abs=0.08)  # terminal: no bootstrap
+    assert q[is_a].mean().item() == pytest.approx(gamma**H, abs=0.08)  # 0.656: γ^H, not γ (0.9)
 
 
 def test_target_critic_moves_by_polyak_after_each_update():
@@ -111,9 +161,9 @@ def test_reference_dropout_reaches_critic_target_and_actor_alike(p):
     learner.train_step(random_buffer())
     critic, target, actor = seen["critic"][0], seen["target"][0], seen["actor"]
     dropped = zero_rows(critic)
-    assert torch.equal(dropped, zero_rows(target))                  # same rows in Q_ψ and Q_ψ'
+    assert torch.equal(dropped, zero_rows(target))  # same rows in Q_ψ and Q_ψ'
     assert dropped.float().mean().item() == pytest.approx(p, abs=0.15)
-    assert zero_rows(actor[-1]).float().mean().item() == pytest.approx(p, abs=0.15)   # and in the actor loss
+    assert zero_rows(actor[-1]).float().mean().item() == pytest.approx(p, abs=0.15)  # and in the actor loss
 
 
 def test_no_reference_ablation_hides_the_reference_from_actor_and_critic():
@@ -139,7 +189,7 @@ def stage_two(method="accrue", **over):
 def test_teacher_targets_are_the_previous_actor_at_the_stored_inputs():
     cfg, prev = stage_two()
     memory = random_buffer(64, seed=2)
-    fresh = lambda states, task: np.full((len(states), H, A), 0.3, dtype=np.float32)   # noqa: E731
+    fresh = lambda states, task: np.full((len(states), H, A), 0.3, dtype=np.float32)  # noqa: E731
     cache = cache_teacher(prev, memory, fresh)
     stored = prev.act(memory.column("state"), memory.column("ref"), explore=False)
     assert torch.allclose(cache.targets, stored, atol=1e-6)
@@ -176,9 +226,17 @@ def task_code_buffer(code: np.ndarray, seed: int, n=256) -> ReplayBuffer:
     g = torch.Generator().manual_seed(seed)
     states = torch.cat([torch.randn(n, D, generator=g), torch.as_tensor(code).expand(n, -1)], 1)
     buf = ReplayBuffer(D + len(code), H, A)
-    buf.add(states, torch.rand(n, H, A, generator=g) * 2 - 1, torch.rand(n, H, A, generator=g) * 1.6 - 0.8,
-            torch.zeros(n), states, torch.rand(n, H, A, generator=g) * 1.6 - 0.8,
-            torch.zeros(n, dtype=torch.bool), 0, torch.arange(n) // 8)
+    buf.add(
+        states,
+        torch.rand(n, H, A, generator=g) * 2 - 1,
+        torch.rand(n, H, A, generator=g) * 1.6 - 0.8,
+        torch.zeros(n),
+        states,
+        torch.rand(n, H, A, generator=g) * 1.6 - 0.8,
+        torch.zeros(n, dtype=torch.bool),
+        0,
+        torch.arange(n) // 8,
+    )
     return buf
 
 
@@ -188,7 +246,7 @@ def test_a_new_task_code_stays_bounded_at_the_first_update_of_stage_two(min_std,
     from accrue.sim import get_task
 
     codes = embed_instructions([get_task(t).instruction for t in ("nist/rect_peg", "nist/gear")], 32)
-    cfg = LearnerConfig(**SMALL, obs_norm_min_std=min_std, obs_norm_clip=0.0)   # no clip: the floor alone
+    cfg = LearnerConfig(**SMALL, obs_norm_min_std=min_std, obs_norm_clip=0.0)  # no clip: the floor alone
     stage1 = make_learner(cfg, D + 32, H, A)
     for _ in range(20):
         stage1.train_step(task_code_buffer(codes[0], 0))
@@ -198,7 +256,7 @@ def test_a_new_task_code_stays_bounded_at_the_first_update_of_stage_two(min_std,
     stage2.actor.proj.register_forward_pre_hook(lambda mod, args: seen.append(args[0].detach().clone()))
     stage2.train_step(task_code_buffer(codes[1], 1))
     z_code = seen[0][:, D:].abs().max().item()
-    assert (z_code <= 10) == bounded, z_code      # the unfloored rule (before issue 10) gave |z| in the hundreds
+    assert (z_code <= 10) == bounded, z_code  # the unfloored rule (before issue 10) gave |z| in the hundreds
 
 
 def test_normaliser_is_frozen_after_the_first_stage_so_teacher_and_student_read_s_alike(tmp_path):
@@ -264,17 +322,17 @@ def test_retain_grid_points_score_the_merged_actor_it_would_deploy():
     evaluator = RecordingEvaluator(learner, probe_s, probe_ref)
     settings = rl_loop.LoopSettings(["t"], env_steps=60, eval_every=20, checkpoint_every=1000)
     rl_loop.train_loop(learner, ChainCollector(random_buffer(seed=3, shift=2.0)), evaluator, settings)
-    assert len(evaluator.seen) == 4                                     # grid 0, 20, 40, 60
-    for scored, merged, raw in evaluator.seen:
+    assert len(evaluator.seen) == 4  # grid 0, 20, 40, 60
+    for scored, merged, _raw in evaluator.seen:
         np.testing.assert_allclose(scored, merged, atol=1e-6)
-    assert np.abs(evaluator.seen[-1][0] - evaluator.seen[-1][2]).max() > 1e-3   # merged is not the raw actor
-    end_stage(learner)                  # the handoff is the merge the last grid point scored
+    assert np.abs(evaluator.seen[-1][0] - evaluator.seen[-1][2]).max() > 1e-3  # merged is not the raw actor
+    end_stage(learner)  # the handoff is the merge the last grid point scored
     np.testing.assert_allclose(learner.act(probe_s, probe_ref, explore=False), evaluator.seen[-1][0], atol=1e-6)
 
 
 # ------------------------------------------------------------------------------------------ handoff memory
 def test_hand_over_reports_a_stage_with_fewer_than_n_complete_episodes():
-    current = random_buffer(64, task=1)           # 8 episodes of 8 chunks, each ending in its last chunk
+    current = random_buffer(64, task=1)  # 8 episodes of 8 chunks, each ending in its last chunk
     memory, report = hand_over(None, current, 20)
     assert len(memory) == 64 and report["short"] == ["1"] and report["kept"] == {"1": 8}
     memory, report = hand_over(None, current, 3)

@@ -1,5 +1,6 @@
 """The embedded base policy `accrue_chunk_mlp`: a lerobot policy type accrue registers, trained by
 lerobot-train, reloaded through lerobot's loaders, and its chunk equal to the network's own output."""
+
 from __future__ import annotations
 
 import json
@@ -56,10 +57,13 @@ def test_reloaded_chunk_is_the_network_output_on_normalised_inputs(trained):
         return torch.from_numpy((x - stats[f"{key}.mean"]) / (stats[f"{key}.std"] + 1e-8)).float()
 
     model = ChunkMLPPolicy.from_pretrained(trained["stage2"]).eval()
-    batch = {"observation.state": standardise(obs["state"], "observation.state"),
-             "observation.environment_state": standardise(embed_instructions([TASK_B] * 3, 32),
-                                                          "observation.environment_state")}
-    expected = np.clip(model.predict_action_chunk(batch)[:, :3].numpy(), -1, 1)   # actions are not normalised
+    batch = {
+        "observation.state": standardise(obs["state"], "observation.state"),
+        "observation.environment_state": standardise(
+            embed_instructions([TASK_B] * 3, 32), "observation.environment_state"
+        ),
+    }
+    expected = np.clip(model.predict_action_chunk(batch)[:, :3].numpy(), -1, 1)  # actions are not normalised
     np.testing.assert_allclose(chunk, expected, atol=1e-4)
 
 

@@ -1,4 +1,5 @@
 """`accrue policy ...`: user mistakes are one `error:` line and exit code 2, never a traceback."""
+
 from __future__ import annotations
 
 import os
@@ -11,8 +12,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def _accrue(*args: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "HF_DATASETS_OFFLINE": "1", "TRANSFORMERS_OFFLINE": "1"}
-    return subprocess.run([sys.executable, "-m", "cli.main", *args], cwd=ROOT, env=env,
-                          capture_output=True, text=True, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-m", "cli.main", *args], cwd=ROOT, env=env, capture_output=True, text=True, timeout=120
+    )
 
 
 def test_policy_group_lists_its_commands():
@@ -34,4 +36,7 @@ def test_finetune_with_bad_retention_and_missing_demos(tmp_path):
     assert result.returncode == 2 and result.stderr.strip() == "error: demo retention must be in (0, 1], got 1.5"
     result = _accrue("policy", "finetune", "--demos", str(tmp_path / "none"), "--out", str(tmp_path / "o"))
     assert result.returncode == 2
-    assert result.stderr.strip().splitlines()[-1] == f"error: {tmp_path / 'none'} is not a LeRobotDataset (missing meta/info.json)"
+    assert (
+        result.stderr.strip().splitlines()[-1]
+        == f"error: {tmp_path / 'none'} is not a LeRobotDataset (missing meta/info.json)"
+    )

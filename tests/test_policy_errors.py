@@ -1,8 +1,8 @@
 """A missing/broken checkpoint, an unknown or uninstalled policy type, or bad demos: one-line errors."""
+
 from __future__ import annotations
 
 import json
-import shutil
 
 import pytest
 from test_policy_helpers import write_synthetic_demos
@@ -54,22 +54,29 @@ def test_unknown_policy_type(tmp_path):
 
 
 def test_corrupt_weights_file(tmp_path):
-    ckpt = _fake_checkpoint(tmp_path / "c", {
-        "type": "act", "pretrained_backbone_weights": None,
-        "input_features": {"observation.environment_state": {"type": "ENV", "shape": [4]}},
-        "output_features": {"action": {"type": "ACTION", "shape": [6]}},
-    })
+    ckpt = _fake_checkpoint(
+        tmp_path / "c",
+        {
+            "type": "act",
+            "pretrained_backbone_weights": None,
+            "input_features": {"observation.environment_state": {"type": "ENV", "shape": [4]}},
+            "output_features": {"action": {"type": "ACTION", "shape": [6]}},
+        },
+    )
     with pytest.raises(AccrueError) as info:
         BasePolicy.load(ckpt)
     assert _one_line(info).startswith(f"cannot load policy checkpoint {ckpt}")
 
 
 def test_uninstalled_vla_type_names_what_is_missing(tmp_path):
-    ckpt = _fake_checkpoint(tmp_path / "c", {
-        "type": "smolvla",
-        "input_features": {"observation.state": {"type": "STATE", "shape": [4]}},
-        "output_features": {"action": {"type": "ACTION", "shape": [6]}},
-    })
+    ckpt = _fake_checkpoint(
+        tmp_path / "c",
+        {
+            "type": "smolvla",
+            "input_features": {"observation.state": {"type": "STATE", "shape": [4]}},
+            "output_features": {"action": {"type": "ACTION", "shape": [6]}},
+        },
+    )
     with pytest.raises(AccrueError) as info:
         BasePolicy.load(ckpt)
     message = _one_line(info)
@@ -77,13 +84,19 @@ def test_uninstalled_vla_type_names_what_is_missing(tmp_path):
 
 
 def test_dataset_without_state_feature(tmp_path):
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
     import numpy as np
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    ds = LeRobotDataset.create(repo_id="local/bad", root=tmp_path / "bad", fps=10, use_videos=False, features={
-        "observation.joints": {"dtype": "float32", "shape": (3,), "names": None},
-        "action": {"dtype": "float32", "shape": (6,), "names": None},
-    })
+    ds = LeRobotDataset.create(
+        repo_id="local/bad",
+        root=tmp_path / "bad",
+        fps=10,
+        use_videos=False,
+        features={
+            "observation.joints": {"dtype": "float32", "shape": (3,), "names": None},
+            "action": {"dtype": "float32", "shape": (6,), "names": None},
+        },
+    )
     for _ in range(3):
         ds.add_frame({"observation.joints": np.zeros(3, np.float32), "action": np.zeros(6, np.float32), "task": "t"})
     ds.save_episode()

@@ -1,4 +1,5 @@
 """Fine-tune the embedded ACT from scratch and from a checkpoint on two synthetic tasks, then query it."""
+
 from __future__ import annotations
 
 import json
@@ -64,8 +65,8 @@ def test_reloaded_chunk_matches_lerobot_policy_with_dataset_normalisation(traine
     import torch
     from lerobot.policies.act.modeling_act import ACTPolicy
 
-    from accrue.policy.instruction_embedding import embed_instructions
     from accrue.policy.demo_sources import open_demo_source
+    from accrue.policy.instruction_embedding import embed_instructions
 
     pol = BasePolicy.load(trained["stage2"])
     obs = _obs()
@@ -113,12 +114,17 @@ def test_bad_queries_are_one_line_errors(trained):
 
 
 def test_checkpoint_and_dataset_shapes_must_agree(trained, tmp_path):
-    wide = write_synthetic_demos(tmp_path / "wide", TASK_A, 1.0, episodes=1, length=4,
-                                 extra_features={"observation.extra": {"dtype": "float32", "shape": (2,), "names": None}})
+    wide = write_synthetic_demos(
+        tmp_path / "wide",
+        TASK_A,
+        1.0,
+        episodes=1,
+        length=4,
+        extra_features={"observation.extra": {"dtype": "float32", "shape": (2,), "names": None}},
+    )
     # same state size but an extra feature is fine; a different state size is not
-    from test_policy_helpers import write_synthetic_demos as write
-
     import test_policy_helpers as helpers
+    from test_policy_helpers import write_synthetic_demos as write
 
     old = helpers.STATE_DIM
     helpers.STATE_DIM = 5

@@ -3,6 +3,7 @@
 A synthetic task: the expert action is a fixed function of the state that differs per task, so a
 policy must read both the state and the instruction to imitate it.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -19,8 +20,14 @@ def expert_action(state: np.ndarray, task_sign: float) -> np.ndarray:
 
 
 def write_synthetic_demos(
-    root: Path, instruction: str, task_sign: float, episodes: int = 4, length: int = 12, seed: int = 0,
-    extra_features: dict | None = None, image_hw: tuple[int, int] | None = None,
+    root: Path,
+    instruction: str,
+    task_sign: float,
+    episodes: int = 4,
+    length: int = 12,
+    seed: int = 0,
+    extra_features: dict | None = None,
+    image_hw: tuple[int, int] | None = None,
 ) -> Path:
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
@@ -30,7 +37,11 @@ def write_synthetic_demos(
         **(extra_features or {}),
     }
     if image_hw:
-        features["observation.images.wrist"] = {"dtype": "image", "shape": (*image_hw, 3), "names": ["height", "width", "channels"]}
+        features["observation.images.wrist"] = {
+            "dtype": "image",
+            "shape": (*image_hw, 3),
+            "names": ["height", "width", "channels"],
+        }
     ds = LeRobotDataset.create(repo_id="local/synthetic", root=root, fps=10, features=features, use_videos=False)
     rng = np.random.default_rng(seed)
     for ep in range(episodes):

@@ -1,4 +1,5 @@
 """Demonstration retention (paper Table VI) and the instruction embedding that conditions ACT."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -10,7 +11,9 @@ from accrue.policy.retention import kept_episode_count, retained_episodes
 from accrue.policy.training_set import build_training_set
 
 
-@pytest.mark.parametrize("fraction, n, kept", [(1.0, 10, 10), (0.5, 10, 5), (0.5, 7, 4), (0.1, 10, 1), (0.05, 10, 1), (0.05, 100, 5)])
+@pytest.mark.parametrize(
+    "fraction, n, kept", [(1.0, 10, 10), (0.5, 10, 5), (0.5, 7, 4), (0.1, 10, 1), (0.05, 10, 1), (0.05, 100, 5)]
+)
 def test_kept_count_is_ceil_of_fraction(fraction, n, kept):
     assert kept_episode_count(n, fraction) == kept
     assert len(retained_episodes(n, fraction, seed=0, task_position=0, is_current=False)) == kept
@@ -30,7 +33,9 @@ def test_training_set_keeps_half_of_earlier_task_and_all_of_current(tmp_path):
 
     old = write_synthetic_demos(tmp_path / "old", "old task", 1.0, episodes=6, length=5, seed=0)
     cur = write_synthetic_demos(tmp_path / "cur", "new task", -1.0, episodes=3, length=5, seed=1)
-    summary = build_training_set([old, cur], tmp_path / "merged", retention=0.5, seed=3, embedding_dim=16, use_images=False)
+    summary = build_training_set(
+        [old, cur], tmp_path / "merged", retention=0.5, seed=3, embedding_dim=16, use_images=False
+    )
     expected_old = retained_episodes(6, 0.5, seed=3, task_position=0, is_current=False)
     assert summary.episodes_per_dataset == [expected_old, [0, 1, 2]]
     assert summary.total_frames == (3 + 3) * 5
@@ -55,7 +60,9 @@ def test_images_are_carried_when_asked(tmp_path):
     assert summary.image_keys == ["observation.images.wrist"]
     merged = LeRobotDataset("local/merged", root=tmp_path / "merged")
     source = LeRobotDataset("local/img", root=demos)
-    np.testing.assert_allclose(merged[4]["observation.images.wrist"].numpy(), source[4]["observation.images.wrist"].numpy(), atol=1 / 255)
+    np.testing.assert_allclose(
+        merged[4]["observation.images.wrist"].numpy(), source[4]["observation.images.wrist"].numpy(), atol=1 / 255
+    )
 
 
 def test_instruction_embedding_is_fixed_size_deterministic_and_distinct():

@@ -1,4 +1,5 @@
 """Replay buffer: append-only shards save/load exactly, byte-identical re-saves, retention, n-step."""
+
 import json
 
 import pytest
@@ -15,8 +16,18 @@ def add_rows(buf, n, task, episode, start=0.0, done=None, ended=None):
     s = torch.arange(n * D, dtype=torch.float32).view(n, D) + start
     chunk = torch.full((n, H, A), start / 100.0)
     done = torch.zeros(n, dtype=torch.bool) if done is None else done
-    buf.add(s, chunk, -chunk, torch.arange(n, dtype=torch.float32) + start, s + 1, chunk * 0.5, done, task, episode,
-            ended=ended)
+    buf.add(
+        s,
+        chunk,
+        -chunk,
+        torch.arange(n, dtype=torch.float32) + start,
+        s + 1,
+        chunk * 0.5,
+        done,
+        task,
+        episode,
+        ended=ended,
+    )
 
 
 def same(a: ReplayBuffer, b: ReplayBuffer) -> bool:
@@ -31,8 +42,8 @@ def test_shards_are_append_only_and_load_exactly(tmp_path):
     assert [p.name for p in first] == ["shard-0000000000-0000000007.safetensors"]
     add_rows(buf, 5, 1, 10, start=1000.0)
     second = buf.save_new_shards(tmp_path / "a")
-    assert len(second) == 1 and second[0] != first[0]           # only the new rows are written
-    assert buf.save_new_shards(tmp_path / "a") == []             # nothing new → nothing written
+    assert len(second) == 1 and second[0] != first[0]  # only the new rows are written
+    assert buf.save_new_shards(tmp_path / "a") == []  # nothing new → nothing written
     index = json.loads((tmp_path / "a" / "index.json").read_text())
     assert index["size"] == 12 and [s["count"] for s in index["shards"]] == [7, 5]
 
@@ -99,10 +110,11 @@ def test_retained_memory_of_a_checkpointed_vec_env_run_holds_only_whole_episodes
 
     env = make_vec_env("nist/rect_peg", num_envs=4, seed=3)
     buf = ReplayBuffer(env.reset()["state"].shape[1], 2, 6)
-    collector = rl_loop.ChunkCollector(env, lambda obs: torch.zeros(len(obs["state"]), 2, 6).numpy(),
-                                       state_features, buf, task_index=0, gamma=0.99)
+    collector = rl_loop.ChunkCollector(
+        env, lambda obs: torch.zeros(len(obs["state"]), 2, 6).numpy(), state_features, buf, task_index=0, gamma=0.99
+    )
     collector.restart()
-    for _ in range(60):       # 60 chunks x 2 steps: several whole episodes per env, then a cut
+    for _ in range(60):  # 60 chunks x 2 steps: several whole episodes per env, then a cut
         collector.step(rl_loop.execute_reference)
     env.close()
     kept = retain_last_episodes(buf, 3)
@@ -110,7 +122,7 @@ def test_retained_memory_of_a_checkpointed_vec_env_run_holds_only_whole_episodes
     episodes = kept.column("episode")
     assert len(set(episodes.tolist())) == 3
     time_frac = kept.column("state")[:, IDX["time_frac"]]
-    for e in set(episodes.tolist()):          # each kept episode is whole: starts at step 0, ends at its last row
+    for e in set(episodes.tolist()):  # each kept episode is whole: starts at step 0, ends at its last row
         rows = (episodes == e).nonzero().flatten()
         assert float(time_frac[rows[0]]) == 0.0
         assert int(ended[rows].sum()) == 1 and bool(ended[rows[-1]])
@@ -122,14 +134,32 @@ def test_n_step_returns_follow_the_episode():
     gamma, buf = 0.9, ReplayBuffer(1, 2, 1)
     # one episode of 3 chunks (rewards 1, 2, 4) interleaved with another episode; the last chunk terminates
     for t, r in enumerate([1.0, 2.0, 4.0]):
-        buf.add(torch.tensor([[float(t)]]), torch.zeros(1, 2, 1), torch.zeros(1, 2, 1), torch.tensor([r]),
-                torch.tensor([[float(t + 1)]]), torch.zeros(1, 2, 1), torch.tensor([t == 2]), 0, 0)
-        buf.add(torch.tensor([[50.0]]), torch.zeros(1, 2, 1), torch.zeros(1, 2, 1), torch.tensor([9.0]),
-                torch.tensor([[51.0]]), torch.zeros(1, 2, 1), torch.tensor([False]), 0, 1)
-    gh = gamma ** 2
+        buf.add(
+            torch.tensor([[float(t)]]),
+            torch.zeros(1, 2, 1),
+            torch.zeros(1, 2, 1),
+            torch.tensor([r]),
+            torch.tensor([[float(t + 1)]]),
+            torch.zeros(1, 2, 1),
+            torch.tensor([t == 2]),
+            0,
+            0,
+        )
+        buf.add(
+            torch.tensor([[50.0]]),
+            torch.zeros(1, 2, 1),
+            torch.zeros(1, 2, 1),
+            torch.tensor([9.0]),
+            torch.tensor([[51.0]]),
+            torch.zeros(1, 2, 1),
+            torch.tensor([False]),
+            0,
+            1,
+        )
+    gh = gamma**2
     batch = buf._n_step(buf.gather(torch.tensor([0, 2, 4])), 2, gamma)
     assert batch.reward.tolist() == pytest.approx([1 + gh * 2, 2 + gh * 4, 4.0])
     assert batch.next_state.flatten().tolist() == [2.0, 3.0, 3.0]
-    assert batch.discount.tolist() == pytest.approx([gh * gh, 0.0, 0.0])   # terminal chunks don't bootstrap
-    batch = buf._n_step(buf.gather(torch.tensor([5])), 3, gamma)          # episode 1 has no later chunk yet
+    assert batch.discount.tolist() == pytest.approx([gh * gh, 0.0, 0.0])  # terminal chunks don't bootstrap
+    batch = buf._n_step(buf.gather(torch.tensor([5])), 3, gamma)  # episode 1 has no later chunk yet
     assert batch.reward.tolist() == [9.0] and batch.discount.tolist() == pytest.approx([gh])

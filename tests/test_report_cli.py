@@ -1,5 +1,6 @@
 """`accrue report` over a store holding a synthetic 3-stage run committed through the real Runner:
 metric values, per-task base vs after-RL, figures, the rerun recording, partial runs and errors."""
+
 from __future__ import annotations
 
 import json
@@ -13,8 +14,17 @@ import pytest
 from typer.testing import CliRunner
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_report_support import (BASE_SUCCESS, CURVES, EPISODES, EVAL_SUCCESS, GRID, TASKS,  # noqa: E402
-                                  commit_stage, curve_json, write_workflow)
+from test_report_support import (  # noqa: E402
+    BASE_SUCCESS,
+    CURVES,
+    EPISODES,
+    EVAL_SUCCESS,
+    GRID,
+    TASKS,
+    commit_stage,
+    curve_json,
+    write_workflow,
+)
 
 from accrue.metrics import continual_metrics
 from artifacts.store import Store
@@ -30,8 +40,7 @@ def store(tmp_path: Path) -> Store:
 
 
 def invoke(*args: str, store: Store) -> tuple[int, str]:
-    result = CliRunner().invoke(app, ["report", *args, "--store", str(store.root)],
-                                env={"COLUMNS": "200"})
+    result = CliRunner().invoke(app, ["report", *args, "--store", str(store.root)], env={"COLUMNS": "200"})
     if result.exception is not None and not isinstance(result.exception, SystemExit):
         raise result.exception
     return result.exit_code, result.output
@@ -53,8 +62,9 @@ def accrue_main(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     env = {k: v for k, v in os.environ.items() if k != "ACCRUE_STORE"}
     env["PYTHONPATH"] = str(ROOT)
     code = "import sys; sys.argv[0] = 'accrue'; from cli.main import main; main()"
-    return subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, cwd=cwd,
-                          env=env, timeout=120)
+    return subprocess.run(
+        [sys.executable, "-c", code, *args], capture_output=True, text=True, cwd=cwd, env=env, timeout=120
+    )
 
 
 # ----------------------------------------------------------------------------- a complete run
@@ -95,13 +105,17 @@ def test_complete_run_metrics_per_task_figures_and_recording(tmp_path, store):
     from accrue.logs.rerun_log import read_rrd_table
 
     table = read_rrd_table(files["recording"], contents="/success/nist/gear", index="env_steps")
-    points = {int(t): v for t, v in zip(table["env_steps"], table["/success/nist/gear:Scalars:scalars"])
-              if v is not None}
+    points = {
+        int(t): v for t, v in zip(table["env_steps"], table["/success/nist/gear:Scalars:scalars"]) if v is not None
+    }
     # the gear is learned in stage 3, which starts after two stages of GRID[-1] env steps
     assert points == {2 * GRID[-1] + g: pytest.approx([c]) for g, c in zip(GRID, CURVES[2][2])}
     deployment = read_rrd_table(files["recording"], contents="/deployment/base/nist/rect_peg", index="env_steps")
-    got = {int(t): v[0] for t, v in zip(deployment["env_steps"],
-                                        deployment["/deployment/base/nist/rect_peg:Scalars:scalars"]) if v}
+    got = {
+        int(t): v[0]
+        for t, v in zip(deployment["env_steps"], deployment["/deployment/base/nist/rect_peg:Scalars:scalars"])
+        if v
+    }
     assert got == {(k + 1) * GRID[-1]: pytest.approx(BASE_SUCCESS[k][0]) for k in range(3)}
 
 
@@ -134,7 +148,12 @@ def test_one_stage_without_evaluation_reports_what_exists(tmp_path, store):
     assert rep["metrics"]["FWT"] == pytest.approx(sum(CURVES[0][0]) / len(GRID))
     assert rep["metrics"]["ACC_final"] == pytest.approx(0.9)
     assert [(m["stage"], m["step"]) for m in rep["missing"]] == [
-        (1, "evaluate-all"), (2, "train"), (2, "evaluate-all"), (3, "train"), (3, "evaluate-all")]
+        (1, "evaluate-all"),
+        (2, "train"),
+        (2, "evaluate-all"),
+        (3, "train"),
+        (3, "evaluate-all"),
+    ]
     assert rep["missing"][0]["ref"] == "workflow/rep/stage/1/evaluate-all"
     row = rep["per_task"][0]
     assert row["base_success"] is None and row["after_rl_success"] is None
@@ -197,15 +216,24 @@ def test_stages_on_different_grids_are_refused(tmp_path, store):
         invoke(str(write_workflow(tmp_path)), "--out", str(tmp_path / "o"), store=store)
 
 
-@pytest.mark.parametrize("grid, ok", [([0.0, 100.0, 200.0, 300.0, 400.0], True), ([0, 100, 100, 300, 400], False),
-                                      ([50, 100, 200, 300, 400], False), ([0, 100.5, 200, 300, 400], False)])
+@pytest.mark.parametrize(
+    "grid, ok",
+    [
+        ([0.0, 100.0, 200.0, 300.0, 400.0], True),
+        ([0, 100, 100, 300, 400], False),
+        ([50, 100, 200, 300, 400], False),
+        ([0, 100.5, 200, 300, 400], False),
+    ],
+)
 def test_grid_must_count_env_steps_from_zero(grid, ok):
     from stages.errors import StageError
     from stages.report.data import parse_curves
     from stages.workflow import parse_workflow
 
-    wf = parse_workflow({"name": "rep", "tasks": TASKS, "method": "accrue",
-                         "budgets": {"env_steps": 400, "eval_every": 100}}, "rep.yaml")
+    wf = parse_workflow(
+        {"name": "rep", "tasks": TASKS, "method": "accrue", "budgets": {"env_steps": 400, "eval_every": 100}},
+        "rep.yaml",
+    )
     data = dict(curve_json(1), grid=grid)
     if ok:
         assert parse_curves(data, 1, wf, "here", "r", "a").grid == [0, 100, 200, 300, 400]

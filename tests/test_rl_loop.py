@@ -1,5 +1,6 @@
 """accrue.rl_loop without the store: warmup, the evaluation grid, repeatable evaluation, and exact resume
 of the train loop from a checkpoint (learner + replay shards + loop state) on the real sim."""
+
 from __future__ import annotations
 
 import json
@@ -9,8 +10,8 @@ import pytest
 import torch
 
 from accrue import rl_loop
-from accrue.learner_inputs import state_features
 from accrue.learner import LearnerConfig, ReplayBuffer, load_learner, make_learner, save_learner
+from accrue.learner_inputs import state_features
 from accrue.sim import STATE_DIM, make_vec_env
 
 TASK, H, N = "nist/rect_peg", 4, 2
@@ -34,20 +35,23 @@ def reference(obs):
 
 
 def small_learner(seed=0):
-    cfg = LearnerConfig(actor_hidden=[32, 32], critic_hidden=[32, 32], projector_dim=16, batch_size=32,
-                        num_atoms=11, utd=1, seed=seed)
+    cfg = LearnerConfig(
+        actor_hidden=[32, 32], critic_hidden=[32, 32], projector_dim=16, batch_size=32, num_atoms=11, utd=1, seed=seed
+    )
     return make_learner(cfg, STATE_DIM, H)
 
 
 def make_collector(buffer, next_episode=0):
     env = make_vec_env(TASK, N, seed=11)
-    return rl_loop.ChunkCollector(env, reference, state_features, buffer, task_index=0, gamma=0.99,
-                                  next_episode=next_episode)
+    return rl_loop.ChunkCollector(
+        env, reference, state_features, buffer, task_index=0, gamma=0.99, next_episode=next_episode
+    )
 
 
 def make_evaluator(episodes=3):
-    return rl_loop.Evaluator(lambda t, n: make_vec_env(t, n, seed=99), {TASK: reference}, state_features,
-                             episodes, N, H, 0.99)
+    return rl_loop.Evaluator(
+        lambda t, n: make_vec_env(t, n, seed=99), {TASK: reference}, state_features, episodes, N, H, 0.99
+    )
 
 
 def test_grid_and_checkpoint_points():
@@ -71,11 +75,11 @@ def test_warmup_fills_the_buffer_with_base_policy_chunks():
     col.restart()
     stats = rl_loop.warmup(col, 3)
     assert stats.episodes >= 3 and len(buf) > 0
-    assert torch.equal(buf.column("action"), buf.column("ref"))      # π_base executed as is
+    assert torch.equal(buf.column("action"), buf.column("ref"))  # π_base executed as is
     assert stats.env_steps > 0 and stats.successes <= stats.episodes
     ids = buf.column("episode").unique()
     assert len(ids) >= 3 and col.next_episode > int(ids.max())
-    assert int(buf.column("done").sum()) == stats.successes                 # done = termination (success)
+    assert int(buf.column("done").sum()) == stats.successes  # done = termination (success)
 
 
 def test_evaluation_is_repeatable_and_counts_exactly_m_episodes():
@@ -95,7 +99,7 @@ def test_evaluation_is_repeatable_and_counts_exactly_m_episodes():
 def run_loop(tmp_path, stop_after_checkpoint=None, resume_dir=None):
     """Train 240 env steps with checkpoints every 80; optionally raise after the n-th checkpoint (a crash)."""
     settings = rl_loop.LoopSettings([TASK], env_steps=240, eval_every=120, checkpoint_every=80)
-    torch.manual_seed(0)     # the global RNG is part of the saved state (the train step seeds it too)
+    torch.manual_seed(0)  # the global RNG is part of the saved state (the train step seeds it too)
     if resume_dir is None:
         buf = ReplayBuffer(STATE_DIM, H)
         col = make_collector(buf)
@@ -122,8 +126,7 @@ def run_loop(tmp_path, stop_after_checkpoint=None, resume_dir=None):
             raise KeyboardInterrupt
 
     try:
-        state = rl_loop.train_loop(learner, col, make_evaluator(2), settings, state=state,
-                                   on_checkpoint=on_checkpoint)
+        state = rl_loop.train_loop(learner, col, make_evaluator(2), settings, state=state, on_checkpoint=on_checkpoint)
     except KeyboardInterrupt:
         return None, saved
     final = tmp_path / "final"
@@ -160,4 +163,4 @@ def test_scripted_reference_holds_one_expert_action_and_misses_by_the_unknown_bi
     assert blind.shape == (3, H, 6) and blind.dtype == np.float32
     np.testing.assert_allclose(knowing[:, 0], make_expert(TASK, 1.0, seed=0).act(obs["state"]), atol=1e-6)
     assert np.all(blind[:, 1:, [0, 1, 3, 4, 5]] == 0) and np.all(blind[:, 1:, 2] == blind[:, :1, 2])
-    assert not np.allclose(blind[:, 0, :2], knowing[:, 0, :2])          # aims at the biased estimate
+    assert not np.allclose(blind[:, 0, :2], knowing[:, 0, :2])  # aims at the biased estimate

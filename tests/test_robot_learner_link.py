@@ -2,6 +2,7 @@
 by the actor, trains from the episodes pushed to it and serves newer weights; a protocol mismatch is refused
 with both versions named; when the learner goes away the actor is told within seconds and keeps its weights,
 and a new learner at the same address is re-initialised with every sealed episode."""
+
 from __future__ import annotations
 
 import threading
@@ -20,8 +21,14 @@ def start_learner(port: int = 0):
     from accrue.robot.learner_service import LearnerService
 
     service = LearnerService()
-    handlers = {"Hello": service.hello, "Init": service.init, "Episode": service.episode, "Pull": service.pull,
-                "Heartbeat": service.heartbeat, "Shutdown": service.shutdown}
+    handlers = {
+        "Hello": service.hello,
+        "Init": service.init,
+        "Episode": service.episode,
+        "Pull": service.pull,
+        "Heartbeat": service.heartbeat,
+        "Shutdown": service.shutdown,
+    }
     server, port = serve(handlers, f"127.0.0.1:{port}")
     threading.Thread(target=service.train_forever, daemon=True).start()
     return service, server, port
@@ -33,16 +40,45 @@ def init_payload(tmp):
     from stages.steps.common import write_json
 
     d = tmp / "init"
-    cfg = LearnerConfig.from_dict({"algo": "fasttd3", "actor_hidden": [16], "critic_hidden": [16],
-                                   "projector_dim": 8, "batch_size": 8, "utd": 1, "seed": 0})
+    cfg = LearnerConfig.from_dict(
+        {
+            "algo": "fasttd3",
+            "actor_hidden": [16],
+            "critic_hidden": [16],
+            "projector_dim": 8,
+            "batch_size": 8,
+            "utd": 1,
+            "seed": 0,
+        }
+    )
     save_learner(make_learner(cfg, 29, 4), d / "learner")
     warm = ReplayBuffer(29, 4)
     rng = np.random.default_rng(0)
-    warm.add(rng.normal(size=(6, 29)), np.zeros((6, 4, 6)), np.zeros((6, 4, 6)), np.zeros(6), rng.normal(size=(6, 29)),
-             np.zeros((6, 4, 6)), np.zeros(6, bool), 0, 0, ended=np.eye(6, dtype=bool)[-1])
+    warm.add(
+        rng.normal(size=(6, 29)),
+        np.zeros((6, 4, 6)),
+        np.zeros((6, 4, 6)),
+        np.zeros(6),
+        rng.normal(size=(6, 29)),
+        np.zeros((6, 4, 6)),
+        np.zeros(6, bool),
+        0,
+        0,
+        ended=np.eye(6, dtype=bool)[-1],
+    )
     warm.save_new_shards(d / "warmup")
-    write_json(d / "init.json", {"updates": 0, "version": 0, "publish_every": 2, "checkpoint_every": 4,
-                                 "task_index": 0, "device": "cpu", "torch_threads": 1})
+    write_json(
+        d / "init.json",
+        {
+            "updates": 0,
+            "version": 0,
+            "publish_every": 2,
+            "checkpoint_every": 4,
+            "task_index": 0,
+            "device": "cpu",
+            "torch_threads": 1,
+        },
+    )
     return {}, tar_dir(d)
 
 
@@ -50,11 +86,18 @@ def episode(index: int, chunks: int = 5):
     from accrue.robot.learner_service import episode_npz
 
     rng = np.random.default_rng(index)
-    return episode_npz({"s": rng.normal(size=(chunks + 1, 29)).astype(np.float32),
-                        "ref": np.zeros((chunks + 1, 4, 6), np.float32), "action": np.zeros((chunks, 4, 6), np.float32),
-                        "steps": np.full(chunks, 4), "reward": np.zeros(chunks, np.float32),
-                        "done": np.zeros(chunks, bool), "ended": np.eye(chunks, dtype=bool)[-1],
-                        "episode": np.array(index)})
+    return episode_npz(
+        {
+            "s": rng.normal(size=(chunks + 1, 29)).astype(np.float32),
+            "ref": np.zeros((chunks + 1, 4, 6), np.float32),
+            "action": np.zeros((chunks, 4, 6), np.float32),
+            "steps": np.full(chunks, 4),
+            "reward": np.zeros(chunks, np.float32),
+            "done": np.zeros(chunks, bool),
+            "ended": np.eye(chunks, dtype=bool)[-1],
+            "episode": np.array(index),
+        }
+    )
 
 
 def wait_for(check, timeout, what):
@@ -74,10 +117,15 @@ def test_link_trains_serves_weights_and_survives_a_learner_restart(tmp_path, one
         Peer(f"127.0.0.1:{port}").call("Hello", {"protocol": 99})
     sealed: list[tuple[dict, bytes]] = []
     snapshots, reports = [], []
-    link = LearnerLink(lambda: init_payload(tmp_path), lambda: list(sealed),
-                       lambda h, d: snapshots.append((h["version"], h["updates"], (d / "learner").is_dir())),
-                       lambda line, fields: reports.append(fields.get("event", line)),
-                       address=f"127.0.0.1:{port}", heartbeat_s=0.1, dead_after_s=1.0)
+    link = LearnerLink(
+        lambda: init_payload(tmp_path),
+        lambda: list(sealed),
+        lambda h, d: snapshots.append((h["version"], h["updates"], (d / "learner").is_dir())),
+        lambda line, fields: reports.append(fields.get("event", line)),
+        address=f"127.0.0.1:{port}",
+        heartbeat_s=0.1,
+        dead_after_s=1.0,
+    )
     link.start()
     for i in range(3):
         sealed.append(({"index": i, "relabel": False}, episode(i)))

@@ -1,6 +1,7 @@
 """The robot path's parts on their own: the observation/action mapping, the safety envelope, rewards from
 operator labels, the scripted operator, the transport, the simulated lerobot robot behind the bridge with
 injected faults (disconnect, late observation, dropped commands), and the learner service's RPCs."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -18,12 +19,16 @@ from accrue.sim.observation import IDX
 
 def test_mapping_reads_named_keys_and_scales_actions():
     keys = [f"obs.{n}" for n in STATE_NAMES]
-    m = RobotMapping(state_keys=tuple(keys), action_keys=("x", "y", "z", "r", "p", "w"),
-                     action_limits=(0.002, 0.002, 0.001, 0.05, 0.05, 0.05), done_key="end")
+    m = RobotMapping(
+        state_keys=tuple(keys),
+        action_keys=("x", "y", "z", "r", "p", "w"),
+        action_limits=(0.002, 0.002, 0.001, 0.05, 0.05, 0.05),
+        done_key="end",
+    )
     obs = {k: float(i) for i, k in enumerate(keys)} | {"end": 1.0}
     assert m.state(obs).tolist() == list(range(len(STATE_NAMES)))
     assert m.done(obs)
-    sent = m.action(np.array([1, -1, 0.5, 2.0, 0, 0]))          # clipped to [-1, 1], then scaled
+    sent = m.action(np.array([1, -1, 0.5, 2.0, 0, 0]))  # clipped to [-1, 1], then scaled
     assert sent == pytest.approx({"x": 0.002, "y": -0.002, "z": 0.0005, "r": 0.05, "p": 0.0, "w": 0.0})
     with pytest.raises(AccrueError, match="observation has no 'obs.ee_x_cm'"):
         m.check_features({"ee_x_cm": float}, {}, "robot so101")
@@ -32,23 +37,29 @@ def test_mapping_reads_named_keys_and_scales_actions():
 
 
 def test_safety_envelope_names_the_limit():
-    env = SafetyEnvelope.from_dict({"workspace_min_m": [-0.05, -0.05, -0.02], "workspace_max_m": [0.05, 0.05, 0.05],
-                                    "max_speed_m_s": 0.1, "max_force_n": 30.0})
+    env = SafetyEnvelope.from_dict(
+        {
+            "workspace_min_m": [-0.05, -0.05, -0.02],
+            "workspace_max_m": [0.05, 0.05, 0.05],
+            "max_speed_m_s": 0.1,
+            "max_force_n": 30.0,
+        }
+    )
     s = np.zeros(len(STATE_NAMES), np.float32)
     assert env.violation(s) is None
-    s[IDX["ee_z_cm"]] = 6.0                                     # 6 cm: above the 5 cm ceiling
+    s[IDX["ee_z_cm"]] = 6.0  # 6 cm: above the 5 cm ceiling
     assert "workspace: end effector z = 60.0 mm is above" in env.violation(s)
     s[IDX["ee_z_cm"]] = 0.0
-    s[IDX["wrist_fz"]] = 4.0                                    # 40 N (the state holds N / 10)
+    s[IDX["wrist_fz"]] = 4.0  # 40 N (the state holds N / 10)
     assert env.violation(s).startswith("wrist force: 40.0 N exceeds")
-    assert SafetyEnvelope().violation(s) is None                # no sensor limits: nothing checked
+    assert SafetyEnvelope().violation(s) is None  # no sensor limits: nothing checked
 
 
 def test_rewards_follow_the_label_on_the_last_three_steps():
     steps = np.array([4, 4, 2])
     assert chunk_rewards(steps, False, 0.9).tolist() == [0, 0, 0]
-    r = chunk_rewards(steps, True, 0.9)                         # steps 7, 8, 9 of 10 carry reward 1
-    assert r[0] == 0 and r[1] == pytest.approx(0.9 ** 3) and r[2] == pytest.approx(1 + 0.9)
+    r = chunk_rewards(steps, True, 0.9)  # steps 7, 8, 9 of 10 carry reward 1
+    assert r[0] == 0 and r[1] == pytest.approx(0.9**3) and r[2] == pytest.approx(1 + 0.9)
     arrays = {"steps": steps, "action": np.zeros((3, 4, 6)), "reward": r, "done": np.array([0, 0, 1], bool)}
     fixed = relabelled(arrays, False, 0.9)
     assert fixed["reward"].sum() == 0 and not fixed["done"].any()
@@ -57,8 +68,9 @@ def test_rewards_follow_the_label_on_the_last_three_steps():
 def test_scripted_operator_labels_from_the_oracle_with_mistakes_and_corrections():
     truth = {"v": True}
     resets = []
-    op = ScriptedOperator(oracle=lambda: truth["v"], reset_scene=lambda: resets.append(1), name="ann",
-                          mistakes={2, 5}, corrects={2})
+    op = ScriptedOperator(
+        oracle=lambda: truth["v"], reset_scene=lambda: resets.append(1), name="ann", mistakes={2, 5}, corrects={2}
+    )
     assert op.wait_reset(1, "t", None).go and resets == [1]
     assert op.label(1, "").success is True
     wrong = op.label(2, "")
@@ -83,6 +95,7 @@ def sim_factory(tmp_path_factory):
 
     def make(**faults):
         return robot_factory("accrue_sim", {"task": "nist/rect_peg", "calibration_dir": str(calib), **faults})
+
     return make
 
 
@@ -110,14 +123,17 @@ def test_bridge_faults_end_in_robot_faults_never_hangs(sim_factory):
     from accrue.robot.sim_robot import DONE_KEY
 
     class NoLog:
-        def start(self, *a, **k): pass
-        def log_step(self, *a, **k): pass
+        def start(self, *a, **k):
+            pass
+
+        def log_step(self, *a, **k):
+            pass
 
     mapping = RobotMapping(done_key=DONE_KEY)
     settings = EpisodeSettings(horizon=4, max_steps=40, control_hz=20.0, clock=0)
-    identity = lambda s: s                                            # noqa: E731
-    zero_ref = lambda s: np.zeros((len(s), 4, 6), np.float32)         # noqa: E731
-    execute = lambda s, ref, fresh: ref                               # noqa: E731
+    identity = lambda s: s  # noqa: E731
+    zero_ref = lambda s: np.zeros((len(s), 4, 6), np.float32)  # noqa: E731
+    execute = lambda s, ref, fresh: ref  # noqa: E731
 
     # disconnect at step 6: the episode ends as a fault after 5 executed steps, then reconnects
     bridge = RobotBridge(sim_factory(disconnect_after_steps=6), mapping, Timeouts(observation_s=0.5))
@@ -129,24 +145,30 @@ def test_bridge_faults_end_in_robot_faults_never_hangs(sim_factory):
     assert bridge.observe()[0].shape == (29,)
 
     # an observation later than the deadline: a timeout fault within the deadline, not a hang
-    bridge = RobotBridge(sim_factory(late_observation_steps=[3], late_by_s=3.0), mapping,
-                         Timeouts(observation_s=0.3, reconnect_wait_s=0.0))
+    bridge = RobotBridge(
+        sim_factory(late_observation_steps=[3], late_by_s=3.0),
+        mapping,
+        Timeouts(observation_s=0.3, reconnect_wait_s=0.0),
+    )
     bridge.connect()
     started = time.monotonic()
     out = run_episode(bridge, settings, zero_ref, execute, identity, NoLog(), {})
     assert out.end == "fault" and "timeout" in out.reason and time.monotonic() - started < 2.5
-    assert bridge.reconnect()                                        # a fresh robot object replaces the stuck one
+    assert bridge.reconnect()  # a fresh robot object replaces the stuck one
 
     # late but within the deadline: noted, the episode goes on; a dropped command is noted too
-    bridge = RobotBridge(sim_factory(late_observation_steps=[2], late_by_s=0.25, drop_command_steps=[5]), mapping,
-                         Timeouts(observation_s=2.0))
+    bridge = RobotBridge(
+        sim_factory(late_observation_steps=[2], late_by_s=0.25, drop_command_steps=[5]),
+        mapping,
+        Timeouts(observation_s=2.0),
+    )
     bridge.connect()
     out = run_episode(bridge, settings, zero_ref, execute, identity, NoLog(), {})
     assert out.end in ("time-limit", "done") and out.control_steps > 5
     assert any(f.startswith("late observation at step 1") for f in out.faults)
     assert "command dropped at step 4" in out.faults
     with pytest.raises(RobotFault):
-        RobotBridge(sim_factory(), mapping).observe()                 # never connected
+        RobotBridge(sim_factory(), mapping).observe()  # never connected
 
 
 @pytest.mark.timeout(30)
@@ -164,7 +186,7 @@ def test_terminal_operator_reads_single_keys_from_a_terminal(monkeypatch):
     with os.fdopen(slave, "r") as tty_in:
         monkeypatch.setattr(sys, "stdin", tty_in)
         op = TerminalOperator("ann", console=Console(file=io.StringIO()))
-        os.write(master, b"xlfr")              # a stray key, re-label the last episode a failure, reset done
+        os.write(master, b"xlfr")  # a stray key, re-label the last episode a failure, reset done
         answer = op.wait_reset(4, "nist/rect_peg", 3)
         assert answer.go and answer.relabel.success is False and answer.relabel.note == "re-label of episode 3"
         os.write(master, b"s")
@@ -173,7 +195,7 @@ def test_terminal_operator_reads_single_keys_from_a_terminal(monkeypatch):
         assert op.poll() is None
         os.write(master, b"e")
         assert op.poll() == "end"
-        os.write(master, b"prpa")              # paused: reset is not accepted until resumed; then abort
+        os.write(master, b"prpa")  # paused: reset is not accepted until resumed; then abort
         assert op.wait_reset(5, "nist/rect_peg", 4).go is False
         op.close()
     os.close(master)

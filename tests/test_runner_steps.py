@@ -1,5 +1,6 @@
 """The runner with steps defined here: cache keys and hits, records, refusals, continue/rerun,
 plans wired across steps, and two processes running the same step."""
+
 from __future__ import annotations
 
 import json
@@ -26,8 +27,16 @@ from artifacts.store import Store
 from artifacts.verify import verify_store
 from stages.errors import StageError
 from stages.runner import Runner, reap_abandoned, step_ref
-from stages.runner_types import (STEP_NAMES, FromRef, FromStep, StagePlan, StepDef, StepInvocation,
-                                 cache_key, code_version_of)
+from stages.runner_types import (
+    STEP_NAMES,
+    FromRef,
+    FromStep,
+    StagePlan,
+    StepDef,
+    StepInvocation,
+    cache_key,
+    code_version_of,
+)
 
 SUPPORT = Path(__file__).resolve().parent / "test_runner_support.py"
 
@@ -86,7 +95,7 @@ def test_second_run_is_a_cached_no_op_that_says_so(store, tmp_path):
         assert store.object_path(oid).stat().st_mode & 0o777 == 0o444
     out = read_artifact(store, first.outputs["result"])
     assert out["kind"] == "eval" and out["inputs"] == {"seed": seed} and out["producer"]["step"] == "train"
-    events = [e["event"] for e in iter_events(store)][2:]   # after the seed's add
+    events = [e["event"] for e in iter_events(store)][2:]  # after the seed's add
     assert events.index("step-started") < events.index("artifact-written") < events.index("step-committed")
 
 
@@ -96,7 +105,7 @@ def test_rerun_runs_again_and_keeps_both_results(store):
     again = r.run(count_invocation(4), mode="rerun")
     assert not again.cached and again.record_id != first.record_id and again.attempt == 2
     assert result_content(store, again) == result_content(store, first)  # deterministic body
-    assert r.run(count_invocation(4)).record_id == again.record_id      # newest intact hit wins
+    assert r.run(count_invocation(4)).record_id == again.record_id  # newest intact hit wins
 
 
 def test_corrupt_or_missing_input_is_refused_naming_role_and_id(store, tmp_path):
@@ -136,7 +145,7 @@ def test_a_hit_whose_output_is_corrupt_or_missing_is_a_miss(store):
     assert verify_store(store, full=True).ok
     path = store.object_path(victim)
     path.unlink()
-    third = r.run(count_invocation(4))   # attempt 2's output shares the missing object: a miss again
+    third = r.run(count_invocation(4))  # attempt 2's output shares the missing object: a miss again
     assert not third.cached and third.attempt == 3 and store.has_object(victim)
 
 
@@ -188,11 +197,14 @@ def test_interrupted_step_needs_continue_or_rerun(store):
 
 def test_dead_running_attempt_is_abandoned_on_next_look(store):
     r, _ = runner(store)
-    proc = subprocess.Popen([sys.executable, str(SUPPORT), "count", str(store.root), "normal", "200", "0.05"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        [sys.executable, str(SUPPORT), "count", str(store.root), "normal", "200", "0.05"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
     _wait_for_checkpoints(store, 1)
     key = list_attempts(store)[0]["cache_key"]
-    assert reap_abandoned(store, key) == 0          # alive: holds the lock
+    assert reap_abandoned(store, key) == 0  # alive: holds the lock
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
     assert list_attempts(store)[0]["state"] == "running"
@@ -215,8 +227,11 @@ def test_continue_after_kill_matches_an_uninterrupted_run(tmp_path):
     clean = runner(clean_store)[0].run(count_invocation(40, every=2, sleep=0.0))
     # the subprocess uses every=2 and sleep 0.02 s per iteration: the same config as below
     store = Store.init(tmp_path / "crash")[0]
-    proc = subprocess.Popen([sys.executable, str(SUPPORT), "count", str(store.root), "normal", "40", "0.02"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc = subprocess.Popen(
+        [sys.executable, str(SUPPORT), "count", str(store.root), "normal", "40", "0.02"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
     _wait_for_checkpoints(store, 3)
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
@@ -235,8 +250,12 @@ def test_continue_after_kill_matches_an_uninterrupted_run(tmp_path):
     assert final == clean_final
     assert verify_store(store, full=True).ok
     # the shard file was stored once, however many checkpoints included it
-    shard_ids = {e["id"] for c in saved for e in read_tree(store, read_artifact(store, c["id"])["content"])
-                 if e["path"] == "shard-000.bin"}
+    shard_ids = {
+        e["id"]
+        for c in saved
+        for e in read_tree(store, read_artifact(store, c["id"])["content"])
+        if e["path"] == "shard-000.bin"
+    }
     assert len(shard_ids) == 1
 
 
@@ -261,15 +280,27 @@ def test_rerun_ignores_checkpoints(store):
 
 
 def test_second_process_refuses_naming_the_holder_or_waits(store):
-    holder = subprocess.Popen([sys.executable, str(SUPPORT), "count", str(store.root), "normal", "30", "0.05"],
-                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    holder = subprocess.Popen(
+        [sys.executable, str(SUPPORT), "count", str(store.root), "normal", "30", "0.05"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     _wait_for_checkpoints(store, 1)
-    refused = subprocess.run([sys.executable, str(SUPPORT), "count", str(store.root), "normal", "30", "0.05"],
-                             capture_output=True, text=True, timeout=60)
+    refused = subprocess.run(
+        [sys.executable, str(SUPPORT), "count", str(store.root), "normal", "30", "0.05"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert refused.returncode == 2
     assert f"already running (pid {holder.pid}" in refused.stderr and "--wait" in refused.stderr
-    waiter = subprocess.run([sys.executable, str(SUPPORT), "count", str(store.root), "normal", "30", "0.05",
-                             "--wait"], capture_output=True, text=True, timeout=120)
+    waiter = subprocess.run(
+        [sys.executable, str(SUPPORT), "count", str(store.root), "normal", "30", "0.05", "--wait"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     out, _ = holder.communicate(timeout=60)
     assert holder.returncode == 0 and waiter.returncode == 0, waiter.stderr
     first, second = json.loads(out), json.loads(waiter.stdout)
@@ -282,6 +313,7 @@ def _producer(name: str, role: str, kind: str, text: str) -> StepDef:
         out = ctx.new_output(role, kind)
         upstream = "".join((ctx.input_path(r) / "v.txt").read_text() for r in sorted(ctx.inputs))
         (out / "v.txt").write_text(upstream + text + str(ctx.config.get("seed", "")))
+
     return StepDef(name, "1", body, outputs={role: kind})
 
 
@@ -293,10 +325,14 @@ def test_plan_wires_outputs_to_later_steps_and_moves_stage_refs(store, tmp_path)
     assert read_ref(store, step_ref("demo", 1, "handoff")) == h1.record_id
     warm = _producer("warmup", "episodes", "episodes", "W")
     train = _producer("train", "actor", "checkpoint", "T")
-    plan = StagePlan("demo", 2, (
-        StepInvocation(warm, {"seed": 2}, inputs={"prev": FromRef("workflow/demo/stage/1/handoff:handoff")}),
-        StepInvocation(train, {"seed": 3}, inputs={"episodes": FromStep("warmup", "episodes")}),
-    ))
+    plan = StagePlan(
+        "demo",
+        2,
+        (
+            StepInvocation(warm, {"seed": 2}, inputs={"prev": FromRef("workflow/demo/stage/1/handoff:handoff")}),
+            StepInvocation(train, {"seed": 3}, inputs={"episodes": FromStep("warmup", "episodes")}),
+        ),
+    )
     results = r.run_plan(plan)
     assert [x.step for x in results] == ["warmup", "train"]
     final = read_tree(store, read_artifact(store, results[1].outputs["actor"])["content"])[0]["id"]
@@ -307,7 +343,9 @@ def test_plan_wires_outputs_to_later_steps_and_moves_stage_refs(store, tmp_path)
     assert [x.step for x in only] == ["warmup"] and not only[0].cached
     with pytest.raises(StageError, match="has no step 'evaluate-all'"):
         r.run_plan(plan, only_step="evaluate-all")
-    broken = StagePlan("demo", 3, (StepInvocation(warm, {}, inputs={"prev": FromRef("workflow/demo/stage/2/handoff")}),))
+    broken = StagePlan(
+        "demo", 3, (StepInvocation(warm, {}, inputs={"prev": FromRef("workflow/demo/stage/2/handoff")}),)
+    )
     with pytest.raises(StageError, match="run the earlier stage first"):
         r.run_plan(broken)
     backwards = StagePlan("demo", 3, (StepInvocation(train, {}, inputs={"episodes": FromStep("warmup", "episodes")}),))

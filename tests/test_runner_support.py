@@ -4,6 +4,7 @@ and concurrency tests can run them in separate processes:
     python tests/test_runner_support.py count STORE MODE N SLEEP [--wait]
     python tests/test_runner_support.py writer STORE SEED
 """
+
 from __future__ import annotations
 
 import json
@@ -47,14 +48,27 @@ def _count_body(ctx) -> None:
     (out / "sub" / "copy-of-shard.bin").write_bytes(b"sealed shard" * 1000)
 
 
-COUNT = StepDef(name="train", code_version="count-1", run=_count_body, optional_inputs=("seed",),
-                outputs={"result": "eval"})
+COUNT = StepDef(
+    name="train", code_version="count-1", run=_count_body, optional_inputs=("seed",), outputs={"result": "eval"}
+)
 
 
-def count_invocation(n: int, every: int = 5, sleep: float = 0.0, seed: int = 7, inputs=None,
-                     workflow: str | None = None, stage: int | None = None) -> StepInvocation:
-    return StepInvocation(step=COUNT, config={"n": n, "every": every, "sleep": sleep, "seed": seed},
-                          inputs=inputs or {}, workflow=workflow, stage=stage)
+def count_invocation(
+    n: int,
+    every: int = 5,
+    sleep: float = 0.0,
+    seed: int = 7,
+    inputs=None,
+    workflow: str | None = None,
+    stage: int | None = None,
+) -> StepInvocation:
+    return StepInvocation(
+        step=COUNT,
+        config={"n": n, "every": every, "sleep": sleep, "seed": seed},
+        inputs=inputs or {},
+        workflow=workflow,
+        stage=stage,
+    )
 
 
 def _writer(store_path: Path, seed: int) -> None:

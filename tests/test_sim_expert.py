@@ -48,7 +48,7 @@ def test_non_searching_expert_acts_on_the_current_observation_only():
         states.append(obs["state"])
     later = states[-1]
     fresh = make_expert("nist/round_peg", search=False)
-    fresh.act(states[0])           # give it an episode start, then ask about the late observation
+    fresh.act(states[0])  # give it an episode start, then ask about the late observation
     np.testing.assert_array_equal(markov.act(later), fresh.act(later))
     for s in states:
         searching.act(s)
@@ -61,6 +61,5 @@ def test_non_searching_expert_is_imperfect_and_bias_knowledge_matters():
     full = expert_success_rate("nist/rect_peg", 24, seed=11, search=False, bias_known=1.0)
     part = expert_success_rate("nist/rect_peg", 24, seed=11, search=False, bias_known=0.0)
     searching = expert_success_rate("nist/rect_peg", 24, seed=11)
-    assert 0.3 <= full <= searching - 0.2       # leaves head-room the searching expert shows exists
-    assert part <= full - 0.3                   # an uncorrected fixture bias costs most episodes
-
+    assert 0.3 <= full <= searching - 0.2  # leaves head-room the searching expert shows exists
+    assert part <= full - 0.3  # an uncorrected fixture bias costs most episodes

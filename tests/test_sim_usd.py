@@ -29,7 +29,10 @@ def test_committed_assets_match_the_generator(tmp_path):
     spec.loader.exec_module(mod)
     for path in mod.build_all(tmp_path):
         rel = path.relative_to(tmp_path)
-        fresh, committed = read_part(path), read_part(get_task(f"{rel.parts[0]}/{rel.parts[1]}").plug_usd.parent / rel.name)
+        fresh, committed = (
+            read_part(path),
+            read_part(get_task(f"{rel.parts[0]}/{rel.parts[1]}").plug_usd.parent / rel.name),
+        )
         assert len(fresh) == len(committed)
         for a, b in zip(fresh, committed):
             assert np.allclose(a, b, atol=1e-9)
@@ -37,7 +40,7 @@ def test_committed_assets_match_the_generator(tmp_path):
 
 def _author_instanced_cm_yup(path, pieces_m, name):
     """Author like a CAD/Isaac export: centimetres, Y up, geometry behind an instanceable reference."""
-    from pxr import Gf, Sdf, Usd, UsdGeom, Vt
+    from pxr import Gf, Usd, UsdGeom, Vt
 
     proto_path = path.with_name(path.stem + "_proto.usda")
     proto = Usd.Stage.CreateNew(str(proto_path))
@@ -74,8 +77,9 @@ def test_user_usd_part_round_trips_into_a_runnable_task(tmp_path):
     back = read_part(tmp_path / "plug.usda")
     assert len(back) == 1
     assert np.allclose(sorted(back[0][:, 2]), sorted(np.unique(parts.plug[0][:, 2].round(6)).repeat(6)), atol=1e-6)
-    spec = register_usd_task("mine/hex", tmp_path / "plug.usda", tmp_path / "socket.usda", depth=10 * MM,
-                             yaw_symmetry=6, replace=True)
+    spec = register_usd_task(
+        "mine/hex", tmp_path / "plug.usda", tmp_path / "socket.usda", depth=10 * MM, yaw_symmetry=6, replace=True
+    )
     assert "mine/hex" in list_tasks()
     from accrue.sim import make_expert
 
@@ -151,7 +155,8 @@ def test_task_yaml(tmp_path):
     write_part(tmp_path / "p.usda", parts.plug)
     write_part(tmp_path / "s.usda", parts.socket)
     (tmp_path / "task.yaml").write_text(
-        "task_id: mine/tri\nplug: p.usda\nsocket: s.usda\ndepth_mm: 10\nyaw_symmetry: 3\nmax_steps: 70\nreplace: true\n")
+        "task_id: mine/tri\nplug: p.usda\nsocket: s.usda\ndepth_mm: 10\nyaw_symmetry: 3\nmax_steps: 70\nreplace: true\n"
+    )
     spec = load_task_yaml(tmp_path / "task.yaml")
     assert spec.task_id == "mine/tri" and spec.max_steps == 70 and spec.depth == pytest.approx(0.01)
     env = make_vec_env("mine/tri", num_envs=1)

@@ -1,4 +1,5 @@
 """stages.plan: which steps a stage runs, how they are wired, what each config holds, and --budget."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -15,8 +16,13 @@ WORKFLOWS = Path(__file__).resolve().parents[1] / "workflows"
 
 
 def workflow(**over):
-    data = {"name": "w", "tasks": ["nist/rect_peg", "nist/round_peg", "nist/gear"], "method": "accrue", "seed": 7,
-            "budgets": {"env_steps": 1000, "eval_every": 250, "checkpoint_every": 100}}
+    data = {
+        "name": "w",
+        "tasks": ["nist/rect_peg", "nist/round_peg", "nist/gear"],
+        "method": "accrue",
+        "seed": 7,
+        "budgets": {"env_steps": 1000, "eval_every": 250, "checkpoint_every": 100},
+    }
     data.update(over)
     return parse_workflow(data, "test.yaml")
 
@@ -32,8 +38,15 @@ def by_name(plan):
 
 def test_stage_one_records_demos_and_skips_the_teacher(store):
     plan = plan_stage(workflow(), 1, store)
-    assert plan.names() == ["record-demos", "finetune-base", "cache-teacher", "warmup", "train", "evaluate-all",
-                            "handoff"]
+    assert plan.names() == [
+        "record-demos",
+        "finetune-base",
+        "cache-teacher",
+        "warmup",
+        "train",
+        "evaluate-all",
+        "handoff",
+    ]
     steps = by_name(plan)
     assert steps["record-demos"].config["seed"] == 7 and steps["record-demos"].config["task"] == "nist/rect_peg"
     assert steps["finetune-base"].inputs == {"demos-1": FromStep("record-demos", "demos")}
@@ -63,7 +76,7 @@ def test_methods_without_distillation_take_no_teacher_input(store):
 
 def test_given_demos_replace_recording(store):
     steps = by_name(plan_stage(workflow(base_policy={"demos": {"nist/round_peg": "abc123"}}), 2, store))
-    assert "record-demos" not in steps                       # stage 2's task has given demos
+    assert "record-demos" not in steps  # stage 2's task has given demos
     assert steps["finetune-base"].inputs["demos-2"] == "abc123"
     assert steps["finetune-base"].inputs["demos-1"] == FromRef("workflow/w/stage/1/record-demos:demos")
     steps = by_name(plan_stage(workflow(base_policy={"demos": {"nist/rect_peg": "abc123"}}), 1, store))
@@ -72,8 +85,13 @@ def test_given_demos_replace_recording(store):
 
 def test_each_config_holds_only_what_its_step_reads(store):
     a = by_name(plan_stage(workflow(), 1, store))
-    b = by_name(plan_stage(workflow(budgets={"env_steps": 1000, "eval_every": 250, "checkpoint_every": 100,
-                                             "retained_episodes": 3}), 1, store))
+    b = by_name(
+        plan_stage(
+            workflow(budgets={"env_steps": 1000, "eval_every": 250, "checkpoint_every": 100, "retained_episodes": 3}),
+            1,
+            store,
+        )
+    )
     changed = {name for name in a if a[name].config != b[name].config}
     assert changed == {"handoff"}
     c = by_name(plan_stage(workflow(learner={"lam": 0.5}), 1, store))
@@ -109,7 +127,9 @@ def test_the_scripted_stand_in_needs_no_demos(store):
         plan_stage(workflow(base_policy={"init": "scripted-reference:2"}), 1, store)
 
 
-@pytest.mark.parametrize("name", ["quickstart", "quickstart-standin", "nist", "plugs-s1", "plugs-s2", "plugs-s3", "plugs-s4"])
+@pytest.mark.parametrize(
+    "name", ["quickstart", "quickstart-standin", "nist", "plugs-s1", "plugs-s2", "plugs-s3", "plugs-s4"]
+)
 def test_shipped_workflows_load_and_plan(store, name):
     wf = load_workflow(WORKFLOWS / f"{name}.yaml")
     for k in range(1, wf.num_stages + 1):
@@ -124,14 +144,25 @@ def test_fresh_distillation_caches_the_current_base_policy_chunks(store):
     steps = by_name(plan_stage(workflow(learner={"distill_inputs": "fresh"}), 2, store))
     teacher = steps["cache-teacher"]
     assert teacher.inputs["base-policy"] == FromStep("finetune-base", "base-policy")
-    assert teacher.config["distill_inputs"] == "fresh" and teacher.config["task_ids"] == ["nist/rect_peg",
-                                                                                        "nist/round_peg"]
+    assert teacher.config["distill_inputs"] == "fresh" and teacher.config["task_ids"] == [
+        "nist/rect_peg",
+        "nist/round_peg",
+    ]
     stored = by_name(plan_stage(workflow(), 2, store))["cache-teacher"]
     assert "base-policy" not in stored.inputs and "distill_inputs" not in stored.config
 
 
-@pytest.mark.parametrize("method, ablation", [("accrue", "none"), ("accrue", "no-reference"), ("sequential", "none"),
-                                              ("er", "none"), ("single-task", "none"), ("isolated", "none")])
+@pytest.mark.parametrize(
+    "method, ablation",
+    [
+        ("accrue", "none"),
+        ("accrue", "no-reference"),
+        ("sequential", "none"),
+        ("er", "none"),
+        ("single-task", "none"),
+        ("isolated", "none"),
+    ],
+)
 def test_every_method_sees_the_same_learner_state(store, method, ablation):
     """s = (E(I), q, e(ℓ)) is set by the workflow, never by the method: warmup, train and evaluate-all of
     every method and ablation read the same encoder and task features."""

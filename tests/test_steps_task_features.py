@@ -1,4 +1,5 @@
 """The learner's s in state-only runs: the sim state ‖ a frozen embedding of the task's instruction."""
+
 import numpy as np
 
 from accrue.sim import STATE_DIM, make_vec_env

@@ -1,4 +1,5 @@
 """Workflow YAML: valid files load; every mistake is one line naming the file, field and problem."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -54,24 +55,27 @@ def test_name_defaults_to_the_file_stem(tmp_path):
     assert load_workflow(write(tmp_path, data, "five-plug.yaml")).name == "five-plug"
 
 
-@pytest.mark.parametrize("change, expected", [
-    (("learner.batch_size", -3), "x.yaml: learner.batch_size: must be a positive integer (got -3)"),
-    (("learner.batchsize", 3), "x.yaml: learner.batchsize: unknown setting"),
-    (("budgets.env_steps", 0), "x.yaml: budgets.env_steps: must be > 0 (got 0)"),
-    (("budgets.eval_every", 5000), "x.yaml: budgets: eval_every must be <= env_steps (2000) (got 5000)"),
-    (("budgets", KeyError), "x.yaml: budgets: required field is missing"),
-    (("method", "accru"), "x.yaml: method: must be one of"),
-    (("tasks", []), "x.yaml: tasks: must not be empty (got [])"),
-    (("tasks", ["a", "a"]), "x.yaml: tasks: task a appears twice"),
-    (("colour", "red"), "x.yaml: colour: unknown field"),
-    (("base_policy.demo_retention", 0.0), "x.yaml: base_policy.demo_retention: must be > 0.0 (got 0.0)"),
-    (("base_policy.demo_quality", 1.5), "x.yaml: base_policy.demo_quality: must be <= 1.0 (got 1.5)"),
-    (("budgets.log_episodes", -1), "x.yaml: budgets.log_episodes: must be >= 0 (got -1)"),
-    (("base_policy.lr", -1.0), "x.yaml: base_policy.lr: must be > 0.0 (got -1.0)"),
-    (("name", "has space"), "x.yaml: name: must be letters"),
-    (("seed", "seven"), "x.yaml: seed: input should be a valid integer"),
-    (("learner.method", "ewc"), "x.yaml: learner.method: differs from the workflow's method"),
-])
+@pytest.mark.parametrize(
+    "change, expected",
+    [
+        (("learner.batch_size", -3), "x.yaml: learner.batch_size: must be a positive integer (got -3)"),
+        (("learner.batchsize", 3), "x.yaml: learner.batchsize: unknown setting"),
+        (("budgets.env_steps", 0), "x.yaml: budgets.env_steps: must be > 0 (got 0)"),
+        (("budgets.eval_every", 5000), "x.yaml: budgets: eval_every must be <= env_steps (2000) (got 5000)"),
+        (("budgets", KeyError), "x.yaml: budgets: required field is missing"),
+        (("method", "accru"), "x.yaml: method: must be one of"),
+        (("tasks", []), "x.yaml: tasks: must not be empty (got [])"),
+        (("tasks", ["a", "a"]), "x.yaml: tasks: task a appears twice"),
+        (("colour", "red"), "x.yaml: colour: unknown field"),
+        (("base_policy.demo_retention", 0.0), "x.yaml: base_policy.demo_retention: must be > 0.0 (got 0.0)"),
+        (("base_policy.demo_quality", 1.5), "x.yaml: base_policy.demo_quality: must be <= 1.0 (got 1.5)"),
+        (("budgets.log_episodes", -1), "x.yaml: budgets.log_episodes: must be >= 0 (got -1)"),
+        (("base_policy.lr", -1.0), "x.yaml: base_policy.lr: must be > 0.0 (got -1.0)"),
+        (("name", "has space"), "x.yaml: name: must be letters"),
+        (("seed", "seven"), "x.yaml: seed: input should be a valid integer"),
+        (("learner.method", "ewc"), "x.yaml: learner.method: differs from the workflow's method"),
+    ],
+)
 def test_mistakes_are_one_line_naming_the_field(tmp_path, change, expected):
     with pytest.raises(StageError) as err:
         load_workflow(write(tmp_path, with_change(*change)))
@@ -96,7 +100,9 @@ def test_validation_does_not_import_torch(tmp_path):
     import sys
 
     path = write(tmp_path, GOOD)
-    code = ("import sys; from stages.workflow import load_workflow; load_workflow(sys.argv[1]); "
-            "print('torch' in sys.modules)")
+    code = (
+        "import sys; from stages.workflow import load_workflow; load_workflow(sys.argv[1]); "
+        "print('torch' in sys.modules)"
+    )
     out = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"

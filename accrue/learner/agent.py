@@ -11,6 +11,7 @@ and runs that many updates, so a resumed learner samples exactly what an uninter
 All randomness of the learner (sampling, reference dropout, exploration and policy noise) comes from
 `self.gen`, which is part of the saved state.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -32,7 +33,7 @@ class ChunkLearner:
 
     def __init__(self, cfg: LearnerConfig, state_dim: int, horizon: int, action_dim: int = 6):
         self.cfg, self.state_dim, self.horizon, self.action_dim = cfg, state_dim, horizon, action_dim
-        self.rules = cfg.rules                   # the continual method's rules (accrue.methods)
+        self.rules = cfg.rules  # the continual method's rules (accrue.methods)
         self.device = torch.device(cfg.device)
         if self.device.type == "cuda" and not torch.cuda.is_available():
             raise AccrueError("learner.device: CUDA requested but no GPU is available")
@@ -47,7 +48,7 @@ class ChunkLearner:
         self.support = make_support(cfg.v_min, cfg.v_max, cfg.num_atoms, self.device)
         self.gen = torch.Generator(device=self.device)
         self.gen.manual_seed(cfg.seed)
-        self.noise_std = torch.zeros(0, device=self.device)   # per-env exploration std (FastTD3)
+        self.noise_std = torch.zeros(0, device=self.device)  # per-env exploration std (FastTD3)
         self.counters = {"updates": 0, "actor_updates": 0, "merges": 0}
         self.stage = 0
         # continual-rule state (continual.py fills these at stage start)
@@ -64,18 +65,28 @@ class ChunkLearner:
     # ---- construction ---------------------------------------------------------------------
     def _actor_kwargs(self) -> dict:
         c = self.cfg
-        return dict(state_dim=self.state_dim, horizon=self.horizon, action_dim=self.action_dim,
-                    hidden=c.actor_hidden, projector_dim=c.projector_dim, layer_norm=c.layer_norm,
-                    residual=c.actor_residual, init_scale=c.actor_init_scale, obs_normalization=c.obs_normalization,
-                    obs_norm_min_std=c.obs_norm_min_std, obs_norm_clip=c.obs_norm_clip)
+        return dict(
+            state_dim=self.state_dim,
+            horizon=self.horizon,
+            action_dim=self.action_dim,
+            hidden=c.actor_hidden,
+            projector_dim=c.projector_dim,
+            layer_norm=c.layer_norm,
+            residual=c.actor_residual,
+            init_scale=c.actor_init_scale,
+            obs_normalization=c.obs_normalization,
+            obs_norm_min_std=c.obs_norm_min_std,
+            obs_norm_clip=c.obs_norm_clip,
+        )
 
     def _make_actor(self) -> Actor:
         return Actor(**self._actor_kwargs())
 
     def _make_critic(self) -> Critic:
         c = self.cfg
-        return Critic(self.state_dim, self.horizon, self.action_dim, c.critic_hidden, c.projector_dim,
-                      c.num_atoms, c.layer_norm)
+        return Critic(
+            self.state_dim, self.horizon, self.action_dim, c.critic_hidden, c.projector_dim, c.num_atoms, c.layer_norm
+        )
 
     def _adamw(self, params, lr):
         # fused AdamW: one kernel for all parameters (≈4x faster step than the default on CPU)
@@ -99,7 +110,7 @@ class ChunkLearner:
         π_θ(s, ã), Q_ψ(s, a, ã))."""
         return ref if self.rules.use_reference else torch.zeros_like(ref)
 
-    _actor_ref = _ref_in   # the Eq. 3 teacher reads ã through the same rule
+    _actor_ref = _ref_in  # the Eq. 3 teacher reads ã through the same rule
 
     def deployed_actor(self) -> Actor:
         """The actor the method would deploy if the stage ended now: RETAIN's discounted interpolation
@@ -122,8 +133,11 @@ class ChunkLearner:
         s = torch.as_tensor(state, dtype=torch.float32, device=self.device)
         r = torch.as_tensor(ref, dtype=torch.float32, device=self.device).view(-1, self.horizon, self.action_dim)
         with self._autocast():
-            a = self._explore(s, self._ref_in(r), reset_mask) if explore else \
-                self.actor.deterministic(s, self._ref_in(r))
+            a = (
+                self._explore(s, self._ref_in(r), reset_mask)
+                if explore
+                else self.actor.deterministic(s, self._ref_in(r))
+            )
         a = a.float()
         return a.cpu().numpy() if as_numpy else a
 
@@ -147,7 +161,7 @@ class ChunkLearner:
     def _discount(self, batch: Batch) -> torch.Tensor:
         if batch.discount is not None:
             return batch.discount
-        return (self.cfg.gamma ** self.horizon) * (1.0 - batch.done)
+        return (self.cfg.gamma**self.horizon) * (1.0 - batch.done)
 
     def update(self, current: Batch, prior: Batch | None = None) -> dict[str, float]:
         """One gradient update (critic; actor every policy_frequency-th call; target Polyak). Unlike
@@ -158,15 +172,13 @@ class ChunkLearner:
         cfg = self.cfg
         if prior is not None and len(prior) == 0:
             prior = None
-        critic_batch = Batch.cat(current, prior) if (prior is not None and self.rules.critic_on_prior) \
-            else current
+        critic_batch = Batch.cat(current, prior) if (prior is not None and self.rules.critic_on_prior) else current
         info = self._critic_update(critic_batch)
         self.counters["updates"] += 1
         if self.counters["updates"] % cfg.policy_frequency == 0:
             info.update(self._actor_update(current, prior))
             self.counters["actor_updates"] += 1
-            if self.rules.merge and cfg.retain_interval and \
-                    self.counters["actor_updates"] % cfg.retain_interval == 0:
+            if self.rules.merge and cfg.retain_interval and self.counters["actor_updates"] % cfg.retain_interval == 0:
                 self.merge_actor()
         # Polyak averaging of the target critic ψ' ← (1 − τ)ψ' + τψ
         torch._foreach_lerp_(list(self.critic_target.parameters()), list(self.critic.parameters()), cfg.tau)
@@ -176,8 +188,9 @@ class ChunkLearner:
         keep = self._dropout_keep(len(b))
         noise = self._target_noise(b.action.shape)
         with self._autocast():
-            loss, q_mean = self._critic_loss_fn(b.state, b.action, b.ref, b.reward, b.next_state, b.next_ref,
-                                                self._discount(b), keep, noise)
+            loss, q_mean = self._critic_loss_fn(
+                b.state, b.action, b.ref, b.reward, b.next_state, b.next_ref, self._discount(b), keep, noise
+            )
         self.critic_opt.zero_grad(set_to_none=True)
         loss.backward()
         if self.cfg.max_grad_norm > 0:
@@ -207,7 +220,7 @@ class ChunkLearner:
         student_s, student_ref, targets = self._distill_inputs(prior) if distill else (None, None, None)
         keep = self._dropout_keep(len(rl))
         eps = self._policy_eps(len(rl))
-        self.critic.requires_grad_(False)     # the actor loss only moves θ
+        self.critic.requires_grad_(False)  # the actor loss only moves θ
         with self._autocast():
             out = self._actor_loss_fn(rl.state, rl.ref, keep, eps, student_s, student_ref, targets)
         self.critic.requires_grad_(True)
@@ -236,14 +249,17 @@ class ChunkLearner:
             raise AccrueError(f"learner.distill_inputs {mode}: the prior batch has no fresh reference chunks")
         if mode == "fresh":
             return prior.state, prior.fresh_ref, prior.teacher
-        return (torch.cat([prior.state, prior.state], 0), torch.cat([prior.ref, prior.fresh_ref], 0),
-                torch.cat([prior.teacher, prior.teacher], 0))
+        return (
+            torch.cat([prior.state, prior.state], 0),
+            torch.cat([prior.ref, prior.fresh_ref], 0),
+            torch.cat([prior.teacher, prior.teacher], 0),
+        )
 
     def _actor_loss(self, s, ref, keep, eps, prior_s, prior_ref, prior_teacher):
         """Eq. 5 = Eq. 1 on the current batch + λ · Eq. 4 on the prior batch (one actor forward for both)."""
         n = s.shape[0]
         ref_in = self._ref_in(ref * keep)
-        if prior_s is not None:   # batch the student's prior inputs with the current ones
+        if prior_s is not None:  # batch the student's prior inputs with the current ones
             s_all = torch.cat([s, prior_s], 0)
             ref_all = torch.cat([ref_in, self._ref_in(prior_ref)], 0)
         else:
@@ -291,13 +307,18 @@ class ChunkLearner:
     def sample(self, buffer: ReplayBuffer, n: int) -> Batch:
         return buffer.sample(n, self.gen, self.cfg.n_step, self.cfg.gamma)
 
-    def train_step(self, buffer: ReplayBuffer, prior: ReplayBuffer | None = None,
-                   teacher: torch.Tensor | None = None, fresh_ref: torch.Tensor | None = None) -> dict[str, float]:
+    def train_step(
+        self,
+        buffer: ReplayBuffer,
+        prior: ReplayBuffer | None = None,
+        teacher: torch.Tensor | None = None,
+        fresh_ref: torch.Tensor | None = None,
+    ) -> dict[str, float]:
         """`utd` updates, each on a fresh current minibatch and (1:1) a prior minibatch when a prior memory
         is in use by the method. `teacher` (and `fresh_ref` for distill_inputs fresh/both) are indexed like
         the prior memory's rows. Returns the mean of each reported figure."""
         use_prior = prior is not None and len(prior) > 0 and self.uses_prior_memory
-        sums: dict[str, torch.Tensor] = {}   # tensors until the end: one device sync per train_step
+        sums: dict[str, torch.Tensor] = {}  # tensors until the end: one device sync per train_step
         counts: dict[str, int] = {}
         for _ in range(self.cfg.utd):
             cur = self.sample(buffer, self.cfg.batch_size).to_device(self.device)
@@ -309,8 +330,9 @@ class ChunkLearner:
                 pri = self.sample(prior, self.cfg.batch_size).to_device(self.device)
                 if self.rules.distill:
                     if teacher is None:
-                        raise AccrueError("ACCRUE needs teacher targets for the prior memory "
-                                          "(compute_teacher_targets at stage start)")
+                        raise AccrueError(
+                            "ACCRUE needs teacher targets for the prior memory (compute_teacher_targets at stage start)"
+                        )
                     pri = pri.with_teacher(teacher, fresh_ref)
             for k, v in self._update(cur, pri).items():
                 sums[k] = sums.get(k, 0.0) + v

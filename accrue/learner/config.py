@@ -5,6 +5,7 @@ A bad value raises AccrueError naming the field. Defaults are the small CPU conf
 RL fits in a few minutes on 2 cores); `LearnerConfig.paper()` gives the paper-scale GPU sizes
 (FastSAC 768/512 hidden, batch 8192, H = 16 is the caller's horizon).
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -13,7 +14,6 @@ import reprlib
 from dataclasses import dataclass, field
 
 from accrue.errors import AccrueError
-
 from accrue.methods import ABLATIONS, METHODS, MethodRules, rules
 
 ALGOS = ("fasttd3", "fastsac")
@@ -27,67 +27,67 @@ OBS_NORM_UPDATES = ("first-stage", "every-stage")
 
 @dataclass
 class LearnerConfig:
-    algo: str = "fasttd3"              # "fasttd3" (deterministic + noise) or "fastsac" (tanh-Gaussian)
-    method: str = "accrue"             # continual rule, one of METHODS
-    ablation: str = "none"             # one of ABLATIONS (only with method "accrue")
+    algo: str = "fasttd3"  # "fasttd3" (deterministic + noise) or "fastsac" (tanh-Gaussian)
+    method: str = "accrue"  # continual rule, one of METHODS
+    ablation: str = "none"  # one of ABLATIONS (only with method "accrue")
     seed: int = 0
 
     # networks
     actor_hidden: list[int] = field(default_factory=lambda: [256, 256])
     critic_hidden: list[int] = field(default_factory=lambda: [256, 256])
-    projector_dim: int = 64            # each network's own trainable projector of s
+    projector_dim: int = 64  # each network's own trainable projector of s
     layer_norm: bool = True
-    actor_residual: bool = True        # a = tanh(atanh(ã) + δ): start at the reference (see networks.py)
-    actor_init_scale: float = 0.01     # last actor layer init scale (FastTD3), so δ ≈ 0 at start
-    ref_dropout: float = 0.1           # fraction p of each batch whose ã is replaced by zeros
+    actor_residual: bool = True  # a = tanh(atanh(ã) + δ): start at the reference (see networks.py)
+    actor_init_scale: float = 0.01  # last actor layer init scale (FastTD3), so δ ≈ 0 at start
+    ref_dropout: float = 0.1  # fraction p of each batch whose ã is replaced by zeros
 
     # categorical critic (C51, Eq. 2)
     num_atoms: int = 101
-    v_min: float = -1.0                # sparse returns lie in [0, ~3]; a margin on both sides
+    v_min: float = -1.0  # sparse returns lie in [0, ~3]; a margin on both sides
     v_max: float = 4.0
     gamma: float = 0.99
-    n_step: int = 1                    # chunk transitions per bootstrap (1 = the paper's H-step backup)
-    use_cdq: bool = True               # clipped double-Q: target dist with the smaller expectation
-    tau: float = 0.1                   # Polyak rate of the target critic
+    n_step: int = 1  # chunk transitions per bootstrap (1 = the paper's H-step backup)
+    use_cdq: bool = True  # clipped double-Q: target dist with the smaller expectation
+    tau: float = 0.1  # Polyak rate of the target critic
 
     # optimisation
     batch_size: int = 256
-    utd: int = 2                       # gradient updates per chunk env step
-    policy_frequency: int = 2          # actor update every n-th critic update
-    actor_lr: float = 1e-3             # CPU stages are short; the paper-scale config uses 3e-4
+    utd: int = 2  # gradient updates per chunk env step
+    policy_frequency: int = 2  # actor update every n-th critic update
+    actor_lr: float = 1e-3  # CPU stages are short; the paper-scale config uses 3e-4
     critic_lr: float = 1e-3
-    weight_decay: float = 0.1          # AdamW
-    max_grad_norm: float = 0.0         # 0 = no clipping
-    obs_normalization: bool = True     # running mean/std of s, part of the saved state
-    obs_norm_update: str = "first-stage"   # one of OBS_NORM_UPDATES ("every-stage" = before issue 10)
-    obs_norm_min_std: float = 0.1      # std floor: a column constant so far (a task code) cannot blow up
-    obs_norm_clip: float = 10.0        # |z| clip after normalising (0 = none)
+    weight_decay: float = 0.1  # AdamW
+    max_grad_norm: float = 0.0  # 0 = no clipping
+    obs_normalization: bool = True  # running mean/std of s, part of the saved state
+    obs_norm_update: str = "first-stage"  # one of OBS_NORM_UPDATES ("every-stage" = before issue 10)
+    obs_norm_min_std: float = 0.1  # std floor: a column constant so far (a task code) cannot blow up
+    obs_norm_clip: float = 10.0  # |z| clip after normalising (0 = none)
 
     # exploration
-    std_min: float = 0.001             # FastTD3: per-env noise std drawn in [std_min, std_max]
+    std_min: float = 0.001  # FastTD3: per-env noise std drawn in [std_min, std_max]
     std_max: float = 0.2
-    policy_noise: float = 0.001        # FastTD3 target-policy smoothing
+    policy_noise: float = 0.001  # FastTD3 target-policy smoothing
     noise_clip: float = 0.5
-    alpha_init: float = 0.01           # FastSAC temperature
+    alpha_init: float = 0.01  # FastSAC temperature
     alpha_lr: float = 3e-4
     target_entropy_per_dim: float = -1.0
     log_std_min: float = -5.0
     log_std_max: float = 0.0
 
     # losses and continual rule (Eqs. 1, 4, 5)
-    beta: float = 0.1                  # Eq. 1 anchor β‖a − ã‖²
-    lam: float = 1.0                   # Eq. 5 distillation weight λ
-    distill_inputs: str = "stored"     # one of DISTILL_INPUTS; "stored" is Eq. 3-4 as written
-    ewc_lambda: float = 100.0          # EWC penalty weight
-    ewc_samples: int = 1024            # transitions used to estimate the Fisher at handoff
-    retain_alpha: float = 0.5          # RETAIN: θ ← (1−α)·θ_prev + α·θ_cur
-    retain_interval: int = 0           # RETAIN: also merge every n actor updates (0 = end of stage only)
+    beta: float = 0.1  # Eq. 1 anchor β‖a − ã‖²
+    lam: float = 1.0  # Eq. 5 distillation weight λ
+    distill_inputs: str = "stored"  # one of DISTILL_INPUTS; "stored" is Eq. 3-4 as written
+    ewc_lambda: float = 100.0  # EWC penalty weight
+    ewc_samples: int = 1024  # transitions used to estimate the Fisher at handoff
+    retain_alpha: float = 0.5  # RETAIN: θ ← (1−α)·θ_prev + α·θ_cur
+    retain_interval: int = 0  # RETAIN: also merge every n actor updates (0 = end of stage only)
 
     # speed (GPU only; ignored on CPU)
     device: str = "cpu"
-    amp: bool = False                  # bf16 autocast
-    compile: bool = False              # torch.compile of the critic and actor loss functions
-    compile_mode: str = "default"      # "reduce-overhead" = CUDA graphs
+    amp: bool = False  # bf16 autocast
+    compile: bool = False  # torch.compile of the critic and actor loss functions
+    compile_mode: str = "default"  # "reduce-overhead" = CUDA graphs
 
     # ---- construction / validation -------------------------------------------------------
     def __post_init__(self) -> None:
@@ -96,11 +96,24 @@ class LearnerConfig:
     @classmethod
     def paper(cls, **overrides) -> "LearnerConfig":
         """The paper-scale GPU configuration (FastSAC sizes, batch 8192, γ = 0.997)."""
-        base = dict(algo="fastsac", actor_hidden=[512, 256, 128], critic_hidden=[768, 384, 192],
-                    projector_dim=256, batch_size=8192, utd=8, policy_frequency=4, gamma=0.997,
-                    tau=0.125, weight_decay=0.001, alpha_init=0.001, actor_lr=3e-4, critic_lr=3e-4,
-                    device="cuda", amp=True,
-                    compile=True)
+        base = dict(
+            algo="fastsac",
+            actor_hidden=[512, 256, 128],
+            critic_hidden=[768, 384, 192],
+            projector_dim=256,
+            batch_size=8192,
+            utd=8,
+            policy_frequency=4,
+            gamma=0.997,
+            tau=0.125,
+            weight_decay=0.001,
+            alpha_init=0.001,
+            actor_lr=3e-4,
+            critic_lr=3e-4,
+            device="cuda",
+            amp=True,
+            compile=True,
+        )
         base.update(overrides)
         return cls(**base)
 
@@ -125,8 +138,13 @@ class LearnerConfig:
             return AccrueError(f"learner.{name}: {why} (got {reprlib.repr(getattr(self, name))})")  # bounded
 
         for name in ("algo", "method", "ablation", "distill_inputs", "obs_norm_update"):
-            allowed = {"algo": ALGOS, "method": METHODS, "ablation": ABLATIONS, "distill_inputs": DISTILL_INPUTS,
-                       "obs_norm_update": OBS_NORM_UPDATES}[name]
+            allowed = {
+                "algo": ALGOS,
+                "method": METHODS,
+                "ablation": ABLATIONS,
+                "distill_inputs": DISTILL_INPUTS,
+                "obs_norm_update": OBS_NORM_UPDATES,
+            }[name]
             if getattr(self, name) not in allowed:
                 raise bad(name, f"must be one of {', '.join(allowed)}")
         if self.ablation != "none" and self.method != "accrue":
@@ -136,11 +154,13 @@ class LearnerConfig:
             if isinstance(v, tuple):
                 setattr(self, name, list(v))
                 v = getattr(self, name)
-            if not isinstance(v, list) or not v or not all(
-                    isinstance(h, int) and not isinstance(h, bool) and h > 0 for h in v):
+            if (
+                not isinstance(v, list)
+                or not v
+                or not all(isinstance(h, int) and not isinstance(h, bool) and h > 0 for h in v)
+            ):
                 raise bad(name, "must be a non-empty list of positive integers")
-        positive_ints = ("projector_dim", "num_atoms", "n_step", "batch_size", "utd", "policy_frequency",
-                         "ewc_samples")
+        positive_ints = ("projector_dim", "num_atoms", "n_step", "batch_size", "utd", "policy_frequency", "ewc_samples")
         for name in positive_ints:
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 1:
@@ -151,13 +171,36 @@ class LearnerConfig:
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 0:
                 raise bad(name, "must be a non-negative integer")
-        floats = ("v_min", "v_max", "gamma", "tau", "actor_lr", "critic_lr", "weight_decay", "max_grad_norm",
-                  "std_min", "std_max", "policy_noise", "noise_clip", "alpha_init", "alpha_lr",
-                  "target_entropy_per_dim", "log_std_min", "log_std_max", "beta", "lam", "ewc_lambda",
-                  "retain_alpha", "ref_dropout", "actor_init_scale", "obs_norm_min_std", "obs_norm_clip")
+        floats = (
+            "v_min",
+            "v_max",
+            "gamma",
+            "tau",
+            "actor_lr",
+            "critic_lr",
+            "weight_decay",
+            "max_grad_norm",
+            "std_min",
+            "std_max",
+            "policy_noise",
+            "noise_clip",
+            "alpha_init",
+            "alpha_lr",
+            "target_entropy_per_dim",
+            "log_std_min",
+            "log_std_max",
+            "beta",
+            "lam",
+            "ewc_lambda",
+            "retain_alpha",
+            "ref_dropout",
+            "actor_init_scale",
+            "obs_norm_min_std",
+            "obs_norm_clip",
+        )
         for name in floats:
             v = getattr(self, name)
-            if isinstance(v, str):      # PyYAML reads "1e-3" (no dot) as a string
+            if isinstance(v, str):  # PyYAML reads "1e-3" (no dot) as a string
                 try:
                     v = float(v)
                 except ValueError:
@@ -178,8 +221,18 @@ class LearnerConfig:
         for name in ("actor_lr", "critic_lr", "alpha_lr", "alpha_init", "actor_init_scale"):
             if getattr(self, name) <= 0:
                 raise bad(name, "must be positive")
-        for name in ("weight_decay", "max_grad_norm", "std_min", "policy_noise", "noise_clip", "beta", "lam",
-                     "ewc_lambda", "obs_norm_min_std", "obs_norm_clip"):
+        for name in (
+            "weight_decay",
+            "max_grad_norm",
+            "std_min",
+            "policy_noise",
+            "noise_clip",
+            "beta",
+            "lam",
+            "ewc_lambda",
+            "obs_norm_min_std",
+            "obs_norm_clip",
+        ):
             if getattr(self, name) < 0:
                 raise bad(name, "must be non-negative")
         if self.std_max < self.std_min:

@@ -15,6 +15,7 @@ RETAIN — θ ← (1 − α)·θ_prev + α·θ with θ_prev the actor at stage s
     (`ChunkLearner.deployed_actor`), merged in place at `end_stage`, and every `retain_interval` actor
     updates when that is > 0.
 """
+
 from __future__ import annotations
 
 import copy
@@ -35,15 +36,23 @@ def make_learner(cfg: LearnerConfig, state_dim: int, horizon: int, action_dim: i
     return cls(cfg, state_dim, horizon, action_dim)
 
 
-def begin_stage(prev: ChunkLearner | None, cfg: LearnerConfig, state_dim: int, horizon: int,
-                action_dim: int = 6, fisher_batch: Batch | None = None) -> ChunkLearner:
+def begin_stage(
+    prev: ChunkLearner | None,
+    cfg: LearnerConfig,
+    state_dim: int,
+    horizon: int,
+    action_dim: int = 6,
+    fisher_batch: Batch | None = None,
+) -> ChunkLearner:
     """Algorithm 1 line 1: the stage's learner, initialised per the method (module docstring)."""
     if prev is None:
         return make_learner(cfg, state_dim, horizon, action_dim)
     if (prev.state_dim, prev.horizon, prev.action_dim) != (state_dim, horizon, action_dim):
-        raise AccrueError(f"begin_stage: previous learner has state/chunk dims "
-                          f"{(prev.state_dim, prev.horizon, prev.action_dim)}, this stage needs "
-                          f"{(state_dim, horizon, action_dim)}")
+        raise AccrueError(
+            f"begin_stage: previous learner has state/chunk dims "
+            f"{(prev.state_dim, prev.horizon, prev.action_dim)}, this stage needs "
+            f"{(state_dim, horizon, action_dim)}"
+        )
     plan = cfg.rules
     stage = prev.stage + 1
     if not plan.inherit_actor:
@@ -57,12 +66,12 @@ def begin_stage(prev: ChunkLearner | None, cfg: LearnerConfig, state_dim: int, h
     if plan.inherit_critic:
         learner.critic.load_state_dict(prev.critic.state_dict())
         learner.critic_target.load_state_dict(prev.critic_target.state_dict())
-    else:   # reset-critic: fresh critic from a stage-dependent seed
+    else:  # reset-critic: fresh critic from a stage-dependent seed
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(cfg.seed + stage)
             learner.critic = learner._make_critic().to(learner.device)
         learner.critic_target.load_state_dict(learner.critic.state_dict())
-    learner.reset_optimizers()   # optimisers must point at the (possibly new) parameters
+    learner.reset_optimizers()  # optimisers must point at the (possibly new) parameters
     if plan.ewc_penalty:
         if fisher_batch is None:
             raise AccrueError("method ewc: begin_stage needs fisher_batch (previous stage's transitions)")
@@ -104,8 +113,8 @@ def compute_teacher_targets(actor, states: torch.Tensor, refs: torch.Tensor, bat
     device = next(net.parameters()).device
     out = []
     for i in range(0, states.shape[0], batch_size):
-        s = states[i: i + batch_size].to(device, torch.float32)
-        r = refs[i: i + batch_size].to(device, torch.float32)
+        s = states[i : i + batch_size].to(device, torch.float32)
+        r = refs[i : i + batch_size].to(device, torch.float32)
         out.append(net.deterministic(s, ref_in(r)).float().to(states.device))
     net.train(was_training)
     if not out:
@@ -113,8 +122,9 @@ def compute_teacher_targets(actor, states: torch.Tensor, refs: torch.Tensor, bat
     return torch.cat(out, 0)
 
 
-def estimate_fisher(actor, batch: Batch, generator: torch.Generator | None = None,
-                    chunk: int = 128) -> dict[str, torch.Tensor]:
+def estimate_fisher(
+    actor, batch: Batch, generator: torch.Generator | None = None, chunk: int = 128
+) -> dict[str, torch.Tensor]:
     """Diagonal Fisher of the actor on a batch of the previous stage's transitions (EWC).
 
     The actor is read as a Gaussian policy N(π̄_θ(s, ã), I) (σ is absorbed in ewc_lambda, as Continual World
@@ -136,8 +146,8 @@ def estimate_fisher(actor, batch: Batch, generator: torch.Generator | None = Non
     fisher = {k: torch.zeros_like(v) for k, v in params.items()}
     n = len(batch)
     for i in range(0, n, chunk):
-        s = batch.state[i: i + chunk].to(device)
-        r = ref_in(batch.ref[i: i + chunk].to(device))
+        s = batch.state[i : i + chunk].to(device)
+        r = ref_in(batch.ref[i : i + chunk].to(device))
         v = torch.randn((s.shape[0], net.horizon * net.action_dim), generator=generator, device=device)
         grads = per_sample_grad(params, s, r, v)
         for k in fisher:

@@ -2,6 +2,7 @@
 
 Norms are squared L2 over the whole chunk (H × d), averaged over the batch.
 """
+
 from __future__ import annotations
 
 import torch
@@ -14,8 +15,14 @@ def chunk_sq_dist(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     return (a - b).flatten(1).square().sum(-1)
 
 
-def actor_loss_current(q: torch.Tensor, action: torch.Tensor, ref: torch.Tensor, beta: float,
-                       log_prob: torch.Tensor | None = None, alpha: torch.Tensor | float = 0.0) -> torch.Tensor:
+def actor_loss_current(
+    q: torch.Tensor,
+    action: torch.Tensor,
+    ref: torch.Tensor,
+    beta: float,
+    log_prob: torch.Tensor | None = None,
+    alpha: torch.Tensor | float = 0.0,
+) -> torch.Tensor:
     """Eq. 1:  L_cur(θ; B^k) = E[ −Q_ψ(s, a, ã) + β‖a − ã‖² ]   (a ~ π_θ(s, ã)).
 
     FastSAC adds its entropy term α·log π(a|s, ã) to the same expectation.
@@ -36,8 +43,14 @@ def actor_loss_total(loss_cur: torch.Tensor, loss_prior: torch.Tensor | None, la
     return loss_cur if loss_prior is None else loss_cur + lam * loss_prior
 
 
-def td_target(next_logits: torch.Tensor, reward: torch.Tensor, discount: torch.Tensor, support: torch.Tensor,
-              use_cdq: bool, entropy_bonus: torch.Tensor | None = None) -> torch.Tensor:
+def td_target(
+    next_logits: torch.Tensor,
+    reward: torch.Tensor,
+    discount: torch.Tensor,
+    support: torch.Tensor,
+    use_cdq: bool,
+    entropy_bonus: torch.Tensor | None = None,
+) -> torch.Tensor:
     """Eq. 2 as a distribution: R^(H) + γ^H · Z_ψ'(s_{t+H}, a_{t+H}, ã_{t+H}), projected on the support.
 
     next_logits (heads, B, N) from the target critic. With clipped double-Q (FastTD3) each sample uses the
@@ -46,8 +59,8 @@ def td_target(next_logits: torch.Tensor, reward: torch.Tensor, discount: torch.T
     """
     probs = torch.softmax(next_logits, -1)
     if use_cdq:
-        q = expected_value(probs, support)                     # (heads, B)
-        pick = q.argmin(0)                                     # (B,)
+        q = expected_value(probs, support)  # (heads, B)
+        pick = q.argmin(0)  # (B,)
         probs = probs.gather(0, pick.view(1, -1, 1).expand(1, -1, probs.shape[-1])).squeeze(0)
     else:
         probs = probs.mean(0)
@@ -61,7 +74,8 @@ def critic_loss(logits: torch.Tensor, target_probs: torch.Tensor) -> torch.Tenso
     return sum(categorical_cross_entropy(logits[h], target_probs) for h in range(logits.shape[0]))
 
 
-def ewc_penalty(params: dict[str, torch.Tensor], anchor: dict[str, torch.Tensor],
-                fisher: dict[str, torch.Tensor]) -> torch.Tensor:
+def ewc_penalty(
+    params: dict[str, torch.Tensor], anchor: dict[str, torch.Tensor], fisher: dict[str, torch.Tensor]
+) -> torch.Tensor:
     """EWC: Σ_i F_i (θ_i − θ*_i)², over the actor parameters that have a Fisher estimate."""
     return sum((fisher[k] * (params[k] - anchor[k]).square()).sum() for k in fisher)

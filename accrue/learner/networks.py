@@ -11,6 +11,7 @@ in [-1, 1]. When ã is dropped (reference dropout, or the no-reference ablation)
 a = tanh(δ_θ(s, 0)): the actor must act from the state alone, which is what dropout is meant to teach.
 The β‖a − ã‖² anchor of Eq. 1 is in the loss regardless (losses.py).
 """
+
 from __future__ import annotations
 
 import math
@@ -18,7 +19,7 @@ import math
 import torch
 from torch import nn
 
-_ATANH_CLIP = 1.0 - 1e-4   # atanh(±1) is infinite; references at the bound map to ≈ ±4.95
+_ATANH_CLIP = 1.0 - 1e-4  # atanh(±1) is infinite; references at the bound map to ≈ ±4.95
 
 
 class RunningNorm(nn.Module):
@@ -32,8 +33,7 @@ class RunningNorm(nn.Module):
     and EWC's and RETAIN's anchors all read s through the same map for the rest of the sequence.
     """
 
-    def __init__(self, dim: int, enabled: bool = True, eps: float = 1e-6, min_std: float = 0.0,
-                 clip: float = 0.0):
+    def __init__(self, dim: int, enabled: bool = True, eps: float = 1e-6, min_std: float = 0.0, clip: float = 0.0):
         super().__init__()
         self.enabled, self.eps, self.min_std, self.clip = enabled, eps, min_std, clip
         self.register_buffer("mean", torch.zeros(dim))
@@ -51,8 +51,9 @@ class RunningNorm(nn.Module):
         total = float(self.count) + n
         delta = bmean - self.mean
         self.mean += delta * (n / total)
-        self.var.copy_((self.var * float(self.count) + bvar * n + delta.square() * float(self.count) * n / total)
-                       / total)
+        self.var.copy_(
+            (self.var * float(self.count) + bvar * n + delta.square() * float(self.count) * n / total) / total
+        )
         self.count.fill_(total)
 
     def freeze(self) -> None:
@@ -90,20 +91,30 @@ def pre_tanh(ref: torch.Tensor) -> torch.Tensor:
 class Actor(nn.Module):
     """Deterministic chunk actor (FastTD3 style): a = tanh(atanh(ã) + δ) or a = tanh(δ)."""
 
-    def __init__(self, state_dim: int, horizon: int, action_dim: int, hidden: list[int], projector_dim: int,
-                 layer_norm: bool = True, residual: bool = True, init_scale: float = 0.01,
-                 obs_normalization: bool = True, out_heads: int = 1, obs_norm_min_std: float = 0.0,
-                 obs_norm_clip: float = 0.0):
+    def __init__(
+        self,
+        state_dim: int,
+        horizon: int,
+        action_dim: int,
+        hidden: list[int],
+        projector_dim: int,
+        layer_norm: bool = True,
+        residual: bool = True,
+        init_scale: float = 0.01,
+        obs_normalization: bool = True,
+        out_heads: int = 1,
+        obs_norm_min_std: float = 0.0,
+        obs_norm_clip: float = 0.0,
+    ):
         super().__init__()
         self.horizon, self.action_dim, self.residual = horizon, action_dim, residual
         chunk = horizon * action_dim
-        self.obs_norm = RunningNorm(state_dim, enabled=obs_normalization, min_std=obs_norm_min_std,
-                                    clip=obs_norm_clip)
+        self.obs_norm = RunningNorm(state_dim, enabled=obs_normalization, min_std=obs_norm_min_std, clip=obs_norm_clip)
         self.proj = projector(state_dim, projector_dim)
         self.trunk = mlp([projector_dim + chunk, *hidden], layer_norm)
         self.act_fn = nn.SiLU()
         self.head = nn.Linear(hidden[-1], chunk * out_heads)
-        with torch.no_grad():   # small last layer: δ ≈ 0, so a ≈ ã at the start (FastTD3 init_scale)
+        with torch.no_grad():  # small last layer: δ ≈ 0, so a ≈ ã at the start (FastTD3 init_scale)
             self.head.weight.mul_(init_scale)
             self.head.bias.zero_()
 
@@ -168,11 +179,11 @@ class EnsembleLinear(nn.Module):
         super().__init__()
         self.weight = nn.Parameter(torch.empty(n, d_in, d_out))
         self.bias = nn.Parameter(torch.empty(n, 1, d_out))
-        bound = 1.0 / math.sqrt(d_in)   # nn.Linear's default init, per head
+        bound = 1.0 / math.sqrt(d_in)  # nn.Linear's default init, per head
         nn.init.uniform_(self.weight, -bound, bound)
         nn.init.uniform_(self.bias, -bound, bound)
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:   # (n, B, d_in) → (n, B, d_out)
+    def forward(self, x: torch.Tensor) -> torch.Tensor:  # (n, B, d_in) → (n, B, d_out)
         return torch.baddbmm(self.bias, x, self.weight)
 
 
@@ -192,8 +203,17 @@ class Critic(nn.Module):
     Returns logits (heads, B, atoms); Q is the expectation of softmax(logits) over the support.
     """
 
-    def __init__(self, state_dim: int, horizon: int, action_dim: int, hidden: list[int], projector_dim: int,
-                 num_atoms: int, layer_norm: bool = True, num_heads: int = 2):
+    def __init__(
+        self,
+        state_dim: int,
+        horizon: int,
+        action_dim: int,
+        hidden: list[int],
+        projector_dim: int,
+        num_atoms: int,
+        layer_norm: bool = True,
+        num_heads: int = 2,
+    ):
         super().__init__()
         self.num_heads = num_heads
         self.proj = projector(state_dim, projector_dim)

@@ -11,6 +11,7 @@
   has a fixed env-step budget, so the buffer is bounded by it (and eviction would break the shards).
 - `retain_last_episodes(buffer, n)` is the paper's memory B^{<k}: the last N complete episodes of each task.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -30,20 +31,20 @@ _FIELDS = ("state", "action", "ref", "reward", "next_state", "next_ref", "done",
 
 @dataclass
 class Batch:
-    state: torch.Tensor        # (B, D)
-    action: torch.Tensor       # (B, H, d)
-    ref: torch.Tensor          # (B, H, d)  ã_t
-    reward: torch.Tensor       # (B,)       R^(H) (or the n-step sum of chunk returns)
-    next_state: torch.Tensor   # (B, D)     s_{t+H}
-    next_ref: torch.Tensor     # (B, H, d)  ã_{t+H}
-    done: torch.Tensor         # (B,) float, 1 = terminated (no bootstrap)
+    state: torch.Tensor  # (B, D)
+    action: torch.Tensor  # (B, H, d)
+    ref: torch.Tensor  # (B, H, d)  ã_t
+    reward: torch.Tensor  # (B,)       R^(H) (or the n-step sum of chunk returns)
+    next_state: torch.Tensor  # (B, D)     s_{t+H}
+    next_ref: torch.Tensor  # (B, H, d)  ã_{t+H}
+    done: torch.Tensor  # (B,) float, 1 = terminated (no bootstrap)
     task: torch.Tensor | None = None
     episode: torch.Tensor | None = None
-    index: torch.Tensor | None = None       # rows of the buffer the batch came from
-    discount: torch.Tensor | None = None    # bootstrap discount; None → γ^H · (1 − done)
-    teacher: torch.Tensor | None = None     # Eq. 3 cached targets â_j (prior memory only)
-    fresh_ref: torch.Tensor | None = None   # current base policy's chunk at s_j (distill_inputs fresh/both)
-    ended: torch.Tensor | None = None       # (B,) bool, the episode ended in this transition
+    index: torch.Tensor | None = None  # rows of the buffer the batch came from
+    discount: torch.Tensor | None = None  # bootstrap discount; None → γ^H · (1 − done)
+    teacher: torch.Tensor | None = None  # Eq. 3 cached targets â_j (prior memory only)
+    fresh_ref: torch.Tensor | None = None  # current base policy's chunk at s_j (distill_inputs fresh/both)
+    ended: torch.Tensor | None = None  # (B,) bool, the episode ended in this transition
 
     def __len__(self) -> int:
         return self.state.shape[0]
@@ -62,39 +63,60 @@ class Batch:
     def to_device(self, device: torch.device) -> "Batch":
         if self.state.device == torch.device(device):
             return self
-        return Batch(**{f.name: (None if getattr(self, f.name) is None else getattr(self, f.name).to(device))
-                        for f in dataclasses.fields(Batch)})
+        return Batch(
+            **{
+                f.name: (None if getattr(self, f.name) is None else getattr(self, f.name).to(device))
+                for f in dataclasses.fields(Batch)
+            }
+        )
 
     @staticmethod
     def cat(a: "Batch", b: "Batch") -> "Batch":
         """Stack two batches (ER and the critic-all-replay ablation use B^k ∪ B^{<k})."""
+
         def join(x, y):
             return None if x is None or y is None else torch.cat([x, y], 0)
+
         out = {f.name: join(getattr(a, f.name), getattr(b, f.name)) for f in dataclasses.fields(Batch)}
         out["index"], out["teacher"], out["fresh_ref"] = None, None, None
         return Batch(**out)
 
 
 class ReplayBuffer:
-    def __init__(self, state_dim: int, horizon: int, action_dim: int = 6, device: str | torch.device = "cpu",
-                 initial_capacity: int = 1024):
+    def __init__(
+        self,
+        state_dim: int,
+        horizon: int,
+        action_dim: int = 6,
+        device: str | torch.device = "cpu",
+        initial_capacity: int = 1024,
+    ):
         self.state_dim, self.horizon, self.action_dim = state_dim, horizon, action_dim
         self.device = torch.device(device)
         self.size = 0
-        self._shards: list[tuple[int, int]] = []    # (start, count) of each shard already written
-        self._last_row: dict[tuple[int, int], int] = {}   # (task, episode) → its latest row (for n-step)
+        self._shards: list[tuple[int, int]] = []  # (start, count) of each shard already written
+        self._last_row: dict[tuple[int, int], int] = {}  # (task, episode) → its latest row (for n-step)
         cap = max(1, initial_capacity)
-        self._data = {name: torch.zeros((cap, *shape), dtype=dtype, device=self.device)
-                      for name, (shape, dtype) in self._layout().items()}
+        self._data = {
+            name: torch.zeros((cap, *shape), dtype=dtype, device=self.device)
+            for name, (shape, dtype) in self._layout().items()
+        }
         self._next_row = torch.full((cap,), -1, dtype=torch.long, device=self.device)
 
     def _layout(self) -> dict[str, tuple[tuple[int, ...], torch.dtype]]:
         chunk = (self.horizon, self.action_dim)
-        return {"state": ((self.state_dim,), torch.float32), "action": (chunk, torch.float32),
-                "ref": (chunk, torch.float32), "reward": ((), torch.float32),
-                "next_state": ((self.state_dim,), torch.float32), "next_ref": (chunk, torch.float32),
-                "done": ((), torch.bool), "task": ((), torch.int64), "episode": ((), torch.int64),
-                "ended": ((), torch.bool)}
+        return {
+            "state": ((self.state_dim,), torch.float32),
+            "action": (chunk, torch.float32),
+            "ref": (chunk, torch.float32),
+            "reward": ((), torch.float32),
+            "next_state": ((self.state_dim,), torch.float32),
+            "next_ref": (chunk, torch.float32),
+            "done": ((), torch.bool),
+            "task": ((), torch.int64),
+            "episode": ((), torch.int64),
+            "ended": ((), torch.bool),
+        }
 
     def __len__(self) -> int:
         return self.size
@@ -123,9 +145,18 @@ class ReplayBuffer:
         to `done` (a caller that never truncates); pass terminated | truncated."""
         state = torch.as_tensor(state, dtype=torch.float32)
         n = state.shape[0]
-        cols = {"state": state, "action": action, "ref": ref, "reward": reward, "next_state": next_state,
-                "next_ref": next_ref, "done": done, "task": task, "episode": episode,
-                "ended": done if ended is None else ended}
+        cols = {
+            "state": state,
+            "action": action,
+            "ref": ref,
+            "reward": reward,
+            "next_state": next_state,
+            "next_ref": next_ref,
+            "done": done,
+            "task": task,
+            "episode": episode,
+            "ended": done if ended is None else ended,
+        }
         layout = self._layout()
         rows = {}
         for name, value in cols.items():
@@ -143,7 +174,7 @@ class ReplayBuffer:
         self._grow(self.size + n)
         start = self.size
         for name, t in rows.items():
-            self._data[name][start: start + n] = t
+            self._data[name][start : start + n] = t
         self.size += n
         self._link_episodes(start, rows["task"].tolist(), rows["episode"].tolist())
 
@@ -162,9 +193,19 @@ class ReplayBuffer:
     def gather(self, idx: torch.Tensor) -> Batch:
         idx = idx.to(self.device)
         d = self._data
-        return Batch(state=d["state"][idx], action=d["action"][idx], ref=d["ref"][idx], reward=d["reward"][idx],
-                     next_state=d["next_state"][idx], next_ref=d["next_ref"][idx], done=d["done"][idx].float(),
-                     task=d["task"][idx], episode=d["episode"][idx], index=idx, ended=d["ended"][idx])
+        return Batch(
+            state=d["state"][idx],
+            action=d["action"][idx],
+            ref=d["ref"][idx],
+            reward=d["reward"][idx],
+            next_state=d["next_state"][idx],
+            next_ref=d["next_ref"][idx],
+            done=d["done"][idx].float(),
+            task=d["task"][idx],
+            episode=d["episode"][idx],
+            index=idx,
+            ended=d["ended"][idx],
+        )
 
     def sample(self, n: int, generator: torch.Generator, n_step: int = 1, gamma: float | None = None) -> Batch:
         """n uniform rows. With n_step > 1 (needs gamma) the return sums the next chunks of the same episode:
@@ -180,12 +221,12 @@ class ReplayBuffer:
         return batch
 
     def _n_step(self, batch: Batch, n_step: int, gamma: float) -> Batch:
-        g_h = gamma ** self.horizon
+        g_h = gamma**self.horizon
         reward, done = batch.reward.clone(), batch.done.clone()
         last, scale = batch.index.clone(), torch.ones_like(reward)
         for _ in range(n_step - 1):
             nxt = self._next_row[last]
-            go = (done == 0) & (nxt >= 0)        # continue only inside an unfinished, recorded episode
+            go = (done == 0) & (nxt >= 0)  # continue only inside an unfinished, recorded episode
             if not bool(go.any()):
                 break
             safe = torch.where(go, nxt, last)
@@ -195,8 +236,14 @@ class ReplayBuffer:
             last = safe
         d = self._data
         discount = scale * g_h * (1.0 - done)
-        return dataclasses.replace(batch, reward=reward, done=done, discount=discount,
-                                   next_state=d["next_state"][last], next_ref=d["next_ref"][last])
+        return dataclasses.replace(
+            batch,
+            reward=reward,
+            done=done,
+            discount=discount,
+            next_state=d["next_state"][last],
+            next_ref=d["next_ref"][last],
+        )
 
     # ---- persistence (append-only shards + JSON index) -----------------------------------
     def _shard_name(self, start: int, count: int) -> str:
@@ -206,7 +253,7 @@ class ReplayBuffer:
         from safetensors.torch import save_file
 
         path = directory / self._shard_name(start, count)
-        tensors = {name: self._data[name][start: start + count].detach().to("cpu").contiguous() for name in _FIELDS}
+        tensors = {name: self._data[name][start : start + count].detach().to("cpu").contiguous() for name in _FIELDS}
         tmp = path.with_suffix(".tmp")
         save_file(tensors, str(tmp))
         os.replace(tmp, path)
@@ -220,15 +267,23 @@ class ReplayBuffer:
         """
         directory = Path(directory)
         directory.mkdir(parents=True, exist_ok=True)
-        written = [self._write_shard(directory, s, c) for s, c in self._shards
-                   if not (directory / self._shard_name(s, c)).exists()]
+        written = [
+            self._write_shard(directory, s, c)
+            for s, c in self._shards
+            if not (directory / self._shard_name(s, c)).exists()
+        ]
         saved = sum(c for _, c in self._shards)
         if self.size > saved:
             self._shards.append((saved, self.size - saved))
             written.append(self._write_shard(directory, saved, self.size - saved))
-        index = {"format": FORMAT_VERSION, "state_dim": self.state_dim, "horizon": self.horizon,
-                 "action_dim": self.action_dim, "size": self.size,
-                 "shards": [{"file": self._shard_name(s, c), "start": s, "count": c} for s, c in self._shards]}
+        index = {
+            "format": FORMAT_VERSION,
+            "state_dim": self.state_dim,
+            "horizon": self.horizon,
+            "action_dim": self.action_dim,
+            "size": self.size,
+            "shards": [{"file": self._shard_name(s, c), "start": s, "count": c} for s, c in self._shards],
+        }
         tmp = directory / (INDEX_FILE + ".tmp")
         tmp.write_text(json.dumps(index, indent=1, sort_keys=True) + "\n")
         os.replace(tmp, directory / INDEX_FILE)
@@ -243,8 +298,13 @@ class ReplayBuffer:
         directory = Path(directory)
         try:
             index = json.loads((directory / INDEX_FILE).read_text())
-            buf = cls(int(index["state_dim"]), int(index["horizon"]), int(index["action_dim"]), device=device,
-                      initial_capacity=max(1, int(index["size"])))
+            buf = cls(
+                int(index["state_dim"]),
+                int(index["horizon"]),
+                int(index["action_dim"]),
+                device=device,
+                initial_capacity=max(1, int(index["size"])),
+            )
             shards = index["shards"]
         except FileNotFoundError:
             raise AccrueError(f"{directory}: not a replay buffer (no {INDEX_FILE})") from None
@@ -255,7 +315,7 @@ class ReplayBuffer:
             if not path.exists():
                 raise AccrueError(f"{path}: replay shard listed in the index is missing")
             rows = load_file(str(path))
-            rows.setdefault("ended", rows["done"].clone())   # shards written before episodes were marked
+            rows.setdefault("ended", rows["done"].clone())  # shards written before episodes were marked
             if rows["state"].shape[0] != shard["count"] or shard["start"] != buf.size:
                 raise AccrueError(f"{path}: replay shard does not match the index")
             buf._write(rows)
@@ -267,8 +327,9 @@ class ReplayBuffer:
     # ---- building new buffers --------------------------------------------------------------
     def select(self, rows: torch.Tensor) -> "ReplayBuffer":
         """A new buffer holding the given rows (in the given order), with no shard history."""
-        out = ReplayBuffer(self.state_dim, self.horizon, self.action_dim, self.device,
-                           initial_capacity=max(1, rows.numel()))
+        out = ReplayBuffer(
+            self.state_dim, self.horizon, self.action_dim, self.device, initial_capacity=max(1, rows.numel())
+        )
         if rows.numel():
             out._write({name: self._data[name][rows.to(self.device)] for name in _FIELDS})
         return out
@@ -276,8 +337,13 @@ class ReplayBuffer:
     @staticmethod
     def concat(buffers: list["ReplayBuffer"]) -> "ReplayBuffer":
         first = buffers[0]
-        out = ReplayBuffer(first.state_dim, first.horizon, first.action_dim, first.device,
-                           initial_capacity=max(1, sum(len(b) for b in buffers)))
+        out = ReplayBuffer(
+            first.state_dim,
+            first.horizon,
+            first.action_dim,
+            first.device,
+            initial_capacity=max(1, sum(len(b) for b in buffers)),
+        )
         for b in buffers:
             if (b.state_dim, b.horizon, b.action_dim) != (first.state_dim, first.horizon, first.action_dim):
                 raise AccrueError("replay concat: buffers have different state/chunk shapes")

@@ -6,6 +6,7 @@
 - α is tuned toward a target entropy of `target_entropy_per_dim` × H × d.
 - Eq. 4 distils the deterministic output π̄_θ = tanh(μ) (no sampling), as Eq. 3's teacher is evaluated.
 """
+
 from __future__ import annotations
 
 import math
@@ -47,7 +48,7 @@ class FastSACLearner(ChunkLearner):
         a = torch.tanh(mean + log_std.exp() * self._gauss(mean.shape))
         return a.view(-1, self.horizon, self.action_dim)
 
-    def _target_noise(self, shape):   # ε for a_{t+H} ~ π(·|s_{t+H}), drawn outside the (compilable) loss
+    def _target_noise(self, shape):  # ε for a_{t+H} ~ π(·|s_{t+H}), drawn outside the (compilable) loss
         return self._gauss((shape[0], self.horizon * self.action_dim))
 
     def _policy_eps(self, n):

@@ -5,6 +5,7 @@ SAC temperature, the learner's generator, the global torch and numpy RNG states,
 counters, stage index and the continual-rule tensors (EWC Fisher/anchor, RETAIN's θ_prev). Loading
 then continuing gives bit-identical updates to never having stopped (on CPU).
 """
+
 from __future__ import annotations
 
 import json
@@ -40,7 +41,7 @@ def _unflatten_optimizer(prefix: str, meta: dict, tensors: dict) -> dict:
     state: dict[int, dict] = {}
     for name, value in tensors.items():
         if name.startswith(prefix + "/state/"):
-            pid, key = name[len(prefix) + 7:].split("/", 1)
+            pid, key = name[len(prefix) + 7 :].split("/", 1)
             state.setdefault(int(pid), {})[key] = value
     for name, value in meta["scalars"].items():
         pid, key = name.split("/", 1)
@@ -51,8 +52,11 @@ def _unflatten_optimizer(prefix: str, meta: dict, tensors: dict) -> dict:
 
 def training_state(learner: ChunkLearner) -> tuple[dict[str, torch.Tensor], dict]:
     tensors: dict[str, torch.Tensor] = {}
-    for name, module in (("actor", learner.actor), ("critic", learner.critic),
-                         ("critic_target", learner.critic_target)):
+    for name, module in (
+        ("actor", learner.actor),
+        ("critic", learner.critic),
+        ("critic_target", learner.critic_target),
+    ):
         for k, v in module.state_dict().items():
             tensors[f"{name}/{k}"] = v
     optim = {name: _flatten_optimizer(f"optim/{name}", opt, tensors) for name, opt in learner.optimizers().items()}
@@ -61,25 +65,44 @@ def training_state(learner: ChunkLearner) -> tuple[dict[str, torch.Tensor], dict
     tensors["noise_std"] = learner.noise_std
     tensors["rng/learner"] = learner.gen.get_state()
     tensors["rng/torch"] = torch.get_rng_state()
-    for group, values in (("ewc_fisher", learner.ewc_fisher), ("ewc_anchor", learner.ewc_anchor),
-                          ("retain_prev", learner.retain_prev)):
+    for group, values in (
+        ("ewc_fisher", learner.ewc_fisher),
+        ("ewc_anchor", learner.ewc_anchor),
+        ("retain_prev", learner.retain_prev),
+    ):
         for k, v in values.items():
             tensors[f"{group}/{k}"] = v
     kind, keys, pos, has_gauss, cached = np.random.get_state()
-    meta = {"format": FORMAT_VERSION, "algo": learner.algo, "config": learner.cfg.to_dict(),
-            "state_dim": learner.state_dim, "horizon": learner.horizon, "action_dim": learner.action_dim,
-            "stage": learner.stage, "counters": dict(learner.counters), "optim": optim,
-            "numpy_rng": {"kind": kind, "keys": keys.tolist(), "pos": int(pos), "has_gauss": int(has_gauss),
-                          "cached_gaussian": float(cached)}}
+    meta = {
+        "format": FORMAT_VERSION,
+        "algo": learner.algo,
+        "config": learner.cfg.to_dict(),
+        "state_dim": learner.state_dim,
+        "horizon": learner.horizon,
+        "action_dim": learner.action_dim,
+        "stage": learner.stage,
+        "counters": dict(learner.counters),
+        "optim": optim,
+        "numpy_rng": {
+            "kind": kind,
+            "keys": keys.tolist(),
+            "pos": int(pos),
+            "has_gauss": int(has_gauss),
+            "cached_gaussian": float(cached),
+        },
+    }
     return tensors, meta
 
 
 def load_training_state_into(learner: ChunkLearner, tensors: dict[str, torch.Tensor], meta: dict) -> None:
     dev = learner.device
-    for name, module in (("actor", learner.actor), ("critic", learner.critic),
-                         ("critic_target", learner.critic_target)):
-        sd = {k[len(name) + 1:]: v for k, v in tensors.items() if k.startswith(name + "/")}
-        if name == "actor":   # checkpoints written before the normaliser could be frozen
+    for name, module in (
+        ("actor", learner.actor),
+        ("critic", learner.critic),
+        ("critic_target", learner.critic_target),
+    ):
+        sd = {k[len(name) + 1 :]: v for k, v in tensors.items() if k.startswith(name + "/")}
+        if name == "actor":  # checkpoints written before the normaliser could be frozen
             sd.setdefault("obs_norm.frozen", torch.zeros((), dtype=torch.bool))
         module.load_state_dict(sd)
     if "log_alpha" in tensors:
@@ -91,11 +114,13 @@ def load_training_state_into(learner: ChunkLearner, tensors: dict[str, torch.Ten
     learner.gen.set_state(tensors["rng/learner"].cpu())
     torch.set_rng_state(tensors["rng/torch"].cpu())
     for group in ("ewc_fisher", "ewc_anchor", "retain_prev"):
-        setattr(learner, group, {k[len(group) + 1:]: v.to(dev) for k, v in tensors.items()
-                                 if k.startswith(group + "/")})
+        setattr(
+            learner, group, {k[len(group) + 1 :]: v.to(dev) for k, v in tensors.items() if k.startswith(group + "/")}
+        )
     r = meta["numpy_rng"]
-    np.random.set_state((r["kind"], np.array(r["keys"], dtype=np.uint32), r["pos"], r["has_gauss"],
-                         r["cached_gaussian"]))
+    np.random.set_state(
+        (r["kind"], np.array(r["keys"], dtype=np.uint32), r["pos"], r["has_gauss"], r["cached_gaussian"])
+    )
     learner.stage = int(meta["stage"])
     learner.counters = dict(meta["counters"])
 

@@ -5,6 +5,7 @@
   the online actor here, no target actor).
 - Actor's Q in Eq. 1: the smaller of the two heads' expectations with clipped double-Q, else their mean.
 """
+
 from __future__ import annotations
 
 import torch

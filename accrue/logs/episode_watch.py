@@ -8,6 +8,7 @@ What the recording holds (timeline `step`, one tick per control step):
   reward, return        per-step reward and the return so far
   camera/front          the rendered camera image (with images=True)
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -48,8 +49,17 @@ def _policy(name: str, task_id: str, seed: int):
     raise AccrueError(f"unknown policy {name!r}; choose one of {', '.join(POLICIES)}")
 
 
-def _log_rerun_step(rl, ee: np.ndarray, socket: np.ndarray, estimate: np.ndarray, wrench: np.ndarray,
-                    action: dict[str, float], reward: float, ret: float, image: np.ndarray | None) -> None:
+def _log_rerun_step(
+    rl,
+    ee: np.ndarray,
+    socket: np.ndarray,
+    estimate: np.ndarray,
+    wrench: np.ndarray,
+    action: dict[str, float],
+    reward: float,
+    ret: float,
+    image: np.ndarray | None,
+) -> None:
     rl.pose("world/ee", ee[:3], ee[3:], color=(230, 120, 20))
     rl.pose("world/socket", socket[:3], socket[3:], color=(40, 160, 60))
     rl.pose("world/socket_estimate", estimate[:3], estimate[3:], radius=0.002, color=(120, 120, 220))
@@ -61,8 +71,14 @@ def _log_rerun_step(rl, ee: np.ndarray, socket: np.ndarray, estimate: np.ndarray
         rl.image("camera/front", image)
 
 
-def watch_episode(task_id: str, policy: str = "expert", seed: int = 0, out: Path | None = None,
-                  images: bool = False, mcap_dir: Path | None = None) -> WatchResult:
+def watch_episode(
+    task_id: str,
+    policy: str = "expert",
+    seed: int = 0,
+    out: Path | None = None,
+    images: bool = False,
+    mcap_dir: Path | None = None,
+) -> WatchResult:
     """Run one episode of `task_id` with the expert or a random policy; write it to `out` (.rrd)."""
     from accrue.logs.mcap_episodes import EpisodeRecorder
     from accrue.logs.rerun_log import RerunLog
@@ -73,8 +89,11 @@ def watch_episode(task_id: str, policy: str = "expert", seed: int = 0, out: Path
     act = _policy(policy, task_id, seed)
     out = Path(out) if out is not None else default_rrd_path(task_id, policy, seed)
     env = make_vec_env(task_id, num_envs=1, seed=seed, obs_mode="state+image" if images else "state")
-    recorder = EpisodeRecorder(mcap_dir, control_hz=spec.control_hz, state_names=list(STATE_NAMES),
-                               camera="front") if mcap_dir else None
+    recorder = (
+        EpisodeRecorder(mcap_dir, control_hz=spec.control_hz, state_names=list(STATE_NAMES), camera="front")
+        if mcap_dir
+        else None
+    )
     rec_id = f"watch-{task_id}-{policy}-seed{seed}"
     mcap_path = None
     try:
@@ -97,11 +116,21 @@ def watch_episode(task_id: str, policy: str = "expert", seed: int = 0, out: Path
                 image = obs["image"][0] if images else None
 
                 rl.set_step(t)
-                _log_rerun_step(rl, ee, socket, estimate, wrench, dict(zip(ACTION_NAMES, map(float, action[0]))),
-                                reward, ret, image)
+                _log_rerun_step(
+                    rl, ee, socket, estimate, wrench, dict(zip(ACTION_NAMES, map(float, action[0]))), reward, ret, image
+                )
                 if recorder:
-                    recorder.log_step(0, t, state[0], action[0], reward=reward, image=image,
-                                      ee_pose=ee, socket_pose=socket, wrench=wrench)
+                    recorder.log_step(
+                        0,
+                        t,
+                        state[0],
+                        action[0],
+                        reward=reward,
+                        image=image,
+                        ee_pose=ee,
+                        socket_pose=socket,
+                        wrench=wrench,
+                    )
                 t += 1
                 obs = res.obs
                 if bool(res.terminated[0] or res.truncated[0]):
@@ -114,5 +143,13 @@ def watch_episode(task_id: str, policy: str = "expert", seed: int = 0, out: Path
         if recorder:
             recorder.close()
         env.close()
-    return WatchResult(task_id=task_id, policy=policy, seed=seed, steps=t, success=success,
-                       episode_return=ret, rrd_path=out, mcap_path=mcap_path)
+    return WatchResult(
+        task_id=task_id,
+        policy=policy,
+        seed=seed,
+        steps=t,
+        success=success,
+        episode_return=ret,
+        rrd_path=out,
+        mcap_path=mcap_path,
+    )

@@ -32,6 +32,7 @@ ids, …, all as strings) plus `env_index`, `episode`, `success`, `length`, `ret
 
 Message log times are sim time: step `t` is logged at `t / control_hz` seconds (in ns).
 """
+
 from __future__ import annotations
 
 import base64
@@ -288,7 +289,9 @@ class EpisodeRecorder:
             }
             self._write(ep, self.image_topic, ns, msg, S.FOXGLOVE_COMPRESSED_IMAGE)
 
-    def end(self, env_index: int, success: bool, truncated: bool = False, metadata: Mapping[str, Any] | None = None) -> Path:
+    def end(
+        self, env_index: int, success: bool, truncated: bool = False, metadata: Mapping[str, Any] | None = None
+    ) -> Path:
         """Seal env `env_index`'s episode: label, metadata, summary, fsync, rename. Returns the file."""
         ep = self._open.pop(env_index, None)
         if ep is None:
@@ -300,8 +303,16 @@ class EpisodeRecorder:
             record = dict(ep.metadata)
             record.update(_as_str_map(metadata or {}))
             record.update(
-                _as_str_map({"env_index": env_index, "episode": ep.index, "success": bool(success),
-                             "length": ep.length, "return": ep.ret, "truncated": bool(truncated)})
+                _as_str_map(
+                    {
+                        "env_index": env_index,
+                        "episode": ep.index,
+                        "success": bool(success),
+                        "length": ep.length,
+                        "return": ep.ret,
+                        "truncated": bool(truncated),
+                    }
+                )
             )
             ep.writer.add_metadata(METADATA_NAME, record)
             ep.writer.finish()
@@ -353,7 +364,9 @@ class EpisodeRecorder:
             schema_id = ep.writer.register_schema(
                 name=schema["title"], encoding=SchemaEncoding.JSONSchema, data=json.dumps(schema).encode()
             )
-            chan_meta = {"state_names": json.dumps(self.state_names)} if topic == TOPIC_STATE and self.state_names else {}
+            chan_meta = (
+                {"state_names": json.dumps(self.state_names)} if topic == TOPIC_STATE and self.state_names else {}
+            )
             channel = ep.writer.register_channel(
                 topic=topic, message_encoding=MessageEncoding.JSON, schema_id=schema_id, metadata=chan_meta
             )
@@ -376,7 +389,7 @@ class EpisodeLog:
     """One episode read back: decoded JSON messages per topic (in log-time order) and metadata."""
 
     messages: dict[str, list[dict]]
-    schemas: dict[str, str]            # topic -> schema name
+    schemas: dict[str, str]  # topic -> schema name
     channel_metadata: dict[str, dict[str, str]]
     metadata: dict[str, dict[str, str]]  # metadata record name -> string map
 

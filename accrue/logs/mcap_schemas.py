@@ -4,6 +4,7 @@ Foxglove's well-known schemas are written in their JSON encoding (Foxglove reads
 name, so poses and images show up in its 3D and image panels without any plugin); accrue's own
 messages get small `accrue.*` schemas so plots and the raw-message panel can name every field.
 """
+
 from __future__ import annotations
 
 _TIME = {

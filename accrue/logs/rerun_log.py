@@ -14,6 +14,7 @@ viewer is spawned; open the file with `rerun FILE.rrd` (same rerun version, 0.26
 `RERUN=off` in the environment disables rerun everywhere; pass `force=True` when the user asked
 for this very file (e.g. `accrue sim watch --out`), so the switch does not silently drop it.
 """
+
 from __future__ import annotations
 
 import os
@@ -65,8 +66,15 @@ class RerunLog:
         for key, value in values.items():
             self.scalar(f"{prefix}/{key}", value)
 
-    def pose(self, entity: str, translation: Sequence[float], quaternion_xyzw: Sequence[float] | None = None,
-             *, radius: float = 0.004, color: Sequence[int] | None = None) -> None:
+    def pose(
+        self,
+        entity: str,
+        translation: Sequence[float],
+        quaternion_xyzw: Sequence[float] | None = None,
+        *,
+        radius: float = 0.004,
+        color: Sequence[int] | None = None,
+    ) -> None:
         """A frame (transform) at `entity` and a point marking its origin, for 3-D views."""
         rr = self._rr
         kwargs: dict[str, Any] = {"translation": np.asarray(translation, dtype=np.float32)[:3]}
@@ -75,12 +83,18 @@ class RerunLog:
         self.stream.log(entity, rr.Transform3D(**kwargs))
         self.stream.log(f"{entity}/origin", rr.Points3D([[0.0, 0.0, 0.0]], radii=radius, colors=color))
 
-    def points(self, entity: str, xyz: np.ndarray, *, radius: float = 0.002, color: Sequence[int] | None = None) -> None:
-        self.stream.log(entity, self._rr.Points3D(np.asarray(xyz, dtype=np.float32).reshape(-1, 3), radii=radius, colors=color))
+    def points(
+        self, entity: str, xyz: np.ndarray, *, radius: float = 0.002, color: Sequence[int] | None = None
+    ) -> None:
+        self.stream.log(
+            entity, self._rr.Points3D(np.asarray(xyz, dtype=np.float32).reshape(-1, 3), radii=radius, colors=color)
+        )
 
     def image(self, entity: str, hwc_uint8: np.ndarray, *, jpeg_quality: int = 85) -> None:
         """An RGB image, JPEG-compressed to keep the file small."""
-        self.stream.log(entity, self._rr.Image(np.ascontiguousarray(hwc_uint8, dtype=np.uint8)).compress(jpeg_quality=jpeg_quality))
+        self.stream.log(
+            entity, self._rr.Image(np.ascontiguousarray(hwc_uint8, dtype=np.uint8)).compress(jpeg_quality=jpeg_quality)
+        )
 
     def text(self, entity: str, message: str) -> None:
         self.stream.log(entity, self._rr.TextLog(message))

@@ -3,6 +3,7 @@
 Poses come out as (7,) [x, y, z, qx, qy, qz, qw] in the robot frame (metres), the wrench as
 (6,) force (N) then torque (N m), all decoded from the scaled state with the sim's own decoder.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -13,12 +14,14 @@ def euler_to_quat_xyzw(roll: float, pitch: float, yaw: float) -> np.ndarray:
     cr, sr = np.cos(roll / 2), np.sin(roll / 2)
     cp, sp = np.cos(pitch / 2), np.sin(pitch / 2)
     cy, sy = np.cos(yaw / 2), np.sin(yaw / 2)
-    return np.array([
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-        cr * cp * cy + sr * sp * sy,
-    ])
+    return np.array(
+        [
+            sr * cp * cy - cr * sp * sy,
+            cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy,
+            cr * cp * cy + sr * sp * sy,
+        ]
+    )
 
 
 def yaw_pose(x: float, y: float, z: float, yaw: float) -> np.ndarray:

@@ -12,6 +12,7 @@
 Inside an action chunk only the first step has an observed state, so `/state`, poses and the
 wrench are logged on that step; every executed step gets its action and reward.
 """
+
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
@@ -56,8 +57,14 @@ class VecEpisodeLogger:
             self.t[i] = 0
             self.recording[i] = True
 
-    def log(self, states: np.ndarray, actions: np.ndarray, result: Any, reference: np.ndarray | None = None,
-            images: np.ndarray | None = None) -> list[Path]:
+    def log(
+        self,
+        states: np.ndarray,
+        actions: np.ndarray,
+        result: Any,
+        reference: np.ndarray | None = None,
+        images: np.ndarray | None = None,
+    ) -> list[Path]:
         """Log one env.step / env.step_chunk result; returns the episode files sealed by it.
 
         `states` (N, D) and `images` (N, h, w, 3) are the observation the actions were chosen
@@ -76,14 +83,24 @@ class VecEpisodeLogger:
                 first = h == 0
                 extra = self.fields(states[i]) if first and self.fields is not None else {}
                 self.recorder.log_step(
-                    int(i), int(self.t[i]), state=states[i] if first else None, action=acts[i, h],
+                    int(i),
+                    int(self.t[i]),
+                    state=states[i] if first else None,
+                    action=acts[i, h],
                     reference=reference[i] if first and reference is not None else None,
-                    reward=float(per_step[i, h]), image=images[i] if first and images is not None else None, **extra,
+                    reward=float(per_step[i, h]),
+                    image=images[i] if first and images is not None else None,
+                    **extra,
                 )
                 self.t[i] += 1
             if done[i]:
-                sealed.append(self.recorder.end(int(i), success=bool(np.asarray(result.success)[i]),
-                                                truncated=bool(np.asarray(result.truncated)[i])))
+                sealed.append(
+                    self.recorder.end(
+                        int(i),
+                        success=bool(np.asarray(result.success)[i]),
+                        truncated=bool(np.asarray(result.truncated)[i]),
+                    )
+                )
                 self.recording[i] = False
         return sealed
 

@@ -1,4 +1,5 @@
 """The base policy pi_base through lerobot: load a checkpoint, get reference chunks, fine-tune on D^1..D^k."""
+
 from accrue.policy.base_policy import BasePolicy
 from accrue.policy.finetune import FinetuneSettings, finetune
 from accrue.policy.from_scratch import EMBEDDED_DEFAULT

@@ -1,5 +1,6 @@
 """The base policy pi_base seen only through its input-output interface: observation + instruction in,
 an H-step action chunk out (paper Sec. III-A). Backed by any lerobot checkpoint in a local directory."""
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -104,7 +105,9 @@ class BasePolicy:
             if "image" not in obs:
                 raise AccrueError(f"policy {self.checkpoint_dir} needs camera images; the observation has no 'image'")
             if len(self.image_keys) != 1:
-                raise AccrueError(f"policy {self.checkpoint_dir} takes {len(self.image_keys)} cameras; accrue passes one")
+                raise AccrueError(
+                    f"policy {self.checkpoint_dir} takes {len(self.image_keys)} cameras; accrue passes one"
+                )
             images = np.asarray(obs["image"])
             if images.ndim != 4 or images.shape[0] != batch_size or images.shape[-1] != 3:
                 raise AccrueError(f"observation 'image' must be (B, h, w, 3) uint8, got {list(images.shape)}")
@@ -135,7 +138,11 @@ class BasePolicy:
                 "plans per call; fine-tune with a larger chunk size"
             )
         state = np.asarray(obs.get("state", np.zeros((0, 0))))
-        instructions = [instruction] * (state.shape[0] if state.ndim == 2 else 0) if isinstance(instruction, str) else list(instruction)
+        instructions = (
+            [instruction] * (state.shape[0] if state.ndim == 2 else 0)
+            if isinstance(instruction, str)
+            else list(instruction)
+        )
         batch = self.preprocessor(self._batch(obs, instructions))
         with torch.no_grad(), torch.random.fork_rng(devices=[]):
             torch.manual_seed(self.seed)  # diffusion noise etc. is drawn from a per-call seeded stream

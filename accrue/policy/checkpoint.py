@@ -1,4 +1,5 @@
 """Recognise a lerobot policy checkpoint directory and say clearly what is missing or unsupported."""
+
 from __future__ import annotations
 
 import json
@@ -14,7 +15,7 @@ POSTPROCESSOR_FILE = "policy_postprocessor.json"
 # Policy types that need more than lerobot's core install, and what the user must provide.
 NEEDS_EXTRAS = {
     "smolvla": "lerobot[smolvla] and the SmolVLM2 weights and processor in the local HF cache "
-               "(or a local path in config.json 'vlm_model_name')",
+    "(or a local path in config.json 'vlm_model_name')",
     "pi0": "lerobot[pi] with lerobot's patched transformers and the PaliGemma tokenizer in the local HF cache",
     "pi05": "lerobot[pi] with lerobot's patched transformers and the PaliGemma tokenizer in the local HF cache",
     "pi0_fast": "lerobot[pi] with lerobot's patched transformers and the PaliGemma tokenizer in the local HF cache",
@@ -41,8 +42,9 @@ def read_checkpoint_config(checkpoint_dir: Path) -> dict:
 
 def check_policy_type_known(policy_type: str, checkpoint_dir: Path) -> None:
     import lerobot.policies.factory  # noqa: F401 - registers every policy config type
-    import accrue.policy.chunk_mlp  # noqa: F401 - and accrue's own (the embedded base policy)
     from lerobot.configs.policies import PreTrainedConfig
+
+    import accrue.policy.chunk_mlp  # noqa: F401 - and accrue's own (the embedded base policy)
 
     known = PreTrainedConfig.get_known_choices()
     if policy_type not in known:

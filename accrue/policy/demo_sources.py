@@ -1,4 +1,5 @@
 """Open the demonstration datasets of tasks 1..k and check they can be trained on together."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -20,10 +21,10 @@ class DemoSource:
     root: Path
     fps: int
     instruction_of_episode: list[str]
-    states: list[np.ndarray]     # per episode (T, D) float32
-    actions: list[np.ndarray]    # per episode (T, d) float32
+    states: list[np.ndarray]  # per episode (T, D) float32
+    actions: list[np.ndarray]  # per episode (T, d) float32
     image_keys: list[str]
-    dataset: object              # the open LeRobotDataset, for decoding images on demand
+    dataset: object  # the open LeRobotDataset, for decoding images on demand
     frame_ranges: list[tuple[int, int]]  # per episode [from, to) absolute frame indices
 
     @property

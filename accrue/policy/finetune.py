@@ -1,4 +1,5 @@
 """Fine-tune a base policy on the demonstrations of tasks 1..k with lerobot's own training script."""
+
 from __future__ import annotations
 
 import json
@@ -24,13 +25,13 @@ class FinetuneSettings:
     batch_size: int = 32
     lr: float = 1e-4
     seed: int = 0
-    retention: float = 1.0          # fraction of earlier tasks' demos kept (paper Table VI: 1.0 .. 0.05)
-    chunk_size: int = 16            # from-scratch policies only; a checkpoint keeps its own
+    retention: float = 1.0  # fraction of earlier tasks' demos kept (paper Table VI: 1.0 .. 0.05)
+    chunk_size: int = 16  # from-scratch policies only; a checkpoint keeps its own
     embedding_dim: int = DEFAULT_EMBEDDING_DIM  # from-scratch only; a checkpoint keeps its own
     device: str = "cpu"
-    torch_threads: int = 1          # small models train no slower on one thread, and a busy CPU stays usable
-    num_workers: int = 2            # lerobot-train loader processes: loading bounds a small policy's step
-                                    # (chunk MLP, 800 steps of 64 on 2 idle cores: 106 s with 0, 79 s with 2)
+    torch_threads: int = 1  # small models train no slower on one thread, and a busy CPU stays usable
+    num_workers: int = 2  # lerobot-train loader processes: loading bounds a small policy's step
+    # (chunk MLP, 800 steps of 64 on 2 idle cores: 106 s with 0, 79 s with 2)
     keep_training_set: bool = False  # keep the merged dataset under out_dir/_work for inspection
 
     def check(self) -> None:
@@ -127,8 +128,14 @@ def finetune(
         "--wandb.enable=false",
     ]
     log_path = work / "lerobot-train.log"
-    run_lerobot_train(args, log_path, settings.steps, progress, threads=settings.torch_threads,
-                      module="accrue.policy.lerobot_train_entry")
+    run_lerobot_train(
+        args,
+        log_path,
+        settings.steps,
+        progress,
+        threads=settings.torch_threads,
+        module="accrue.policy.lerobot_train_entry",
+    )
 
     final = train_dir / "checkpoints" / "last" / "pretrained_model"
     if not final.is_dir():

@@ -5,6 +5,7 @@ ACT and Diffusion take no text, so accrue conditions them on the task by feeding
 buckets (the "hashing trick"), so new instructions at later stages never change the input shape
 and the same text always maps to the same vector, on any machine.
 """
+
 from __future__ import annotations
 
 import hashlib

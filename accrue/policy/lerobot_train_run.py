@@ -3,6 +3,7 @@
 A subprocess isolates draccus' argv parsing, lerobot's logging setup and torch state from the
 caller; its log goes to a file whose path is named in any error.
 """
+
 from __future__ import annotations
 
 import os
@@ -34,8 +35,12 @@ def parse_step(line: str) -> int | None:
 
 
 def run_lerobot_train(
-    args: list[str], log_path: Path, total_steps: int, progress: Callable[[int, int], None] | None = None,
-    threads: int | None = None, module: str = "lerobot.scripts.lerobot_train",
+    args: list[str],
+    log_path: Path,
+    total_steps: int,
+    progress: Callable[[int, int], None] | None = None,
+    threads: int | None = None,
+    module: str = "lerobot.scripts.lerobot_train",
 ) -> None:
     """Run lerobot's training entry point (`module`) with `args`; raise AccrueError naming the log on failure."""
     command = [sys.executable, "-m", module, *args]

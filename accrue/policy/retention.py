@@ -5,6 +5,7 @@ ceil(fraction * n) of them (at least one), drawn without replacement by a genera
 (seed, task position), then sorted. Task i therefore keeps the same episodes at every later stage
 for a given seed, and changing the seed draws a different subset.
 """
+
 from __future__ import annotations
 
 import math

@@ -1,4 +1,5 @@
 """Measure a base policy's success on a sim task by executing its reference chunks open-loop."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -21,8 +22,12 @@ class SuccessEstimate:
 
 
 def evaluate_success(
-    policy: BasePolicy, task_id: str, episodes: int = 50, horizon: int | None = None,
-    num_envs: int = 10, seed: int = 10_000,
+    policy: BasePolicy,
+    task_id: str,
+    episodes: int = 50,
+    horizon: int | None = None,
+    num_envs: int = 10,
+    seed: int = 10_000,
 ) -> SuccessEstimate:
     """Run `episodes` episodes in rounds of num_envs parallel envs; re-plan every `horizon` steps.
 

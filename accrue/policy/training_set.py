@@ -4,6 +4,7 @@ Frames are re-written with lerobot's own writer rather than aggregated file-by-f
 merged set also needs (a) only the retained episodes of earlier tasks and (b) the instruction
 embedding as `observation.environment_state` for policies without language input.
 """
+
 from __future__ import annotations
 
 import json
@@ -76,15 +77,20 @@ def build_training_set(
         image_keys = sources[0].image_keys
         for src in sources[1:]:
             if src.image_keys != image_keys:
-                raise AccrueError(f"dataset {src.root}: cameras {src.image_keys} differ from {sources[0].root} ({image_keys})")
+                raise AccrueError(
+                    f"dataset {src.root}: cameras {src.image_keys} differ from {sources[0].root} ({image_keys})"
+                )
 
     import datasets as hf_datasets
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     hf_datasets.disable_progress_bars()  # one "Map" bar per saved episode otherwise
     writer = LeRobotDataset.create(
-        repo_id=TRAINING_REPO_ID, root=out_root, fps=sources[0].fps,
-        features=_features(sources[0], embedding_dim, image_keys), use_videos=False,
+        repo_id=TRAINING_REPO_ID,
+        root=out_root,
+        fps=sources[0].fps,
+        features=_features(sources[0], embedding_dim, image_keys),
+        use_videos=False,
     )
     summary = TrainingSetSummary(root=str(out_root), image_keys=image_keys, embedding_dim=embedding_dim)
     last = len(sources) - 1

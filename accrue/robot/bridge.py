@@ -10,6 +10,7 @@ given up after its timeout, so a robot that stops answering ends the episode ins
 A call that times out leaves its worker thread behind (a driver stuck in I/O cannot be interrupted from
 Python); the bridge starts a new one and treats the robot as lost until reconnect() succeeds.
 """
+
 from __future__ import annotations
 
 import concurrent.futures as cf
@@ -28,7 +29,7 @@ class RobotFault(Exception):
 
     def __init__(self, kind: str, message: str):
         super().__init__(message)
-        self.kind = kind          # "disconnected" | "timeout" | "error"
+        self.kind = kind  # "disconnected" | "timeout" | "error"
 
 
 @dataclass(frozen=True)
@@ -61,8 +62,10 @@ def robot_factory(robot_type: str, config: dict[str, Any], imports: tuple[str, .
 
     known = sorted(RobotConfig.get_known_choices())
     if robot_type not in known:
-        raise AccrueError(f"robot.type: unknown lerobot robot type {robot_type!r} (registered: {', '.join(known)}; "
-                          "a third-party robot's module goes in robot.imports)")
+        raise AccrueError(
+            f"robot.type: unknown lerobot robot type {robot_type!r} (registered: {', '.join(known)}; "
+            "a third-party robot's module goes in robot.imports)"
+        )
     cls = RobotConfig.get_choice_class(robot_type)
     try:
         import draccus
@@ -75,8 +78,13 @@ def robot_factory(robot_type: str, config: dict[str, Any], imports: tuple[str, .
 
 
 class RobotBridge:
-    def __init__(self, make_robot: Callable[[], Any], mapping: RobotMapping, timeouts: Timeouts = Timeouts(),
-                 report: Callable[[str], None] = lambda line: None):
+    def __init__(
+        self,
+        make_robot: Callable[[], Any],
+        mapping: RobotMapping,
+        timeouts: Timeouts = Timeouts(),
+        report: Callable[[str], None] = lambda line: None,
+    ):
         self.make_robot, self.mapping, self.timeouts, self.report = make_robot, mapping, timeouts, report
         self.robot = None
         self._pool: cf.ThreadPoolExecutor | None = None
@@ -91,16 +99,20 @@ class RobotBridge:
         try:
             result = future.result(timeout=timeout)
         except cf.TimeoutError:
-            self._pool.shutdown(wait=False)     # the stuck call keeps its thread; later calls get a new one
+            self._pool.shutdown(wait=False)  # the stuck call keeps its thread; later calls get a new one
             self._pool = None
             raise RobotFault("timeout", f"robot did not answer {what} within {timeout:g} s") from None
         except RobotFault:
             raise
         except Exception as exc:  # noqa: BLE001 - any driver error ends the episode, with its text
-            kind = "disconnected" if "connect" in type(exc).__name__.lower() or "connect" in str(exc).lower() \
-                else "error"
-            raise RobotFault(kind, f"robot {what} failed: {type(exc).__name__}: "
-                                   f"{str(exc).strip().splitlines()[0] if str(exc).strip() else ''}") from None
+            kind = (
+                "disconnected" if "connect" in type(exc).__name__.lower() or "connect" in str(exc).lower() else "error"
+            )
+            raise RobotFault(
+                kind,
+                f"robot {what} failed: {type(exc).__name__}: "
+                f"{str(exc).strip().splitlines()[0] if str(exc).strip() else ''}",
+            ) from None
         self.last_latency_s = time.monotonic() - started
         return result
 
@@ -108,8 +120,11 @@ class RobotBridge:
     def connect(self) -> None:
         if self.robot is None:
             self.robot = self._call("creation", self.make_robot, self.timeouts.connect_s)
-            self.mapping.check_features(self.robot.observation_features, self.robot.action_features,
-                                        f"robot {getattr(self.robot, 'name', type(self.robot).__name__)}")
+            self.mapping.check_features(
+                self.robot.observation_features,
+                self.robot.action_features,
+                f"robot {getattr(self.robot, 'name', type(self.robot).__name__)}",
+            )
         if not self.robot.is_connected:
             self._call("connect", self.robot.connect, self.timeouts.connect_s, calibrate=False)
 
@@ -129,7 +144,7 @@ class RobotBridge:
         for attempt in range(1, self.timeouts.reconnect_attempts + 1):
             try:
                 if keep is not None and not self._is_stale(keep):
-                    self.robot = keep               # same driver object: just connect it again
+                    self.robot = keep  # same driver object: just connect it again
                 else:
                     self.disconnect()
                 self.connect()
@@ -142,7 +157,7 @@ class RobotBridge:
         return False
 
     def _is_stale(self, robot) -> bool:
-        return self._pool is None   # a timed-out call left the old driver mid-call: build a new one
+        return self._pool is None  # a timed-out call left the old driver mid-call: build a new one
 
     # ------------------------------------------------------------------ control
     def observe(self) -> tuple[np.ndarray, bool]:

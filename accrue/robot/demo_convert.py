@@ -11,6 +11,7 @@ A teleoperated demonstration counts as a success, so each episode's last frame i
 its last SUCCESS_TAIL frames carry reward 1, like the simulator's demos. Cameras are not carried over
 (accrue's robot path is state-only). The result is built under a hidden sibling and renamed into place.
 """
+
 from __future__ import annotations
 
 import os
@@ -60,14 +61,16 @@ def normalised_actions(action: np.ndarray, names: list[str], mapping: RobotMappi
     columns = [names.index(k) for k in mapping.action_keys]
     raw = np.asarray(action, dtype=np.float64)[:, columns] / np.asarray(mapping.action_limits, dtype=np.float64)
     clipped = int(np.count_nonzero(np.abs(raw) > 1.0))
-    raw[~np.isfinite(raw)] = np.nan               # an infinite command is a broken frame, not a full-scale one
+    raw[~np.isfinite(raw)] = np.nan  # an infinite command is a broken frame, not a full-scale one
     return np.clip(raw, -1.0, 1.0).astype(np.float32), clipped
 
 
 def _check_width(values: np.ndarray, names: list[str], key: str) -> None:
     if np.ndim(values) != 2 or np.shape(values)[1] != len(names):
-        raise AccrueError(f"recorded {key} has {np.shape(values)[1:] or 'no'} values per frame but names "
-                          f"{len(names)}: the names cannot be matched to the columns")
+        raise AccrueError(
+            f"recorded {key} has {np.shape(values)[1:] or 'no'} values per frame but names "
+            f"{len(names)}: the names cannot be matched to the columns"
+        )
 
 
 def recorded_tasks(root: Path | str) -> list[str]:
@@ -97,8 +100,15 @@ def _read_recorded(root: Path) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]
     return int(dataset.meta.fps), states, actions, np.asarray(columns["episode_index"])
 
 
-def convert_robot_dataset(src: Path | str, out_dir: Path | str, mapping: RobotMapping, robot: str, task_id: str,
-                          instruction: str, progress: bool = False) -> dict:
+def convert_robot_dataset(
+    src: Path | str,
+    out_dir: Path | str,
+    mapping: RobotMapping,
+    robot: str,
+    task_id: str,
+    instruction: str,
+    progress: bool = False,
+) -> dict:
     """Write accrue demos of `task_id` to out_dir from the lerobot-record dataset at src; return its meta.
 
     A dataset whose features do not fit the mapping, or whose mapped values are not finite, is a one-line
@@ -111,8 +121,10 @@ def convert_robot_dataset(src: Path | str, out_dir: Path | str, mapping: RobotMa
     actions, clipped = normalised_actions(action, check["action_names"], mapping)
     bad = np.flatnonzero(~(np.isfinite(states).all(axis=1) & np.isfinite(actions).all(axis=1)))
     if bad.size:
-        raise AccrueError(f"{src}: episode {int(episode_index[bad[0]])} has a frame whose mapped state or action "
-                          f"is not finite ({bad.size} frame(s) in all)")
+        raise AccrueError(
+            f"{src}: episode {int(episode_index[bad[0]])} has a frame whose mapped state or action "
+            f"is not finite ({bad.size} frame(s) in all)"
+        )
     episodes = [np.flatnonzero(episode_index == ep) for ep in sorted(set(episode_index.tolist()))]
     episodes = [rows for rows in episodes if rows.size]
     if not episodes:
@@ -128,14 +140,27 @@ def convert_robot_dataset(src: Path | str, out_dir: Path | str, mapping: RobotMa
     datasets.disable_progress_bars()
     bar = _bar(progress, len(episodes), f"demos {task_id} from {check['robot_type'] or robot}")
     try:
-        ds = LeRobotDataset.create(repo_id=repo_id_for(task_id), root=staging, fps=fps,
-                                   features=demo_features(list(STATE_NAMES)), use_videos=False)
+        ds = LeRobotDataset.create(
+            repo_id=repo_id_for(task_id),
+            root=staging,
+            fps=fps,
+            features=demo_features(list(STATE_NAMES)),
+            use_videos=False,
+        )
         try:
             for n, rows in enumerate(episodes, 1):
                 last = rows.size - 1
-                frames = [{STATE_KEY: states[r], ACTION_KEY: actions[r],
-                           REWARD_KEY: np.zeros(1, dtype=np.float32), DONE_KEY: np.array([i == last]),
-                           SUCCESS_KEY: np.array([i == last]), "task": instruction} for i, r in enumerate(rows)]
+                frames = [
+                    {
+                        STATE_KEY: states[r],
+                        ACTION_KEY: actions[r],
+                        REWARD_KEY: np.zeros(1, dtype=np.float32),
+                        DONE_KEY: np.array([i == last]),
+                        SUCCESS_KEY: np.array([i == last]),
+                        "task": instruction,
+                    }
+                    for i, r in enumerate(rows)
+                ]
                 _label_success_tail(frames)
                 for frame in frames:
                     _add_frame(ds, frame)
@@ -146,15 +171,33 @@ def convert_robot_dataset(src: Path | str, out_dir: Path | str, mapping: RobotMa
                     bar[0].update(bar[1], completed=n)
         finally:
             ds.finalize()
-        meta = {"format": ACCRUE_META_FORMAT, "source": SOURCE, "task_id": task_id, "instruction": instruction,
-                "recorded_tasks": recorded_tasks(src), "robot_type": check["robot_type"], "robot": robot,
-                "seed": None, "quality": None, "obs_mode": "state",
-                "requested": len(episodes), "episodes": len(episodes), "frames": int(sum(r.size for r in episodes)),
-                # a teleoperated demonstration is taken as a success: the operator kept only what worked
-                "attempts": len(episodes), "successes": len(episodes), "only_successful": True,
-                "fps": fps, "clipped_action_values": clipped, "state_names": list(STATE_NAMES),
-                "mapping": {"state_keys": list(mapping.state_keys), "action_keys": list(mapping.action_keys),
-                            "action_limits": list(mapping.action_limits)}}
+        meta = {
+            "format": ACCRUE_META_FORMAT,
+            "source": SOURCE,
+            "task_id": task_id,
+            "instruction": instruction,
+            "recorded_tasks": recorded_tasks(src),
+            "robot_type": check["robot_type"],
+            "robot": robot,
+            "seed": None,
+            "quality": None,
+            "obs_mode": "state",
+            "requested": len(episodes),
+            "episodes": len(episodes),
+            "frames": int(sum(r.size for r in episodes)),
+            # a teleoperated demonstration is taken as a success: the operator kept only what worked
+            "attempts": len(episodes),
+            "successes": len(episodes),
+            "only_successful": True,
+            "fps": fps,
+            "clipped_action_values": clipped,
+            "state_names": list(STATE_NAMES),
+            "mapping": {
+                "state_keys": list(mapping.state_keys),
+                "action_keys": list(mapping.action_keys),
+                "action_limits": list(mapping.action_limits),
+            },
+        }
         _write_json_atomic(staging / ACCRUE_META, meta)
         _publish(staging, out_dir)
     except BaseException:
@@ -175,8 +218,13 @@ def _bar(enabled: bool, total: int, label: str):
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-    bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                   console=Console(stderr=True))
+    bar = Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        console=Console(stderr=True),
+    )
     task = bar.add_task(label, total=total)
     bar.start()
     return bar, task

@@ -5,6 +5,7 @@ A lerobot-record dataset of robot R has `observation.state` named by R's float o
 names include every key the workflow's robot mapping reads (`robot.state_keys`) and writes
 (`robot.action_keys`). Only meta/info.json is read: no lerobot import, no video decoding.
 """
+
 from __future__ import annotations
 
 import json
@@ -19,10 +20,12 @@ LEROBOT_FORMAT = "v3.0"
 def _names(features: dict, key: str, root: Path) -> list[str]:
     feature = features.get(key)
     if not isinstance(feature, dict):
-        raise AccrueError(f"{root}: not demonstrations for this robot: the dataset has no {key!r} feature "
-                          f"(it has {', '.join(sorted(features)[:6])})")
+        raise AccrueError(
+            f"{root}: not demonstrations for this robot: the dataset has no {key!r} feature "
+            f"(it has {', '.join(sorted(features)[:6])})"
+        )
     names = feature.get("names")
-    if isinstance(names, dict):                # older writers: {"motors": [...]}
+    if isinstance(names, dict):  # older writers: {"motors": [...]}
         names = next(iter(names.values()), [])
     if not isinstance(names, list):
         raise AccrueError(f"{root}: feature {key!r} has no list of names to match against the robot mapping")
@@ -44,14 +47,23 @@ def check_robot_dataset(root: Path | str, mapping: RobotMapping, robot: str) -> 
     if str(info.get("codebase_version")) != LEROBOT_FORMAT:
         raise AccrueError(f"{root}: LeRobotDataset {info.get('codebase_version')}; accrue reads {LEROBOT_FORMAT}")
     recorded = {}
-    for key, wanted, what in (("observation.state", mapping.state_keys, "robot.state_keys"),
-                              ("action", mapping.action_keys, "robot.action_keys")):
+    for key, wanted, what in (
+        ("observation.state", mapping.state_keys, "robot.state_keys"),
+        ("action", mapping.action_keys, "robot.action_keys"),
+    ):
         names = recorded[key] = _names(features, key, root)
         missing = [k for k in wanted if k not in names]
         if missing:
-            raise AccrueError(f"{root}: recorded on robot {info.get('robot_type') or '?'} with {key} "
-                              f"({len(names)} values: {', '.join(names[:4])}{', ...' if len(names) > 4 else ''}), "
-                              f"which lacks {len(missing)} key(s) {robot}'s mapping needs ({what}: {missing[0]}, ...)")
-    return {"episodes": int(info.get("total_episodes", 0)), "frames": int(info.get("total_frames", 0)),
-            "fps": info.get("fps"), "robot_type": info.get("robot_type"),
-            "state_names": recorded["observation.state"], "action_names": recorded["action"]}
+            raise AccrueError(
+                f"{root}: recorded on robot {info.get('robot_type') or '?'} with {key} "
+                f"({len(names)} values: {', '.join(names[:4])}{', ...' if len(names) > 4 else ''}), "
+                f"which lacks {len(missing)} key(s) {robot}'s mapping needs ({what}: {missing[0]}, ...)"
+            )
+    return {
+        "episodes": int(info.get("total_episodes", 0)),
+        "frames": int(info.get("total_frames", 0)),
+        "fps": info.get("fps"),
+        "robot_type": info.get("robot_type"),
+        "state_names": recorded["observation.state"],
+        "action_names": recorded["action"],
+    }

@@ -9,6 +9,7 @@ leaves the safety envelope, when the operator ends it, or when the robot faults 
 a faulted or unsafe episode is never a success. Rewards come later, from the operator's label
 (`chunk_rewards`): sparse, 1 on the last three control steps of a successful episode.
 """
+
 from __future__ import annotations
 
 import time
@@ -20,7 +21,7 @@ import numpy as np
 from accrue.robot.bridge import RobotBridge, RobotFault
 from accrue.robot.safety import SafetyEnvelope
 
-SUCCESS_REWARD_STEPS = 3     # the sim's convention, kept on hardware so the two are comparable
+SUCCESS_REWARD_STEPS = 3  # the sim's convention, kept on hardware so the two are comparable
 
 
 @dataclass(frozen=True)
@@ -28,23 +29,23 @@ class EpisodeSettings:
     horizon: int
     max_steps: int
     control_hz: float
-    clock: float = 1.0               # 1: real time; k > 1: k times faster; 0: as fast as the robot answers
+    clock: float = 1.0  # 1: real time; k > 1: k times faster; 0: as fast as the robot answers
     safety: SafetyEnvelope = SafetyEnvelope()
-    late_after_s: float | None = None   # an observation slower than this is noted as late (default 2 periods)
+    late_after_s: float | None = None  # an observation slower than this is noted as late (default 2 periods)
 
 
 @dataclass
 class EpisodeOutcome:
-    s: np.ndarray                     # (T + 1, D) learner states at each chunk start, and the last one
-    ref: np.ndarray                   # (T + 1, H, 6)
-    action: np.ndarray                # (T, H, 6) executed chunks
-    steps: np.ndarray                 # (T,) control steps of each chunk actually executed
+    s: np.ndarray  # (T + 1, D) learner states at each chunk start, and the last one
+    ref: np.ndarray  # (T + 1, H, 6)
+    action: np.ndarray  # (T, H, 6) executed chunks
+    steps: np.ndarray  # (T,) control steps of each chunk actually executed
     control_steps: int
-    end: str                          # done | time-limit | safety | fault | operator | abort
+    end: str  # done | time-limit | safety | fault | operator | abort
     reason: str = ""
     faults: list[str] = field(default_factory=list)
     wall_s: float = 0.0
-    robot_time_s: float = 0.0        # control steps / control rate: the time the robot spent acting
+    robot_time_s: float = 0.0  # control steps / control rate: the time the robot spent acting
 
     @property
     def can_succeed(self) -> bool:
@@ -62,14 +63,21 @@ def chunk_rewards(steps: np.ndarray, success: bool, gamma: float) -> np.ndarray:
     for i, n in enumerate(steps):
         for h in range(int(n)):
             if t0 + h >= total - SUCCESS_REWARD_STEPS:
-                out[i] += gamma ** h
+                out[i] += gamma**h
         t0 += int(n)
     return out
 
 
-def run_episode(bridge: RobotBridge, settings: EpisodeSettings, reference: Callable, policy: Callable,
-                features: Callable, recorder, metadata: dict, poll: Callable[[], str | None] = lambda: None,
-                ) -> EpisodeOutcome:
+def run_episode(
+    bridge: RobotBridge,
+    settings: EpisodeSettings,
+    reference: Callable,
+    policy: Callable,
+    features: Callable,
+    recorder,
+    metadata: dict,
+    poll: Callable[[], str | None] = lambda: None,
+) -> EpisodeOutcome:
     """Drive one episode; never raises for a robot fault (the outcome says so)."""
     from accrue.sim.observation import decode_state
 
@@ -102,8 +110,15 @@ def run_episode(bridge: RobotBridge, settings: EpisodeSettings, reference: Calla
                 if bridge.last_latency_s > late_after:
                     faults.append(f"late observation at step {t}: {bridge.last_latency_s:.2f} s")
                 d = decode_state(state[None])
-                recorder.log_step(0, t, state, chunk[h], reference=ref[0] if h == 0 else None,
-                                  ee_pose=d["pos"][0], wrench=np.concatenate([d["force"][0], d["torque"][0]]))
+                recorder.log_step(
+                    0,
+                    t,
+                    state,
+                    chunk[h],
+                    reference=ref[0] if h == 0 else None,
+                    ee_pose=d["pos"][0],
+                    wrench=np.concatenate([d["force"][0], d["torque"][0]]),
+                )
                 executed += 1
                 t += 1
                 why = settings.safety.violation(state)
@@ -126,16 +141,23 @@ def run_episode(bridge: RobotBridge, settings: EpisodeSettings, reference: Calla
     except RobotFault as exc:
         end, reason = "fault", f"{exc.kind}: {exc}"
         faults.append(reason)
-    if len(S) == len(A):          # ended inside a chunk (fault, safety): the last state closes the chunk
+    if len(S) == len(A):  # ended inside a chunk (fault, safety): the last state closes the chunk
         last = state if state is not None else np.zeros(S[0].shape if S else (0,), np.float32)
         if len(A):
             S.append(features(last[None])[0])
             R.append(reference(last[None])[0])
     return EpisodeOutcome(
-        s=np.asarray(S, dtype=np.float32), ref=np.asarray(R, dtype=np.float32).reshape(len(R), H, 6),
-        action=np.asarray(A, dtype=np.float32).reshape(len(A), H, 6), steps=np.asarray(N, dtype=np.int64),
-        control_steps=t, end=end, reason=reason, faults=faults, wall_s=time.monotonic() - started,
-        robot_time_s=t / settings.control_hz)
+        s=np.asarray(S, dtype=np.float32),
+        ref=np.asarray(R, dtype=np.float32).reshape(len(R), H, 6),
+        action=np.asarray(A, dtype=np.float32).reshape(len(A), H, 6),
+        steps=np.asarray(N, dtype=np.int64),
+        control_steps=t,
+        end=end,
+        reason=reason,
+        faults=faults,
+        wall_s=time.monotonic() - started,
+        robot_time_s=t / settings.control_hz,
+    )
 
 
 def transitions(out: EpisodeOutcome, success: bool, gamma: float, episode: int) -> dict:
@@ -145,10 +167,17 @@ def transitions(out: EpisodeOutcome, success: bool, gamma: float, episode: int) 
     ended = np.zeros(T, dtype=bool)
     if T:
         ended[-1] = True
-        done[-1] = bool(success)       # a success terminates; a failure is a truncation (it bootstraps)
-    return {"s": out.s[:T + 1] if T else out.s[:0], "ref": out.ref[:T + 1] if T else out.ref[:0],
-            "action": out.action, "steps": out.steps, "reward": chunk_rewards(out.steps, success, gamma),
-            "done": done, "ended": ended, "episode": np.array(episode, dtype=np.int64)}
+        done[-1] = bool(success)  # a success terminates; a failure is a truncation (it bootstraps)
+    return {
+        "s": out.s[: T + 1] if T else out.s[:0],
+        "ref": out.ref[: T + 1] if T else out.ref[:0],
+        "action": out.action,
+        "steps": out.steps,
+        "reward": chunk_rewards(out.steps, success, gamma),
+        "done": done,
+        "ended": ended,
+        "episode": np.array(episode, dtype=np.int64),
+    }
 
 
 def relabelled(arrays: dict, success: bool, gamma: float) -> dict:
@@ -171,7 +200,17 @@ def replay_from_episodes(warm, episodes: list[dict], task_index: int):
         if len(e["action"]) == 0:
             continue
         b = ReplayBuffer(warm.state_dim, warm.horizon)
-        b.add(e["s"][:-1], e["action"], e["ref"][:-1], e["reward"], e["s"][1:], e["ref"][1:], e["done"],
-              task_index, int(e["episode"]), ended=e["ended"])
+        b.add(
+            e["s"][:-1],
+            e["action"],
+            e["ref"][:-1],
+            e["reward"],
+            e["s"][1:],
+            e["ref"][1:],
+            e["done"],
+            task_index,
+            int(e["episode"]),
+            ended=e["ended"],
+        )
         parts.append(b)
     return ReplayBuffer.concat(parts) if len(parts) > 1 else warm

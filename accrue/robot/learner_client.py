@@ -6,6 +6,7 @@ the loss is reported (once) and, for a learner this actor started itself, the pr
 and re-initialised from the last sealed checkpoint and every sealed episode - so a killed learner loses
 only the updates since its last checkpoint.
 """
+
 from __future__ import annotations
 
 import os
@@ -22,11 +23,17 @@ from accrue.robot.transport import PROTOCOL, Peer, PeerDown, untar
 
 
 class LearnerLink:
-    def __init__(self, init_payload: Callable[[], tuple[dict, bytes]],
-                 sealed_episodes: Callable[[], list[tuple[dict, bytes]]],
-                 on_snapshot: Callable[[dict, Path], None], report: Callable[[str, dict], None],
-                 address: str | None = None, heartbeat_s: float = 0.5, dead_after_s: float = 3.0,
-                 start_timeout_s: float = 120.0):
+    def __init__(
+        self,
+        init_payload: Callable[[], tuple[dict, bytes]],
+        sealed_episodes: Callable[[], list[tuple[dict, bytes]]],
+        on_snapshot: Callable[[dict, Path], None],
+        report: Callable[[str, dict], None],
+        address: str | None = None,
+        heartbeat_s: float = 0.5,
+        dead_after_s: float = 3.0,
+        start_timeout_s: float = 120.0,
+    ):
         self.init_payload, self.sealed_episodes = init_payload, sealed_episodes
         self.on_snapshot, self.report = on_snapshot, report
         self.address, self.local = address, address is None
@@ -90,8 +97,17 @@ class LearnerLink:
     def _spawn(self) -> None:
         import select
 
-        cmd = [sys.executable, "-m", "accrue.robot.learner_service", "--listen", "127.0.0.1:0",
-               "--parent-pid", str(os.getpid()), "--orphan-after", str(max(10.0, 4 * self.dead_after_s))]
+        cmd = [
+            sys.executable,
+            "-m",
+            "accrue.robot.learner_service",
+            "--listen",
+            "127.0.0.1:0",
+            "--parent-pid",
+            str(os.getpid()),
+            "--orphan-after",
+            str(max(10.0, 4 * self.dead_after_s)),
+        ]
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=None, text=True)
         deadline = time.monotonic() + self.start_timeout_s
         line = ""
@@ -106,15 +122,19 @@ class LearnerLink:
             raise PeerDown(f"learner process did not start (exit {self.proc.poll()})")
         port = int(line.split("port")[1].split()[0])
         self.address = f"127.0.0.1:{port}"
-        threading.Thread(target=self.proc.stdout.read, daemon=True).start()   # drain its later output
-        self.report(f"learner process started (pid {self.proc.pid}, port {port})",
-                    {"event": "robot-learner-started", "pid": self.proc.pid, "port": port})
+        threading.Thread(target=self.proc.stdout.read, daemon=True).start()  # drain its later output
+        self.report(
+            f"learner process started (pid {self.proc.pid}, port {port})",
+            {"event": "robot-learner-started", "pid": self.proc.pid, "port": port},
+        )
 
     def _connect(self) -> None:
         if self.local and (self.proc is None or self.proc.poll() is not None):
             if self.proc is not None:
-                self.report(f"learner process exited (code {self.proc.returncode}); starting it again",
-                            {"event": "robot-learner-lost", "code": self.proc.returncode})
+                self.report(
+                    f"learner process exited (code {self.proc.returncode}); starting it again",
+                    {"event": "robot-learner-lost", "code": self.proc.returncode},
+                )
             self.ready = False
             if self.peer is not None:
                 self.peer.close()
@@ -127,7 +147,7 @@ class LearnerLink:
             header, blob = self.init_payload()
             self.peer.call("Init", dict(header, run_id=self.run_id), blob, timeout=120.0)
             sealed = self.sealed_episodes()
-            with self.lock:                        # everything sealed so far, then what is queued
+            with self.lock:  # everything sealed so far, then what is queued
                 queued = [q for q in self.queue if not any(q[0]["index"] == s[0]["index"] for s in sealed)]
                 self.queue = [(dict(h, run_id=self.run_id), b) for h, b in sealed] + queued
             self.version = -1
@@ -162,8 +182,10 @@ class LearnerLink:
                 gone = time.monotonic() - self.last_ok
                 if gone >= self.dead_after_s and not self.lost_reported:
                     self.lost_reported = True
-                    self.report(f"learner unreachable for {gone:.1f} s ({exc}); acting with weights "
-                                f"version {self.version}", {"event": "robot-learner-lost", "error": str(exc)})
+                    self.report(
+                        f"learner unreachable for {gone:.1f} s ({exc}); acting with weights version {self.version}",
+                        {"event": "robot-learner-lost", "error": str(exc)},
+                    )
                 time.sleep(min(self.heartbeat_s, 0.5))
                 continue
             self.stop.wait(self.heartbeat_s)

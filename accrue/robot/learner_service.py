@@ -13,6 +13,7 @@ when that actor dies or stops calling for `orphan_after_s`; started by hand it w
 
 RPCs (accrue.robot.transport): Hello, Init, Episode, Pull, Heartbeat, Shutdown.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -58,10 +59,10 @@ class LearnerService:
         self.run_id: str | None = None
         self.learner = None
         self.tmp = Path(tempfile.mkdtemp(prefix="accrue-learner-"))
-        self.episodes: dict[int, dict] = {}        # index -> transition arrays
-        self.dirty = False                         # episodes changed since the buffer was built
+        self.episodes: dict[int, dict] = {}  # index -> transition arrays
+        self.dirty = False  # episodes changed since the buffer was built
         self.updates = self.version = 0
-        self.snapshot: tuple[int, int, bool, bytes] | None = None   # version, updates, checkpoint, tar
+        self.snapshot: tuple[int, int, bool, bytes] | None = None  # version, updates, checkpoint, tar
         self.want_snapshot = threading.Event()
         self.last_call = time.monotonic()
         self.orphan_after_s = orphan_after_s
@@ -72,10 +73,18 @@ class LearnerService:
     def hello(self, h: dict, blob: bytes):
         self.last_call = time.monotonic()
         if h.get("protocol") != PROTOCOL:
-            raise RuntimeError(f"protocol mismatch: actor speaks {h.get('protocol')}, learner {PROTOCOL} "
-                               f"(accrue {accrue_version()}); run the same accrue version on both hosts")
-        return {"protocol": PROTOCOL, "accrue": accrue_version(), "run_id": self.run_id, "pid": os.getpid(),
-                "updates": self.updates, "episodes": sorted(self.episodes)}, b""
+            raise RuntimeError(
+                f"protocol mismatch: actor speaks {h.get('protocol')}, learner {PROTOCOL} "
+                f"(accrue {accrue_version()}); run the same accrue version on both hosts"
+            )
+        return {
+            "protocol": PROTOCOL,
+            "accrue": accrue_version(),
+            "run_id": self.run_id,
+            "pid": os.getpid(),
+            "updates": self.updates,
+            "episodes": sorted(self.episodes),
+        }, b""
 
     def init(self, h: dict, blob: bytes):
         import torch
@@ -116,7 +125,7 @@ class LearnerService:
 
     def pull(self, h: dict, blob: bytes):
         self.last_call = time.monotonic()
-        if h.get("fresh"):                        # the actor wants the learner as it is now (stage end)
+        if h.get("fresh"):  # the actor wants the learner as it is now (stage end)
             self.want_snapshot.set()
             deadline = time.monotonic() + float(h.get("wait_s", 10.0))
             while self.want_snapshot.is_set() and time.monotonic() < deadline:
@@ -128,8 +137,13 @@ class LearnerService:
 
     def heartbeat(self, h: dict, blob: bytes):
         self.last_call = time.monotonic()
-        return {"run_id": self.run_id, "updates": self.updates, "version": self.version,
-                "episodes": len(self.episodes), "busy": self.busy}, b""
+        return {
+            "run_id": self.run_id,
+            "updates": self.updates,
+            "version": self.version,
+            "episodes": len(self.episodes),
+            "busy": self.busy,
+        }, b""
 
     def shutdown(self, h: dict, blob: bytes):
         self.stop.set()
@@ -140,8 +154,9 @@ class LearnerService:
         """B^k = the warmup rows + every episode's rows, in episode order (a re-label rewrites them)."""
         from accrue.robot.episode import replay_from_episodes
 
-        self.buffer = replay_from_episodes(self.warm, [self.episodes[i] for i in sorted(self.episodes)],
-                                           int(self.info["task_index"]))
+        self.buffer = replay_from_episodes(
+            self.warm, [self.episodes[i] for i in sorted(self.episodes)], int(self.info["task_index"])
+        )
         self.rl_rows = len(self.buffer) - len(self.warm)
 
     def _snapshot(self, checkpoint: bool):
@@ -149,8 +164,9 @@ class LearnerService:
 
         d = Path(tempfile.mkdtemp(dir=self.tmp))
         save_learner(self.learner, d / "learner")
-        (d / "learner.json").write_text(json.dumps({"updates": self.updates, "version": self.version + 1,
-                                                    "episodes": sorted(self.episodes)}))
+        (d / "learner.json").write_text(
+            json.dumps({"updates": self.updates, "version": self.version + 1, "episodes": sorted(self.episodes)})
+        )
         self.version += 1
         self.snapshot = (self.version, self.updates, checkpoint, tar_dir(d))
 
@@ -178,8 +194,12 @@ class LearnerService:
                     self.busy = False
                 every, ck = int(self.info["publish_every"]), int(self.info["checkpoint_every"])
                 checkpoint = self.updates - last_ckpt >= ck
-                if self.updates - last_publish >= every or checkpoint or self.want_snapshot.is_set() \
-                        or self.snapshot is None:
+                if (
+                    self.updates - last_publish >= every
+                    or checkpoint
+                    or self.want_snapshot.is_set()
+                    or self.snapshot is None
+                ):
                     self._snapshot(checkpoint)
                     last_publish = self.updates
                     if checkpoint:
@@ -204,8 +224,14 @@ def main(argv: list[str] | None = None) -> int:
     torch.optim.AdamW([torch.nn.Parameter(torch.zeros(1))])
 
     service = LearnerService(args.orphan_after)
-    handlers = {"Hello": service.hello, "Init": service.init, "Episode": service.episode, "Pull": service.pull,
-                "Heartbeat": service.heartbeat, "Shutdown": service.shutdown}
+    handlers = {
+        "Hello": service.hello,
+        "Init": service.init,
+        "Episode": service.episode,
+        "Pull": service.pull,
+        "Heartbeat": service.heartbeat,
+        "Shutdown": service.shutdown,
+    }
     server, port = serve(handlers, args.listen)
     print(f"accrue learner listening on port {port} (pid {os.getpid()})", flush=True)
     trainer = threading.Thread(target=service.train_forever, daemon=True)
@@ -217,9 +243,16 @@ def main(argv: list[str] | None = None) -> int:
         if args.parent_pid and (os.getppid() != args.parent_pid or quiet):
             print("accrue learner: the actor that started it is gone; exiting", flush=True)
             break
-        if quiet != silent and service.run_id is not None:    # a standalone learner waits for its actor
-            print("accrue learner: " + (f"no call from the actor for {args.orphan_after:g} s; waiting for it"
-                                        if quiet else "the actor is back"), flush=True)
+        if quiet != silent and service.run_id is not None:  # a standalone learner waits for its actor
+            print(
+                "accrue learner: "
+                + (
+                    f"no call from the actor for {args.orphan_after:g} s; waiting for it"
+                    if quiet
+                    else "the actor is back"
+                ),
+                flush=True,
+            )
             silent = quiet
     server.stop(grace=0.5)
     return 0

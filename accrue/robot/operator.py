@@ -7,6 +7,7 @@ episode, so an audit finds every one).
     ScriptedOperator(name, ...)       for tests and unattended dry runs: labels what the simulated robot
                                       reports, with an optional delay and deliberate mistakes
 """
+
 from __future__ import annotations
 
 import datetime as _dt
@@ -25,8 +26,8 @@ def now_iso() -> str:
 @dataclass(frozen=True)
 class Label:
     success: bool
-    by: str              # the operator's name, or "system" for an episode a fault ended
-    at: str              # ISO time the label was given
+    by: str  # the operator's name, or "system" for an episode a fault ended
+    at: str  # ISO time the label was given
     note: str = ""
 
     def to_json(self) -> dict:
@@ -35,8 +36,8 @@ class Label:
 
 @dataclass
 class ResetAnswer:
-    go: bool                              # False: the operator aborted the session
-    relabel: Label | None = None          # a corrected label for the last episode, if the operator gave one
+    go: bool  # False: the operator aborted the session
+    relabel: Label | None = None  # a corrected label for the last episode, if the operator gave one
 
 
 class Operator:
@@ -65,13 +66,14 @@ class ScriptedOperator(Operator):
     """Labels from the simulated robot's own success (what a person would see), `delay_s` to answer, and
     a wrong label on the episodes listed in `mistakes`; those also in `corrects` are re-labelled at the
     next reset (as a person who notices the slip would)."""
+
     oracle: Callable[[], bool] | None = None
     reset_scene: Callable[[], None] | None = None
     name: str = "scripted"
     delay_s: float = 0.0
     mistakes: set[int] = field(default_factory=set)
     corrects: set[int] = field(default_factory=set)
-    abort_before: int | None = None       # abort the session before this episode index
+    abort_before: int | None = None  # abort the session before this episode index
     told: list[str] = field(default_factory=list)
     _pending: Label | None = None
 
@@ -88,13 +90,16 @@ class ScriptedOperator(Operator):
 
     def label(self, episode: int, summary: str) -> Label | None:
         if self.oracle is None:
-            raise AccrueError("the scripted operator needs a robot that reports its episode's success "
-                              "(the simulated robot accrue_sim does); use robot.operator: terminal")
+            raise AccrueError(
+                "the scripted operator needs a robot that reports its episode's success "
+                "(the simulated robot accrue_sim does); use robot.operator: terminal"
+            )
         time.sleep(self.delay_s)
         truth = bool(self.oracle())
         wrong = episode in self.mistakes
-        label = Label(success=truth != wrong, by=self.name, at=now_iso(),
-                      note="deliberate mistake (scripted)" if wrong else "")
+        label = Label(
+            success=truth != wrong, by=self.name, at=now_iso(), note="deliberate mistake (scripted)" if wrong else ""
+        )
         if wrong and episode in self.corrects:
             self._pending = Label(success=truth, by=self.name, at=now_iso(), note=f"corrects episode {episode}")
         return label
@@ -111,8 +116,10 @@ class TerminalOperator(Operator):
         from rich.console import Console
 
         if not sys.stdin.isatty():
-            raise AccrueError("robot.operator: terminal needs an interactive terminal (stdin is not a tty); "
-                              "use robot.operator: scripted for an unattended run on the simulated robot")
+            raise AccrueError(
+                "robot.operator: terminal needs an interactive terminal (stdin is not a tty); "
+                "use robot.operator: scripted for an unattended run on the simulated robot"
+            )
         import atexit
         import termios
         import tty
@@ -148,8 +155,9 @@ class TerminalOperator(Operator):
         self.console.print(f"[bold yellow]robot:[/] {line}")
 
     def wait_reset(self, episode: int, task: str, last: int | None) -> ResetAnswer:
-        self.console.print(f"[bold]episode {episode}[/] ({task}): reset the scene, then press [bold]r[/]  "
-                           f"({self.KEYS})")
+        self.console.print(
+            f"[bold]episode {episode}[/] ({task}): reset the scene, then press [bold]r[/]  ({self.KEYS})"
+        )
         relabel = None
         paused = False
         while True:

@@ -5,6 +5,7 @@ opaque blob (a tar of a saved learner, an npz of transitions). Every call has a 
 raises answers {"error": ...} instead of killing the server. The first call of a connection is `Hello`,
 which compares PROTOCOL (a mismatch is refused with both versions named).
 """
+
 from __future__ import annotations
 
 import io
@@ -47,7 +48,7 @@ def unpack(data: bytes) -> tuple[dict, bytes]:
     if len(data) < 4:
         raise AccrueError("learner transport: truncated message")
     (n,) = struct.unpack(">I", data[:4])
-    return json.loads(data[4:4 + n]), data[4 + n:]
+    return json.loads(data[4 : 4 + n]), data[4 + n :]
 
 
 def tar_dir(path: Path) -> bytes:
@@ -81,11 +82,13 @@ def serve(handlers: dict[str, Handler], address: str, workers: int = 8):
             except Exception as exc:  # noqa: BLE001 - a bad request must not kill the learner
                 return pack({"error": f"{type(exc).__name__}: {exc}"})
             return pack(out, out_blob)
+
         return grpc.unary_unary_rpc_method_handler(call)
 
     server = grpc.server(futures.ThreadPoolExecutor(max_workers=workers), options=_OPTIONS)
-    server.add_generic_rpc_handlers((grpc.method_handlers_generic_handler(
-        SERVICE, {name: wrap(fn) for name, fn in handlers.items()}),))
+    server.add_generic_rpc_handlers(
+        (grpc.method_handlers_generic_handler(SERVICE, {name: wrap(fn) for name, fn in handlers.items()}),)
+    )
     try:
         port = server.add_insecure_port(address)
     except RuntimeError:

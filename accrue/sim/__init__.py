@@ -43,6 +43,16 @@ def load_task_yaml(path):
 
 
 __all__ = [
-    "ACTION_DIM", "ACTION_NAMES", "STATE_DIM", "STATE_NAMES", "TaskSpec", "get_task", "list_tasks",
-    "make_vec_env", "make_expert", "expert_success_rate", "register_usd_task", "load_task_yaml",
+    "ACTION_DIM",
+    "ACTION_NAMES",
+    "STATE_DIM",
+    "STATE_NAMES",
+    "TaskSpec",
+    "get_task",
+    "list_tasks",
+    "make_vec_env",
+    "make_expert",
+    "expert_success_rate",
+    "register_usd_task",
+    "load_task_yaml",
 ]

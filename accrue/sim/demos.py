@@ -19,6 +19,7 @@ succeeded, and whether the requested count was reached.
 The dataset is built in a hidden sibling directory (`.<name>.partial-<pid>`) and renamed into
 place when complete; only a killed process (SIGKILL) can leave such a directory behind.
 """
+
 from __future__ import annotations
 
 import json
@@ -74,15 +75,15 @@ class DemoSummary:
     task_id: str
     instruction: str
     requested: int
-    episodes: int          # episodes written
+    episodes: int  # episodes written
     frames: int
-    attempts: int          # expert episodes run (written or not)
+    attempts: int  # expert episodes run (written or not)
     successes: int
     seed: int
     quality: float
     obs_mode: str
-    search: bool = True          # the expert searches when stuck (False: acts on the current observation only)
-    bias_known: float = 1.0      # fraction of the fixture's estimate bias the expert corrects
+    search: bool = True  # the expert searches when stuck (False: acts on the current observation only)
+    bias_known: float = 1.0  # fraction of the fixture's estimate bias the expert corrects
 
     @property
     def expert_success_rate(self) -> float:
@@ -105,8 +106,9 @@ def repo_id_for(task_id: str) -> str:
     return "accrue/" + task_id.replace("/", "_")
 
 
-def demo_features(state_names: list[str], image_shape: tuple[int, int, int] | None = None,
-                  use_video: bool = True) -> dict:
+def demo_features(
+    state_names: list[str], image_shape: tuple[int, int, int] | None = None, use_video: bool = True
+) -> dict:
     """lerobot feature spec for accrue demos. Shapes are tuples: lerobot compares them to ndarray shapes."""
     features: dict[str, dict[str, Any]] = {
         STATE_KEY: {"dtype": "float32", "shape": (len(state_names),), "names": list(state_names)},
@@ -168,9 +170,15 @@ class _Progress:
             from rich.console import Console
             from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-            self._bar = Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                                 TextColumn("{task.fields[note]}"), TimeElapsedColumn(),
-                                 console=Console(stderr=True), transient=False)
+            self._bar = Progress(
+                TextColumn("{task.description}"),
+                BarColumn(),
+                MofNCompleteColumn(),
+                TextColumn("{task.fields[note]}"),
+                TimeElapsedColumn(),
+                console=Console(stderr=True),
+                transient=False,
+            )
             self._task = self._bar.add_task(label, total=total, note="")
             self._bar.start()
 
@@ -190,8 +198,9 @@ class _Episode:
     success: bool
 
 
-def _expert_episodes(env: Any, expert: Any, obs: dict, instruction: str, max_attempts: int,
-                     still_needed: Callable[[], int]) -> Iterator[_Episode]:
+def _expert_episodes(
+    env: Any, expert: Any, obs: dict, instruction: str, max_attempts: int, still_needed: Callable[[], int]
+) -> Iterator[_Episode]:
     """Finished expert episodes from the vectorised env, in the order they end.
 
     An env that finishes starts another episode only while fewer episodes are running than
@@ -287,11 +296,17 @@ def write_demos(
     bar = _Progress(progress, episodes, f"demos {task_id}")
     attempts = successes = written = total_frames = 0
     try:
-        ds = LeRobotDataset.create(repo_id=repo_id_for(task_id), root=staging, fps=int(round(spec.control_hz)),
-                                   features=features, use_videos=any(f["dtype"] == "video" for f in features.values()),
-                                   video_backend="pyav")
+        ds = LeRobotDataset.create(
+            repo_id=repo_id_for(task_id),
+            root=staging,
+            fps=int(round(spec.control_hz)),
+            features=features,
+            use_videos=any(f["dtype"] == "video" for f in features.values()),
+            video_backend="pyav",
+        )
         try:
-            for ep in _expert_episodes(env, expert, obs, spec.instruction, max_attempts, lambda: episodes - written):
+            still_needed = lambda: episodes - written  # noqa: E731,B023 - reads the count as it grows
+            for ep in _expert_episodes(env, expert, obs, spec.instruction, max_attempts, still_needed):
                 attempts += 1
                 successes += int(ep.success)
                 if (ep.success or not only_successful) and written < episodes:
@@ -311,12 +326,24 @@ def write_demos(
         finally:
             ds.finalize()
         if written == 0:
-            raise AccrueError(f"the {task_id} expert (quality {quality}) succeeded in none of {attempts} episodes; "
-                              "nothing written")
-        summary = DemoSummary(root=out_dir, task_id=task_id, instruction=spec.instruction, requested=episodes,
-                              episodes=written, frames=total_frames, attempts=attempts, successes=successes,
-                              seed=seed, quality=float(quality), obs_mode=obs_mode, search=bool(search),
-                              bias_known=float(bias_known))
+            raise AccrueError(
+                f"the {task_id} expert (quality {quality}) succeeded in none of {attempts} episodes; nothing written"
+            )
+        summary = DemoSummary(
+            root=out_dir,
+            task_id=task_id,
+            instruction=spec.instruction,
+            requested=episodes,
+            episodes=written,
+            frames=total_frames,
+            attempts=attempts,
+            successes=successes,
+            seed=seed,
+            quality=float(quality),
+            obs_mode=obs_mode,
+            search=bool(search),
+            bias_known=float(bias_known),
+        )
         _write_json_atomic(staging / ACCRUE_META, _accrue_meta(summary, only_successful, list(sim.STATE_NAMES)))
         _publish(staging, out_dir)
     except BaseException:
@@ -335,7 +362,7 @@ def _remove_stale_staging(out_dir: Path) -> None:
     """Delete staging directories of earlier runs into `out_dir` whose process no longer exists."""
     prefix = f".{out_dir.name}.partial-"
     for path in out_dir.parent.glob(prefix + "*"):
-        pid = path.name[len(prefix):]
+        pid = path.name[len(prefix) :]
         if pid.isdigit() and (int(pid) == os.getpid() or not _process_alive(int(pid))):
             shutil.rmtree(path, ignore_errors=True)
 
@@ -358,8 +385,12 @@ def _publish(staging: Path, out_dir: Path) -> None:
 
 def _accrue_meta(summary: DemoSummary, only_successful: bool, state_names: list[str]) -> dict:
     meta = {k: v for k, v in asdict(summary).items() if k != "root"}
-    meta.update(format=ACCRUE_META_FORMAT, only_successful=only_successful,
-                expert_success_rate=summary.expert_success_rate, state_names=state_names)
+    meta.update(
+        format=ACCRUE_META_FORMAT,
+        only_successful=only_successful,
+        expert_success_rate=summary.expert_success_rate,
+        state_names=state_names,
+    )
     return meta
 
 
@@ -370,7 +401,9 @@ def _expect(features: dict, root: Path, key: str, dtype: str, shape: list[int], 
     if feat.get("dtype") != dtype:
         raise AccrueError(f"dataset {root}: feature '{key}' has dtype {feat.get('dtype')}, expected {dtype}")
     if list(feat.get("shape", [])) != shape:
-        raise AccrueError(f"dataset {root}: feature '{key}' has shape {list(feat.get('shape', []))}, expected {shape}{why}")
+        raise AccrueError(
+            f"dataset {root}: feature '{key}' has shape {list(feat.get('shape', []))}, expected {shape}{why}"
+        )
 
 
 def read_demo_info(root: Path | str, *, state_dim: int | None = None) -> DemoInfo:
@@ -400,7 +433,11 @@ def read_demo_info(root: Path | str, *, state_dim: int | None = None) -> DemoInf
     _expect(features, root, SUCCESS_KEY, "bool", [1])
     if IMAGE_KEY in features:
         image = features[IMAGE_KEY]
-        if image.get("dtype") not in ("video", "image") or len(image.get("shape", [])) != 3 or list(image["shape"])[2] != 3:
+        if (
+            image.get("dtype") not in ("video", "image")
+            or len(image.get("shape", [])) != 3
+            or list(image["shape"])[2] != 3
+        ):
             raise AccrueError(f"dataset {root}: feature '{IMAGE_KEY}' must be an RGB video or image (h, w, 3)")
     meta_path = root / ACCRUE_META
     if not meta_path.is_file():

@@ -28,8 +28,15 @@ def _wrap(a, period):
 
 
 class ScriptedExpert:
-    def __init__(self, task: TaskSpec, quality: float = 1.0, seed: int = 0, correction=None,
-                 search: bool = True, bias_known: float = 1.0):
+    def __init__(
+        self,
+        task: TaskSpec,
+        quality: float = 1.0,
+        seed: int = 0,
+        correction=None,
+        search: bool = True,
+        bias_known: float = 1.0,
+    ):
         self.task, self.quality, self.search = task, float(np.clip(quality, 0.0, 1.0)), bool(search)
         bx, by, byaw = task.estimate_bias
         # what a demonstrator who knows (the fraction bias_known of) this fixture adds to the estimate
@@ -49,8 +56,11 @@ class ScriptedExpert:
     def _new_episode(self, i: int) -> None:
         spread = 1.0 - self.quality
         ang = self.rng.uniform(0, 2 * np.pi)
-        self.aim[i] = [spread * 0.9 * MM * np.cos(ang), spread * 0.9 * MM * np.sin(ang),
-                       spread * self.rng.choice([-1, 1]) * 2.5 * DEG]
+        self.aim[i] = [
+            spread * 0.9 * MM * np.cos(ang),
+            spread * 0.9 * MM * np.sin(ang),
+            spread * self.rng.choice([-1, 1]) * 2.5 * DEG,
+        ]
         self.stuck[i], self.last_z[i], self.shift[i] = 0, np.inf, 0.0
 
     def act(self, state: np.ndarray) -> np.ndarray:
@@ -60,7 +70,7 @@ class ScriptedExpert:
         d = decode_state(state)
         for i in np.flatnonzero(d["time_frac"] <= 1e-9):
             self._new_episode(int(i))
-        if not self.search:   # no memory: never counts itself stuck, never spirals or shifts
+        if not self.search:  # no memory: never counts itself stuck, never spirals or shifts
             self.stuck[:], self.last_z[:], self.shift[:] = 0, np.inf, 0.0
         task = self.task
         goal_xy = d["est_pos"][:, :2] + self.correction[:2] + self.aim[:, :2]
@@ -120,8 +130,13 @@ def expert_success_rate(task_id: str, episodes: int, seed: int = 0, quality: flo
     return float(won.mean())
 
 
-def make_expert(task_id: str | TaskSpec, quality: float = 1.0, seed: int = 0, correction=None,
-                search: bool = True, bias_known: float = 1.0) -> ScriptedExpert:
+def make_expert(
+    task_id: str | TaskSpec,
+    quality: float = 1.0,
+    seed: int = 0,
+    correction=None,
+    search: bool = True,
+    bias_known: float = 1.0,
+) -> ScriptedExpert:
     task = get_task(task_id) if isinstance(task_id, str) else task_id
-    return ScriptedExpert(task, quality=quality, seed=seed, correction=correction, search=search,
-                          bias_known=bias_known)
+    return ScriptedExpert(task, quality=quality, seed=seed, correction=correction, search=search, bias_known=bias_known)

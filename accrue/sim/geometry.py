@@ -86,10 +86,16 @@ def hole_walls(hole: np.ndarray, depth: float, thickness: float, chamfer: float)
         b_ext = b + ext[j] * u
         c = min(chamfer, 0.9 * thickness, 0.9 * depth)
         pts = [
-            (*a_ext, -depth), (*b_ext, -depth), (*(a_ext + thickness * n), -depth), (*(b_ext + thickness * n), -depth),
-            (*a_ext, -c), (*b_ext, -c),
-            (*(a_ext + c * n), 0.0), (*(b_ext + c * n), 0.0),
-            (*(a_ext + thickness * n), 0.0), (*(b_ext + thickness * n), 0.0),
+            (*a_ext, -depth),
+            (*b_ext, -depth),
+            (*(a_ext + thickness * n), -depth),
+            (*(b_ext + thickness * n), -depth),
+            (*a_ext, -c),
+            (*b_ext, -c),
+            (*(a_ext + c * n), 0.0),
+            (*(b_ext + c * n), 0.0),
+            (*(a_ext + thickness * n), 0.0),
+            (*(b_ext + thickness * n), 0.0),
         ]
         pieces.append(np.array(pts, dtype=float))
     return pieces
@@ -101,4 +107,3 @@ def check_reflex_clearance(hole: np.ndarray, normals: np.ndarray, reflex: np.nda
         outside_angle = np.pi - np.arccos(np.clip(np.dot(normals[i - 1], normals[i]), -1.0, 1.0))
         if outside_angle < np.pi / 2 - 1e-6:
             raise ValueError(f"hole vertex {i} has an outside angle of {np.degrees(outside_angle):.0f} deg (< 90)")
-

@@ -12,8 +12,14 @@ from accrue.sim.vec_env import VecAssemblyEnv
 class AssemblyEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 20}
 
-    def __init__(self, task_id: str = "nist/round_peg", obs_mode: str = "state", image_size: int = 64,
-                 render_mode: str | None = None, seed: int = 0):
+    def __init__(
+        self,
+        task_id: str = "nist/round_peg",
+        obs_mode: str = "state",
+        image_size: int = 64,
+        render_mode: str | None = None,
+        seed: int = 0,
+    ):
         self._env = VecAssemblyEnv(task_id, 1, seed=seed, obs_mode=obs_mode, image_size=image_size, nthread=1)
         self.task, self.render_mode = self._env.task, render_mode
         self.metadata = {**self.metadata, "render_fps": self.task.control_hz}
@@ -39,8 +45,7 @@ class AssemblyEnv(gym.Env):
     def step(self, action):
         res = self._env.step(np.asarray(action, dtype=np.float32)[None])
         info = {"success": bool(res.success[0])}
-        return (self._unbatch(res.obs), float(res.rewards[0, 0]), bool(res.terminated[0]),
-                bool(res.truncated[0]), info)
+        return (self._unbatch(res.obs), float(res.rewards[0, 0]), bool(res.terminated[0]), bool(res.truncated[0]), info)
 
     def render(self):
         return self._env.render()[0]

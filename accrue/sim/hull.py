@@ -18,8 +18,8 @@ def convex_hull(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     model = spec.compile()
     start, count = model.mesh_vertadr[0], model.mesh_vertnum[0]
     fstart, fcount = model.mesh_faceadr[0], model.mesh_facenum[0]
-    verts = model.mesh_vert[start:start + count].astype(float)
-    faces = model.mesh_face[fstart:fstart + fcount].astype(np.int64)
+    verts = model.mesh_vert[start : start + count].astype(float)
+    faces = model.mesh_face[fstart : fstart + fcount].astype(np.int64)
     # undo the compiler's frame change (mesh_pos/mesh_quat) so vertices are in the input frame
     rot = np.zeros(9)
     mujoco.mju_quat2Mat(rot, model.mesh_quat[0])

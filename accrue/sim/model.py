@@ -40,9 +40,18 @@ def _add_pieces(spec, body, pieces, prefix: str, *, collide: tuple[int, int], rg
     for i, verts in enumerate(pieces):
         name = f"{prefix}_{i:03d}"
         spec.add_mesh(name=name, uservert=np.asarray(verts, dtype=float).ravel().tolist())
-        body.add_geom(name=name, type=mujoco.mjtGeom.mjGEOM_MESH, meshname=name, contype=collide[0],
-                      conaffinity=collide[1], rgba=rgba, group=group, density=0.0,
-                      solref=CONTACT_SOLREF, solimp=CONTACT_SOLIMP)
+        body.add_geom(
+            name=name,
+            type=mujoco.mjtGeom.mjGEOM_MESH,
+            meshname=name,
+            contype=collide[0],
+            conaffinity=collide[1],
+            rgba=rgba,
+            group=group,
+            density=0.0,
+            solref=CONTACT_SOLREF,
+            solimp=CONTACT_SOLIMP,
+        )
 
 
 def build_spec(task: TaskSpec):
@@ -67,27 +76,37 @@ def build_spec(task: TaskSpec):
     world = spec.worldbody
     world.add_light(pos=[0.0, -0.05, 0.3], dir=[0.0, 0.15, -1.0], diffuse=[0.8, 0.8, 0.8])
     # the table the fixture stands on: a plug pushed beside the socket lands on it
-    world.add_geom(name="socket_table", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0.1, 0.1, 0.01],
-                   pos=[0, 0, -task.depth - 0.004], rgba=[0.35, 0.37, 0.4, 1], contype=0, conaffinity=1,
-                   solref=CONTACT_SOLREF, solimp=CONTACT_SOLIMP)
+    world.add_geom(
+        name="socket_table",
+        type=mujoco.mjtGeom.mjGEOM_PLANE,
+        size=[0.1, 0.1, 0.01],
+        pos=[0, 0, -task.depth - 0.004],
+        rgba=[0.35, 0.37, 0.4, 1],
+        contype=0,
+        conaffinity=1,
+        solref=CONTACT_SOLREF,
+        solimp=CONTACT_SOLIMP,
+    )
     _add_pieces(spec, world, socket, "socket", collide=(0, 1), rgba=[0.55, 0.6, 0.7, 1], group=0)
     world.add_camera(name="front", pos=[0.0, -0.09, 0.07], xyaxes=[1, 0, 0, 0, 0.6, 0.8], fovy=45)
 
-    ee = world.add_body(name="ee", gravcomp=1.0, mass=GRIPPER_MASS, inertia=[2e-4, 2e-4, 2e-4],
-                        explicitinertial=True)
+    ee = world.add_body(name="ee", gravcomp=1.0, mass=GRIPPER_MASS, inertia=[2e-4, 2e-4, 2e-4], explicitinertial=True)
     for axis, name in zip(np.eye(3), JOINTS[:3]):
         ee.add_joint(name=name, type=mujoco.mjtJoint.mjJNT_SLIDE, axis=axis.tolist())
     for axis, name in zip(np.eye(3), JOINTS[3:]):
         ee.add_joint(name=name, type=mujoco.mjtJoint.mjJNT_HINGE, axis=axis.tolist(), armature=HINGE_ARMATURE)
     _add_pieces(spec, ee, gripper, "gripper", collide=(0, 0), rgba=[0.2, 0.2, 0.22, 1], group=1)
-    held = ee.add_body(name="plug", gravcomp=1.0, mass=task.plug_mass,
-                       inertia=[task.plug_mass * 1e-4] * 3, explicitinertial=True)
+    held = ee.add_body(
+        name="plug", gravcomp=1.0, mass=task.plug_mass, inertia=[task.plug_mass * 1e-4] * 3, explicitinertial=True
+    )
     _add_pieces(spec, held, plug, "plug", collide=(1, 0), rgba=[0.85, 0.55, 0.2, 1], group=0)
     held.add_site(name="wrist", pos=[0.0, 0.0, top])
-    spec.add_sensor(name="wrist_force", type=mujoco.mjtSensor.mjSENS_FORCE, objtype=mujoco.mjtObj.mjOBJ_SITE,
-                    objname="wrist")
-    spec.add_sensor(name="wrist_torque", type=mujoco.mjtSensor.mjSENS_TORQUE, objtype=mujoco.mjtObj.mjOBJ_SITE,
-                    objname="wrist")
+    spec.add_sensor(
+        name="wrist_force", type=mujoco.mjtSensor.mjSENS_FORCE, objtype=mujoco.mjtObj.mjOBJ_SITE, objname="wrist"
+    )
+    spec.add_sensor(
+        name="wrist_torque", type=mujoco.mjtSensor.mjSENS_TORQUE, objtype=mujoco.mjtObj.mjOBJ_SITE, objname="wrist"
+    )
 
     kv_pos, kv_rot = damping_for(KP_POS, KP_ROT, task.plug_mass)
     for i, name in enumerate(JOINTS):

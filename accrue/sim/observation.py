@@ -9,21 +9,38 @@ from __future__ import annotations
 import numpy as np
 
 STATE_NAMES = (
-    "ee_x_cm", "ee_y_cm", "ee_z_cm",  # plug tip (bottom centre) position, robot frame, cm
-    "ee_roll_x10", "ee_pitch_x10",  # tilt, rad x 10
-    "ee_yaw_sin", "ee_yaw_cos",  # yaw, robot frame
-    "ee_vx", "ee_vy", "ee_vz",  # linear velocity, m/s x 10
-    "ee_wx", "ee_wy", "ee_wz",  # angular velocity, rad/s
-    "wrist_fx", "wrist_fy", "wrist_fz",  # wrist force in the wrist frame, N / 10
-    "wrist_tx", "wrist_ty", "wrist_tz",  # wrist torque in the wrist frame, N m
-    "socket_est_x_cm", "socket_est_y_cm", "socket_est_z_cm",  # noisy socket-top estimate, robot frame, cm
-    "socket_est_yaw_sin", "socket_est_yaw_cos",  # noisy socket yaw estimate
+    "ee_x_cm",
+    "ee_y_cm",
+    "ee_z_cm",  # plug tip (bottom centre) position, robot frame, cm
+    "ee_roll_x10",
+    "ee_pitch_x10",  # tilt, rad x 10
+    "ee_yaw_sin",
+    "ee_yaw_cos",  # yaw, robot frame
+    "ee_vx",
+    "ee_vy",
+    "ee_vz",  # linear velocity, m/s x 10
+    "ee_wx",
+    "ee_wy",
+    "ee_wz",  # angular velocity, rad/s
+    "wrist_fx",
+    "wrist_fy",
+    "wrist_fz",  # wrist force in the wrist frame, N / 10
+    "wrist_tx",
+    "wrist_ty",
+    "wrist_tz",  # wrist torque in the wrist frame, N m
+    "socket_est_x_cm",
+    "socket_est_y_cm",
+    "socket_est_z_cm",  # noisy socket-top estimate, robot frame, cm
+    "socket_est_yaw_sin",
+    "socket_est_yaw_cos",  # noisy socket yaw estimate
     "time_frac",  # step / max_steps
     # the socket estimate relative to the plug tip (estimate - tip, robot frame): redundant with the
     # columns above, but it is the quantity a controller servos on, and a policy imitating from a few
     # demonstrations generalises from it far better than from two absolute positions (20 demos, MLP:
     # 0.06 -> 0.73 success on nist/rect_peg)
-    "socket_rel_x_mm", "socket_rel_y_mm", "socket_rel_z_mm",
+    "socket_rel_x_mm",
+    "socket_rel_y_mm",
+    "socket_rel_z_mm",
     "socket_rel_yaw_x10",  # estimate yaw - plug yaw, wrapped to (-pi, pi], rad x 10
 )
 STATE_DIM = len(STATE_NAMES)
@@ -49,7 +66,7 @@ def rotate_xy(xy: np.ndarray, yaw: np.ndarray) -> np.ndarray:
 def decode_state(state: np.ndarray) -> dict[str, np.ndarray]:
     """The state back in SI units (robot frame), for experts and diagnostics."""
     s = np.asarray(state, dtype=np.float64)
-    sl = lambda a, b: s[:, IDX[a]:IDX[b] + 1]  # noqa: E731
+    sl = lambda a, b: s[:, IDX[a] : IDX[b] + 1]  # noqa: E731
     return {
         "pos": sl("ee_x_cm", "ee_z_cm") / POS_SCALE,
         "tilt": sl("ee_roll_x10", "ee_pitch_x10") / TILT_SCALE,

@@ -26,8 +26,9 @@ class ShapeDef:
 
 def _cross() -> ShapeDef:
     a, b = 2.5 * MM, 8.0 * MM
-    outline = np.array([[b, -a], [b, a], [a, a], [a, b], [-a, b], [-a, a], [-b, a], [-b, -a],
-                        [-a, -a], [-a, -b], [a, -b], [a, -a]])
+    outline = np.array(
+        [[b, -a], [b, a], [a, a], [a, b], [-a, b], [-a, a], [-b, a], [-b, -a], [-a, -a], [-a, -b], [a, -b], [a, -a]]
+    )
     return ShapeDef((outline,), (g.rect(-b, -a, b, a), g.rect(-a, -b, a, b)))
 
 
@@ -123,9 +124,16 @@ def gripper_pieces(extent: float, length: float) -> list:
     """Palm above the plug and two fingers clamping its upper end (object-specific gripper)."""
     half = extent + 1.5 * MM
     palm = g.prism(g.rect(-half, -6 * MM, half, 6 * MM), length, length + 8 * MM)
-    fingers = [g.prism(g.rect(s * extent, -5 * MM, s * (extent + 3 * MM), 5 * MM) if s > 0 else
-                       g.rect(s * (extent + 3 * MM), -5 * MM, s * extent, 5 * MM), length - 10 * MM, length)
-               for s in (1, -1)]
+    fingers = [
+        g.prism(
+            g.rect(s * extent, -5 * MM, s * (extent + 3 * MM), 5 * MM)
+            if s > 0
+            else g.rect(s * (extent + 3 * MM), -5 * MM, s * extent, 5 * MM),
+            length - 10 * MM,
+            length,
+        )
+        for s in (1, -1)
+    ]
     return [palm, *fingers]
 
 
@@ -152,13 +160,22 @@ def gear_parts(clearance: float, depth: float, chamfer: float, thickness: float)
     # bore walls: built like a socket hole, then flipped so the chamfer faces the gear's bottom
     rings = [p * [1, 1, -1] for p in g.hole_walls(bore, thickness, hub_r - shaft_r, chamfer)]
     teeth = [g.prism(t, 0.0, thickness) for t in _gear_teeth(np.pi / GEAR_TEETH, hub_r, tip_r, half_w)]
-    shaft = [g.prism(shaft_poly, -depth - 4 * MM, -chamfer),
-             np.vstack([g.prism(shaft_poly, -chamfer, -chamfer)[:8],
-                        g.prism(shaft_poly * (shaft_r - chamfer) / shaft_r, 0.0, 0.0)[:8]])]
+    shaft = [
+        g.prism(shaft_poly, -depth - 4 * MM, -chamfer),
+        np.vstack(
+            [
+                g.prism(shaft_poly, -chamfer, -chamfer)[:8],
+                g.prism(shaft_poly * (shaft_r - chamfer) / shaft_r, 0.0, 0.0)[:8],
+            ]
+        ),
+    ]
     # the gear comes to rest on a collar around the shaft; a plate carries the neighbour gear
     collar = g.prism(g.regular_polygon(8, 5.0 * MM, phase=np.pi / 8), -depth - 4 * MM, -depth)
-    base = g.prism(g.rect(GEAR_CENTRE_DISTANCE - 7 * MM, -12 * MM, GEAR_CENTRE_DISTANCE + 12 * MM, 12 * MM),
-                   -depth - 4 * MM, -depth)
+    base = g.prism(
+        g.rect(GEAR_CENTRE_DISTANCE - 7 * MM, -12 * MM, GEAR_CENTRE_DISTANCE + 12 * MM, 12 * MM),
+        -depth - 4 * MM,
+        -depth,
+    )
     neighbour_z = (-depth, -depth + thickness)
     ncentre = np.array([GEAR_CENTRE_DISTANCE, 0.0])
     neighbour = [g.prism(g.regular_polygon(16, hub_r) + ncentre, *neighbour_z)]

@@ -79,9 +79,15 @@ _REGISTRY: dict[str, TaskSpec] = {}
 
 def _builtin(name: str, family: str, instruction: str, **kw) -> TaskSpec:
     folder = ASSET_DIR / family / name
-    return TaskSpec(task_id=f"{family}/{name}", family=family, instruction=instruction,
-                    plug_usd=folder / "plug.usda", socket_usd=folder / "socket.usda",
-                    gripper_usd=folder / "gripper.usda", **kw)
+    return TaskSpec(
+        task_id=f"{family}/{name}",
+        family=family,
+        instruction=instruction,
+        plug_usd=folder / "plug.usda",
+        socket_usd=folder / "socket.usda",
+        gripper_usd=folder / "gripper.usda",
+        **kw,
+    )
 
 
 # Geometry parameters the USD generator bakes in (scripts/make_parts.py reads this table).
@@ -105,14 +111,16 @@ def _builtin_specs() -> list[TaskSpec]:
     def spec(name, instruction, symmetry, bias, **kw):
         family, _shape, clearance, depth, _chamfer, _length = PART_TABLE[name]
         b = (bias[0] * MM, bias[1] * MM, bias[2] * DEG)
-        return _builtin(name, family, instruction, depth=depth, clearance=clearance,
-                        yaw_symmetry=symmetry, estimate_bias=b, **kw)
+        return _builtin(
+            name, family, instruction, depth=depth, clearance=clearance, yaw_symmetry=symmetry, estimate_bias=b, **kw
+        )
 
     return [
         spec("rect_peg", "insert the rectangular peg into its hole", 2, (1.2, -0.6, 2.0)),
         spec("round_peg", "insert the round peg into its hole", 0, (-1.0, 1.0, 0.0)),
-        spec("gear", "slide the gear onto its shaft, meshing with the neighbour gear", 8, (0.6, 1.2, -3.0),
-             max_steps=90),
+        spec(
+            "gear", "slide the gear onto its shaft, meshing with the neighbour gear", 8, (0.6, 1.2, -3.0), max_steps=90
+        ),
         spec("cross", "insert the cross plug into its socket", 4, (1.4, 0.4, -2.5)),
         spec("star", "insert the star plug into its socket", 5, (-1.2, -0.8, 2.5)),
         spec("hexagon", "insert the hexagonal plug into its socket", 6, (0.3, 1.5, 2.0)),

@@ -48,7 +48,7 @@ def write_part(path: Path, pieces: list[np.ndarray], name: str = "Part") -> None
 def _triangulate(counts: np.ndarray, indices: np.ndarray) -> np.ndarray:
     tris, start = [], 0
     for c in counts:
-        face = indices[start:start + c]
+        face = indices[start : start + c]
         tris += [(face[0], face[k], face[k + 1]) for k in range(1, c - 1)]
         start += c
     return np.asarray(tris, dtype=np.int64).reshape(-1, 3)
@@ -94,8 +94,11 @@ def read_part(path: Path, *, decompose_threshold: float = 0.04) -> list[np.ndarr
         if not prim.IsA(UsdGeom.Mesh):
             continue
         mesh = UsdGeom.Mesh(prim)
-        pts, counts, idx = (mesh.GetPointsAttr().Get(), mesh.GetFaceVertexCountsAttr().Get(),
-                            mesh.GetFaceVertexIndicesAttr().Get())
+        pts, counts, idx = (
+            mesh.GetPointsAttr().Get(),
+            mesh.GetFaceVertexCountsAttr().Get(),
+            mesh.GetFaceVertexIndicesAttr().Get(),
+        )
         if pts is None or len(pts) < 4:
             continue
         # row-vector convention: p_world = [p, 1] @ M

@@ -17,9 +17,19 @@ from accrue.sim.usd_parts import read_part
 _FIELDS = {f.name for f in dataclasses.fields(TaskSpec)}
 
 
-def register_usd_task(task_id: str, plug_usd: str | Path, socket_usd: str | Path, *, depth: float,
-                      gripper_usd: str | Path | None = None, yaw_symmetry: int = 1, clearance: float = 0.0,
-                      instruction: str | None = None, replace: bool = False, **overrides) -> TaskSpec:
+def register_usd_task(
+    task_id: str,
+    plug_usd: str | Path,
+    socket_usd: str | Path,
+    *,
+    depth: float,
+    gripper_usd: str | Path | None = None,
+    yaw_symmetry: int = 1,
+    clearance: float = 0.0,
+    instruction: str | None = None,
+    replace: bool = False,
+    **overrides,
+) -> TaskSpec:
     """Register (and return) a task whose geometry comes from the given USD files (depth in metres)."""
     if not isinstance(task_id, str) or task_id.count("/") != 1 or not all(task_id.split("/")):
         raise AccrueError(f"task id must look like 'family/name', got {task_id!r}")
@@ -32,10 +42,18 @@ def register_usd_task(task_id: str, plug_usd: str | Path, socket_usd: str | Path
     for p in paths:  # fail now, with the file named, rather than at the first reset
         read_part(p)
     family, name = task_id.split("/")
-    spec = TaskSpec(task_id=task_id, family=family, instruction=instruction or f"insert the {name} plug",
-                    plug_usd=paths[0].resolve(), socket_usd=paths[1].resolve(),
-                    gripper_usd=paths[2].resolve() if gripper_usd else None, depth=float(depth),
-                    clearance=float(clearance), yaw_symmetry=int(yaw_symmetry), **overrides)
+    spec = TaskSpec(
+        task_id=task_id,
+        family=family,
+        instruction=instruction or f"insert the {name} plug",
+        plug_usd=paths[0].resolve(),
+        socket_usd=paths[1].resolve(),
+        gripper_usd=paths[2].resolve() if gripper_usd else None,
+        depth=float(depth),
+        clearance=float(clearance),
+        yaw_symmetry=int(yaw_symmetry),
+        **overrides,
+    )
     from accrue.sim.model import build_model
 
     build_model(spec)  # compile once so geometry MuJoCo rejects fails at registration, with the task named
@@ -65,5 +83,11 @@ def load_task_yaml(path: str | Path) -> TaskSpec:
         raise AccrueError(f"task file {path} lacks field {exc.args[0]!r}") from None
     gripper = doc.pop("gripper", None)
     base = path.parent
-    return register_usd_task(task_id, base / plug, base / socket, depth=float(depth_mm) * MM,
-                             gripper_usd=base / gripper if gripper else None, **doc)
+    return register_usd_task(
+        task_id,
+        base / plug,
+        base / socket,
+        depth=float(depth_mm) * MM,
+        gripper_usd=base / gripper if gripper else None,
+        **doc,
+    )

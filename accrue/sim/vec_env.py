@@ -15,9 +15,18 @@ import numpy as np
 
 from accrue.errors import AccrueError
 from accrue.sim.model import KP_POS, KP_ROT, build_model, damping_for, socket_geom_ids
-from accrue.sim.observation import (ACTION_DIM, FORCE_SCALE, POS_SCALE, REL_POS_SCALE, STATE_DIM, TILT_SCALE,
-                                    TORQUE_SCALE, VEL_SCALE, rotate_xy)
-from accrue.sim.tasks import MM, DEG, TaskSpec, get_task
+from accrue.sim.observation import (
+    ACTION_DIM,
+    FORCE_SCALE,
+    POS_SCALE,
+    REL_POS_SCALE,
+    STATE_DIM,
+    TILT_SCALE,
+    TORQUE_SCALE,
+    VEL_SCALE,
+    rotate_xy,
+)
+from accrue.sim.tasks import DEG, MM, TaskSpec, get_task
 
 TARGET_LEAD_POS = 4 * MM  # the position target never leads the plug by more (bounds the push)
 TARGET_LEAD_ROT = 6 * DEG
@@ -62,8 +71,15 @@ def is_success(task: TaskSpec, qpos: np.ndarray) -> np.ndarray:
 
 
 class VecAssemblyEnv:
-    def __init__(self, task: TaskSpec | str, num_envs: int, seed: int = 0, obs_mode: str = "state",
-                 image_size: int = 64, nthread: int | None = None):
+    def __init__(
+        self,
+        task: TaskSpec | str,
+        num_envs: int,
+        seed: int = 0,
+        obs_mode: str = "state",
+        image_size: int = 64,
+        nthread: int | None = None,
+    ):
         from mujoco import batch
 
         self.task = get_task(task) if isinstance(task, str) else task
@@ -117,8 +133,14 @@ class VecAssemblyEnv:
         err = [*rng.normal(0, r.estimate_xy, 2), rng.normal(0, r.estimate_xy / 2), rng.normal(0, r.estimate_yaw)]
         bias = np.array([task.estimate_bias[0], task.estimate_bias[1], 0.0, task.estimate_bias[2]])
         self.estimate[i] = np.array([*self.socket_pose[i, :2], 0.0, self.socket_pose[i, 2]]) + bias + err
-        q0 = np.array([*rng.uniform(-r.init_xy, r.init_xy, 2), rng.uniform(*r.init_z),
-                       *rng.uniform(-r.init_tilt, r.init_tilt, 2), rng.uniform(-r.init_yaw, r.init_yaw)])
+        q0 = np.array(
+            [
+                *rng.uniform(-r.init_xy, r.init_xy, 2),
+                rng.uniform(*r.init_z),
+                *rng.uniform(-r.init_tilt, r.init_tilt, 2),
+                rng.uniform(-r.init_yaw, r.init_yaw),
+            ]
+        )
         self._qpos[i] = q0
         self._qvel[i] = 0.0
         self.target[i] = q0
@@ -160,14 +182,21 @@ class VecAssemblyEnv:
             late = ~won & (self.t[ids] >= self.task.max_steps)
             # the paper's rule: the final three steps of a successful episode carry reward 1
             for i in ids[won]:
-                rewards[i, max(0, h - 2):h + 1] = 1.0
+                rewards[i, max(0, h - 2) : h + 1] = 1.0
             success[ids[won]] = True
             truncated[ids[late]] = True
             active[ids[won | late]] = False
             self.done[ids[won | late]] = True
         discounts = gamma ** np.arange(horizon)
-        return StepResult(obs=self._observe(), reward=rewards @ discounts, rewards=rewards,
-                          terminated=success.copy(), truncated=truncated, success=success, steps=steps)
+        return StepResult(
+            obs=self._observe(),
+            reward=rewards @ discounts,
+            rewards=rewards,
+            terminated=success.copy(),
+            truncated=truncated,
+            success=success,
+            steps=steps,
+        )
 
     def _apply_action(self, ids: np.ndarray, act: np.ndarray) -> None:
         """Robot-frame deltas -> socket-frame joint targets, kept within a lead of the current pose."""
@@ -223,8 +252,11 @@ class VecAssemblyEnv:
 
         if self._renderer is None:
             self._renderer = mujoco.Renderer(self.model, self.image_size, self.image_size)
-            for flag in (mujoco.mjtRndFlag.mjRND_SHADOW, mujoco.mjtRndFlag.mjRND_REFLECTION,
-                         mujoco.mjtRndFlag.mjRND_SKYBOX):  # a third less software-GL time at 64 px
+            for flag in (
+                mujoco.mjtRndFlag.mjRND_SHADOW,
+                mujoco.mjtRndFlag.mjRND_REFLECTION,
+                mujoco.mjtRndFlag.mjRND_SKYBOX,
+            ):  # a third less software-GL time at 64 px
                 self._renderer.scene.flags[flag] = 0
         frames = np.empty((self.num_envs, self.image_size, self.image_size, 3), dtype=np.uint8)
         for i in range(self.num_envs):
@@ -244,6 +276,12 @@ class VecAssemblyEnv:
             self._renderer = None
 
 
-def make_vec_env(task_id: str, num_envs: int = 1, seed: int = 0, obs_mode: str = "state",
-                 image_size: int = 64, nthread: int | None = None) -> VecAssemblyEnv:
+def make_vec_env(
+    task_id: str,
+    num_envs: int = 1,
+    seed: int = 0,
+    obs_mode: str = "state",
+    image_size: int = 64,
+    nthread: int | None = None,
+) -> VecAssemblyEnv:
     return VecAssemblyEnv(task_id, num_envs, seed=seed, obs_mode=obs_mode, image_size=image_size, nthread=nthread)

@@ -5,6 +5,7 @@
 Returns summary.summarize(...)'s dict plus "files" (name -> path written, or None when there was
 nothing to draw) and "out_dir". A run with nothing committed raises StageError (one line).
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -16,8 +17,13 @@ from stages.report.recording import write_recording
 from stages.report.summary import summarize
 from stages.workflow import Workflow
 
-FILES = {"curves": "curves.png", "success_matrix": "success_matrix.png", "base_vs_rl": "base_vs_rl.png",
-         "recording": "report.rrd", "summary": "report.json"}
+FILES = {
+    "curves": "curves.png",
+    "success_matrix": "success_matrix.png",
+    "base_vs_rl": "base_vs_rl.png",
+    "recording": "report.rrd",
+    "summary": "report.json",
+}
 
 
 def default_out_dir(wf: Workflow) -> Path:
@@ -32,7 +38,7 @@ def write_report(store: Store, wf: Workflow, out_dir: Path | None = None) -> dic
     out = Path(out_dir) if out_dir is not None else default_out_dir(wf)
     out.mkdir(parents=True, exist_ok=True)
     base_vs_rl = plot_base_vs_rl(run, summary, out / FILES["base_vs_rl"])
-    if base_vs_rl is None:       # a stale figure from an earlier report would contradict this one
+    if base_vs_rl is None:  # a stale figure from an earlier report would contradict this one
         (out / FILES["base_vs_rl"]).unlink(missing_ok=True)
     files = {
         "curves": plot_curves(run, summary, out / FILES["curves"]),

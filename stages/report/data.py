@@ -8,6 +8,7 @@
 Every file is read through the store (hashes checked) and its fields are checked against the
 workflow, so a damaged or mismatched record is a one-line error naming the ref and the field.
 """
+
 from __future__ import annotations
 
 import json
@@ -31,18 +32,20 @@ SOURCES = {TRAIN: ("curve", train_step.CURVE_FILE), EVALUATE: ("eval", evaluate_
 @dataclass(frozen=True)
 class StageCurves:
     """Stage k's learning curves: success of tasks 1..k at each grid point (env steps of stage k)."""
+
     stage: int
     task_ids: list[str]
     grid: list[int]
     success: dict[str, list[float]]
     episodes_per_point: int
-    record: str                  # the committed train step record
-    artifact: str                # its `curve` output
+    record: str  # the committed train step record
+    artifact: str  # its `curve` output
 
 
 @dataclass(frozen=True)
 class StageEval:
     """Stage k's deployment evaluation on tasks 1..k: π_base^k alone and π_base^k + RL actor θ^k."""
+
     stage: int
     task_ids: list[str]
     success: dict[str, float]
@@ -62,9 +65,9 @@ class Missing:
 @dataclass
 class RunData:
     workflow: Workflow
-    curves: list[StageCurves] = field(default_factory=list)   # stages 1..m, contiguous from 1
+    curves: list[StageCurves] = field(default_factory=list)  # stages 1..m, contiguous from 1
     evals: dict[int, StageEval] = field(default_factory=dict)  # stage -> evaluation (where committed)
-    missing: list[Missing] = field(default_factory=list)       # every (stage, step) not committed
+    missing: list[Missing] = field(default_factory=list)  # every (stage, step) not committed
 
     @property
     def stages_done(self) -> int:
@@ -91,8 +94,10 @@ def read_step_file(store: Store, ref: str, step: str) -> tuple[dict, str, str] |
         raise StoreError(f"ref {ref} points at {record_id[:12]}, which is not a step record")
     outputs = record.get("outputs") or {}
     if role not in outputs:
-        raise StageError(f"{ref}: step record {record_id[:12]} has no output {role!r} "
-                         f"(it has: {', '.join(sorted(outputs)) or 'none'})")
+        raise StageError(
+            f"{ref}: step record {record_id[:12]} has no output {role!r} "
+            f"(it has: {', '.join(sorted(outputs)) or 'none'})"
+        )
     artifact_id = outputs[role]
     return _read_json_in_artifact(store, artifact_id, filename, ref), record_id, artifact_id
 
@@ -130,8 +135,11 @@ def _count(value, where: str) -> int:
 
 def _grid(value, where: str) -> list[int]:
     """Increasing env-step counts from 0; integral floats (e.g. 500.0) are taken as ints."""
-    ok = isinstance(value, list) and bool(value) and all(
-        not isinstance(g, bool) and isinstance(g, (int, float)) and float(g).is_integer() for g in value)
+    ok = (
+        isinstance(value, list)
+        and bool(value)
+        and all(not isinstance(g, bool) and isinstance(g, (int, float)) and float(g).is_integer() for g in value)
+    )
     grid = [int(g) for g in value] if ok else []
     if not ok or grid[0] != 0 or any(b <= a for a, b in zip(grid, grid[1:])):
         raise StageError(f"{where}: expected increasing env-step counts starting at 0 (got {value!r})")
@@ -143,8 +151,9 @@ def _check_header(data: dict, k: int, wf: Workflow, where: str) -> list[str]:
         raise StageError(f"{where}: stage: expected {k} (got {data.get('stage')!r})")
     expected = wf.tasks[:k]
     if data.get("task_ids") != expected:
-        raise StageError(f"{where}: task_ids: expected the workflow's tasks 1..{k} {expected} "
-                         f"(got {data.get('task_ids')!r})")
+        raise StageError(
+            f"{where}: task_ids: expected the workflow's tasks 1..{k} {expected} (got {data.get('task_ids')!r})"
+        )
     return list(expected)
 
 
@@ -166,8 +175,10 @@ def parse_curves(data: dict, k: int, wf: Workflow, where: str, record: str, arti
     for t in tasks:
         curve = rates[t]
         if not isinstance(curve, list) or len(curve) != len(grid):
-            raise StageError(f"{where}: success[{t}]: expected {len(grid)} values, one per grid point "
-                             f"(got {len(curve) if isinstance(curve, list) else type(curve).__name__})")
+            raise StageError(
+                f"{where}: success[{t}]: expected {len(grid)} values, one per grid point "
+                f"(got {len(curve) if isinstance(curve, list) else type(curve).__name__})"
+            )
         success[t] = [_rate(v, f"{where}: success[{t}][{e}]") for e, v in enumerate(curve)]
     episodes = _count(data.get("episodes_per_point"), f"{where}: episodes_per_point")
     return StageCurves(k, tasks, grid, success, episodes, record, artifact)
@@ -177,9 +188,15 @@ def parse_eval(data: dict, k: int, wf: Workflow, where: str, record: str, artifa
     tasks = _check_header(data, k, wf, where)
     success = _rates_of(data, "success", tasks, where)
     base = _rates_of(data, "base_success", tasks, where)
-    return StageEval(k, tasks, {t: _rate(success[t], f"{where}: success[{t}]") for t in tasks},
-                     {t: _rate(base[t], f"{where}: base_success[{t}]") for t in tasks},
-                     _count(data.get("episodes"), f"{where}: episodes"), record, artifact)
+    return StageEval(
+        k,
+        tasks,
+        {t: _rate(success[t], f"{where}: success[{t}]") for t in tasks},
+        {t: _rate(base[t], f"{where}: base_success[{t}]") for t in tasks},
+        _count(data.get("episodes"), f"{where}: episodes"),
+        record,
+        artifact,
+    )
 
 
 # ------------------------------------------------------------------------- the whole run
@@ -197,10 +214,12 @@ def load_run(store: Store, wf: Workflow) -> RunData:
             parsed = parse(data, k, wf, ref, record, artifact)
             if step == EVALUATE:
                 run.evals[k] = parsed
-            elif run.stages_done == k - 1:       # metrics need stages 1..m without a gap
+            elif run.stages_done == k - 1:  # metrics need stages 1..m without a gap
                 run.curves.append(parsed)
     if not run.curves:
-        raise StageError(f"workflow {wf.name} has no committed evaluations yet: stage 1 step {TRAIN} has "
-                         f"no record (ref {step_ref(wf.name, 1, TRAIN)}); run `accrue stage run WORKFLOW "
-                         f"--stage 1` first")
+        raise StageError(
+            f"workflow {wf.name} has no committed evaluations yet: stage 1 step {TRAIN} has "
+            f"no record (ref {step_ref(wf.name, 1, TRAIN)}); run `accrue stage run WORKFLOW "
+            f"--stage 1` first"
+        )
     return run

@@ -10,6 +10,7 @@ sequence, run in the same store) its curves are drawn too, and the robot time sa
 Table III (`table3.md`): successes over the retention trials on each earlier task after each later stage.
 `report.json` holds every number shown.
 """
+
 from __future__ import annotations
 
 import json
@@ -58,9 +59,15 @@ def running_success(curve: dict) -> tuple[list[float], list[float], list[bool]]:
 
 
 def stage_summary(curve: dict) -> dict:
-    return {"warmup_robot_time_s": curve.get("warmup_robot_time_s", 0.0), "rl_robot_time_s": curve["rl_robot_time_s"],
-            "reached_robot_time_s": curve["reached_robot_time_s"], "episodes": curve["train_episodes"],
-            "successes": curve["train_successes"], "stopped": curve["stopped"], "updates": curve.get("updates")}
+    return {
+        "warmup_robot_time_s": curve.get("warmup_robot_time_s", 0.0),
+        "rl_robot_time_s": curve["rl_robot_time_s"],
+        "reached_robot_time_s": curve["reached_robot_time_s"],
+        "episodes": curve["train_episodes"],
+        "successes": curve["train_successes"],
+        "stopped": curve["stopped"],
+        "updates": curve.get("updates"),
+    }
 
 
 def plot_fig4(curves: dict[int, dict], wf: Workflow, path: Path, other: dict[int, dict] | None = None) -> Path:
@@ -71,13 +78,13 @@ def plot_fig4(curves: dict[int, dict], wf: Workflow, path: Path, other: dict[int
     axes = fig.subplots(1, n, squeeze=False)[0]
     for ax, (k, curve) in zip(axes, sorted(curves.items())):
         runs = [("ACCRUE" if wf.method == "accrue" else wf.method, curve, "tab:blue")]
-        if other and k in other and k > 1:           # stage 1 is shared by both conditions
+        if other and k in other and k > 1:  # stage 1 is shared by both conditions
             runs.append(("Single-task", other[k], "tab:orange"))
         ax.axvspan(0, curve.get("warmup_robot_time_s", 0.0), color="0.85", label="warmup (base policy)")
         for name, c, colour in runs:
             xs, ys, full = running_success(c)
             split = next((i for i, f in enumerate(full) if f), len(xs))
-            ax.plot(xs[:split + 1], ys[:split + 1], "--", color=colour, lw=1)
+            ax.plot(xs[: split + 1], ys[: split + 1], "--", color=colour, lw=1)
             ax.plot(xs[split:], ys[split:], "-", color=colour, lw=1.5, label=name)
             if c["reached_robot_time_s"] is not None:
                 ax.axvline(c.get("warmup_robot_time_s", 0.0) + c["reached_robot_time_s"], color=colour, ls=":", lw=1)
@@ -91,47 +98,65 @@ def plot_fig4(curves: dict[int, dict], wf: Workflow, path: Path, other: dict[int
         ax.set_xlabel("robot interaction time for RL (s)")
         ax.set_ylim(-0.02, 1.02)
         ax.legend(fontsize=6, loc="lower right")
-    axes[0].set_ylabel(f"running success (last {next(iter(curves.values()))['stop_window']} episodes)"
-                       if curves else "running success")
+    axes[0].set_ylabel(
+        f"running success (last {next(iter(curves.values()))['stop_window']} episodes)" if curves else "running success"
+    )
     return _save(fig, path)
 
 
 def table3_markdown(table: dict[int, dict[str, list[bool]]], wf: Workflow) -> str:
     stages = sorted(table)
-    lines = ["| task | " + " | ".join(f"after stage {k}" for k in stages) + " |",
-             "|---|" + "---|" * len(stages)]
+    lines = ["| task | " + " | ".join(f"after stage {k}" for k in stages) + " |", "|---|" + "---|" * len(stages)]
     for i, task in enumerate(wf.tasks[:-1], 1):
         cells = [f"{sum(table[k][task])}/{len(table[k][task])}" if task in table[k] else "–" for k in stages]
         lines.append(f"| stage {i} ({task}) | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 
 
-def write_hardware_report(store: Store, wf: Workflow, out_dir: Path | None = None,
-                          single_task: Workflow | None = None) -> dict:
+def write_hardware_report(
+    store: Store, wf: Workflow, out_dir: Path | None = None, single_task: Workflow | None = None
+) -> dict:
     curves = stage_curves(store, wf)
     if not curves:
-        raise StageError(f"workflow {wf.name}: no hardware train step has committed yet "
-                         f"(run `accrue stage run ... --stage 1`)")
+        raise StageError(
+            f"workflow {wf.name}: no hardware train step has committed yet (run `accrue stage run ... --stage 1`)"
+        )
     other = stage_curves(store, single_task) if single_task is not None else None
     if single_task is not None and single_task.tasks != wf.tasks:
         raise StageError(f"--single-task {single_task.name}: its tasks differ from {wf.name}'s")
     out = Path(out_dir) if out_dir is not None else Path("runs") / wf.name / "report"
     out.mkdir(parents=True, exist_ok=True)
     table = retention_table(store, wf)
-    summary = {"workflow": wf.name, "method": wf.method, "hardware": True,
-               "stages": {k: stage_summary(c) for k, c in curves.items()},
-               "retention": {k: {t: {"successes": sum(v), "trials": len(v)} for t, v in row.items()}
-                             for k, row in table.items()}}
+    summary = {
+        "workflow": wf.name,
+        "method": wf.method,
+        "hardware": True,
+        "stages": {k: stage_summary(c) for k, c in curves.items()},
+        "retention": {
+            k: {t: {"successes": sum(v), "trials": len(v)} for t, v in row.items()} for k, row in table.items()
+        },
+    }
     if other:
         saved = {}
         for k, c in curves.items():
-            if k in other and k > 1 and c["reached_robot_time_s"] is not None \
-                    and other[k]["reached_robot_time_s"] is not None:
+            if (
+                k in other
+                and k > 1
+                and c["reached_robot_time_s"] is not None
+                and other[k]["reached_robot_time_s"] is not None
+            ):
                 a, b = c["reached_robot_time_s"], other[k]["reached_robot_time_s"]
-                saved[k] = {"accrue_s": a, "single_task_s": b, "saved_s": round(b - a, 3),
-                            "saved_percent": round(100 * (b - a) / b, 1) if b > 0 else None}
-        summary["single_task"] = {"workflow": single_task.name, "stages": {k: stage_summary(c) for k, c in other.items()},
-                                  "time_saved": saved}
+                saved[k] = {
+                    "accrue_s": a,
+                    "single_task_s": b,
+                    "saved_s": round(b - a, 3),
+                    "saved_percent": round(100 * (b - a) / b, 1) if b > 0 else None,
+                }
+        summary["single_task"] = {
+            "workflow": single_task.name,
+            "stages": {k: stage_summary(c) for k, c in other.items()},
+            "time_saved": saved,
+        }
     files = {"fig4": str(plot_fig4(curves, wf, out / "fig4.png", other))}
     (out / "table3.md").write_text(table3_markdown(table, wf))
     files["table3"] = str(out / "table3.md")

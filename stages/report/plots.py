@@ -1,10 +1,11 @@
 """The report's PNG figures, drawn with matplotlib's object API (no pyplot, no global state):
 
-    plot_curves(run, summary, path)        one panel per stage: success of every task seen so far
-                                           against that stage's env steps, best checkpoint e* marked
-    plot_matrix(summary, path)             the success matrix c[i][j] as an annotated heat map
-    plot_base_vs_rl(run, summary, path)    per task, π_base alone vs π_base + RL actor (evaluate-all)
+plot_curves(run, summary, path)        one panel per stage: success of every task seen so far
+                                       against that stage's env steps, best checkpoint e* marked
+plot_matrix(summary, path)             the success matrix c[i][j] as an annotated heat map
+plot_base_vs_rl(run, summary, path)    per task, π_base alone vs π_base + RL actor (evaluate-all)
 """
+
 from __future__ import annotations
 
 import math
@@ -59,31 +60,44 @@ def plot_curves(run: RunData, summary: dict, path: Path) -> Path:
         if (k - 1) % ncols == 0:
             ax.set_ylabel("success rate")
         if k > run.stages_done:
-            ax.text(0.5, 0.5, "not run yet", transform=ax.transAxes, ha="center", va="center",
-                    fontsize=12, color="0.5")
+            ax.text(0.5, 0.5, "not run yet", transform=ax.transAxes, ha="center", va="center", fontsize=12, color="0.5")
             ax.set_xticks([])
             continue
         sc = run.curves[k - 1]
         for task in sc.task_ids:
             new = task == wf.tasks[k - 1]
-            ax.plot(sc.grid, sc.success[task], color=colours[task], lw=2.4 if new else 1.4,
-                    ls="-" if new else "--", marker="o" if new else None, ms=3.5, zorder=3 if new else 2)
+            ax.plot(
+                sc.grid,
+                sc.success[task],
+                color=colours[task],
+                lw=2.4 if new else 1.4,
+                ls="-" if new else "--",
+                marker="o" if new else None,
+                ms=3.5,
+                zorder=3 if new else 2,
+            )
         best = summary["best_checkpoint"][k - 1]["env_steps"]
         ax.axvline(best, color="0.35", ls=":", lw=1.2)
         ax.xaxis.set_major_formatter(EngFormatter(sep=""))
         ax.set_xlabel(f"env steps in stage {k}")
-    tasks = [Line2D([], [], color=colours[t], lw=2, label=t) for t in wf.tasks[:run.stages_done]]
-    styles = [Line2D([], [], color="0.3", lw=2.4, marker="o", ms=3.5, label="task learned in this stage"),
-              Line2D([], [], color="0.3", lw=1.4, ls="--", label="earlier task (retention)"),
-              Line2D([], [], color="0.35", lw=1.2, ls=":", label="e*: earliest best checkpoint")]
+    tasks = [Line2D([], [], color=colours[t], lw=2, label=t) for t in wf.tasks[: run.stages_done]]
+    styles = [
+        Line2D([], [], color="0.3", lw=2.4, marker="o", ms=3.5, label="task learned in this stage"),
+        Line2D([], [], color="0.3", lw=1.4, ls="--", label="earlier task (retention)"),
+        Line2D([], [], color="0.35", lw=1.2, ls=":", label="e*: earliest best checkpoint"),
+    ]
     legend_rows = math.ceil(len(tasks) / 6) + 1
-    fig.legend(handles=tasks, loc="lower center", ncol=min(len(tasks), 6), fontsize=9, frameon=False,
-               bbox_to_anchor=(0.5, 0.045 / nrows))
-    fig.legend(handles=styles, loc="lower center", ncol=3, fontsize=8.5, frameon=False,
-               bbox_to_anchor=(0.5, 0.0))
+    fig.legend(
+        handles=tasks,
+        loc="lower center",
+        ncol=min(len(tasks), 6),
+        fontsize=9,
+        frameon=False,
+        bbox_to_anchor=(0.5, 0.045 / nrows),
+    )
+    fig.legend(handles=styles, loc="lower center", ncol=3, fontsize=8.5, frameon=False, bbox_to_anchor=(0.5, 0.0))
     episodes = run.curves[0].episodes_per_point
-    fig.suptitle(f"{wf.name} ({wf.method}): success during each stage, {episodes} episodes per point",
-                 fontsize=12)
+    fig.suptitle(f"{wf.name} ({wf.method}): success during each stage, {episodes} episodes per point", fontsize=12)
     fig.tight_layout(rect=(0, 0.06 * legend_rows / nrows, 1, 1))
     return _save(fig, path)
 
@@ -104,10 +118,23 @@ def plot_matrix(summary: dict, path: Path) -> Path:
             if np.isnan(c[i, j]):
                 ax.text(j, i, "—", ha="center", va="center", color="0.6", fontsize=10)
             else:
-                ax.text(j, i, f"{c[i, j]:.2f}", ha="center", va="center", fontsize=11,
-                        color="white" if c[i, j] > 0.6 else "black", fontweight="bold" if i == j else None)
-    ax.set_xticks(range(m), [f"{j + 1}: {t}" for j, t in enumerate(tasks)],
-                  rotation=30 if m > 2 else 0, ha="right" if m > 2 else "center", fontsize=9)
+                ax.text(
+                    j,
+                    i,
+                    f"{c[i, j]:.2f}",
+                    ha="center",
+                    va="center",
+                    fontsize=11,
+                    color="white" if c[i, j] > 0.6 else "black",
+                    fontweight="bold" if i == j else None,
+                )
+    ax.set_xticks(
+        range(m),
+        [f"{j + 1}: {t}" for j, t in enumerate(tasks)],
+        rotation=30 if m > 2 else 0,
+        ha="right" if m > 2 else "center",
+        fontsize=9,
+    )
     ax.set_yticks(range(m), [f"after stage {i + 1}" for i in range(m)], fontsize=9)
     ax.set_xlabel("task j")
     partial = "" if m == summary["stages_total"] else f" (stages 1..{m} of {summary['stages_total']})"
@@ -139,6 +166,8 @@ def plot_base_vs_rl(run: RunData, summary: dict, path: Path) -> Path | None:
     ax.set_ylabel("success rate")
     ax.grid(True, axis="y", alpha=0.3)
     ax.legend(loc="upper left", fontsize=8, ncol=2, frameon=False)
-    ax.set_title(f"{summary['workflow']}: deployment success after stage {ev.stage} "
-                 f"({ev.episodes} episodes per task)", fontsize=10)
+    ax.set_title(
+        f"{summary['workflow']}: deployment success after stage {ev.stage} ({ev.episodes} episodes per task)",
+        fontsize=10,
+    )
     return _save(fig, path)

@@ -9,6 +9,7 @@ over stages), so a task's curve runs on through the later stages that re-evaluat
 
 Open with `rerun FILE.rrd` (rerun 0.26).
 """
+
 from __future__ import annotations
 
 import re
@@ -38,8 +39,7 @@ def write_recording(run: RunData, path: Path) -> Path:
 
     wf = run.workflow
     # The user asked for this file, so RERUN=off does not silently drop it (force=True).
-    with RerunLog(path, app_id="accrue-report", recording_id=f"{wf.name}-report", timeline=TIMELINE,
-                  force=True) as rl:
+    with RerunLog(path, app_id="accrue-report", recording_id=f"{wf.name}-report", timeline=TIMELINE, force=True) as rl:
         for sc, offset in zip(run.curves, stage_offsets(run)):
             steps = [offset + g for g in sc.grid]
             rl.set_step(offset)

@@ -4,13 +4,14 @@ and kept fixed. With `learner.distill_inputs` fresh/both it also caches π_base^
 retained state (an input: `base-policy`). At stage 1, and for methods that do not distil, the artifact
 says it was skipped and why.
 """
+
 from __future__ import annotations
 
 from stages.runner_context import StepContext
 from stages.runner_types import StepDef
 from stages.steps.common import deterministic, read_json, write_json
 
-TARGETS_FILE = "teacher.safetensors"     # tensors "targets" (N, H, d) and, when cached, "fresh_ref" (N, H, d)
+TARGETS_FILE = "teacher.safetensors"  # tensors "targets" (N, H, d) and, when cached, "fresh_ref" (N, H, d)
 INFO_FILE = "teacher.json"
 
 
@@ -40,18 +41,27 @@ def run(ctx: StepContext) -> None:
 
     deterministic(c["seed"])
     handoff = ctx.input_path("handoff")
-    teacher = load_learner(handoff / handoff_step.LEARNER_DIR, device="cpu")   # θ^{k-1}: a frozen copy
-    memory = ReplayBuffer.load(handoff / handoff_step.MEMORY_DIR)              # B^{<k}
+    teacher = load_learner(handoff / handoff_step.LEARNER_DIR, device="cpu")  # θ^{k-1}: a frozen copy
+    memory = ReplayBuffer.load(handoff / handoff_step.MEMORY_DIR)  # B^{<k}
     cache = cache_teacher(teacher, memory, _fresh_reference(ctx) if ctx.has_input("base-policy") else None)
     tensors = {"targets": cache.targets.contiguous()}
     if cache.fresh_ref is not None:
         tensors["fresh_ref"] = cache.fresh_ref.contiguous()
     save_file(tensors, str(out / TARGETS_FILE))
-    write_json(out / INFO_FILE, {"stage": c["stage"], "skipped": False, "rows": int(cache.targets.shape[0]),
-                                 "shape": list(cache.targets.shape), "fresh_ref": cache.fresh_ref is not None})
-    ctx.console.print(f"cache-teacher: cached {cache.targets.shape[0]} teacher targets (Eq. 3)"
-                      + (" and the current base policy's chunks at the same states" if cache.fresh_ref is not None
-                         else ""))
+    write_json(
+        out / INFO_FILE,
+        {
+            "stage": c["stage"],
+            "skipped": False,
+            "rows": int(cache.targets.shape[0]),
+            "shape": list(cache.targets.shape),
+            "fresh_ref": cache.fresh_ref is not None,
+        },
+    )
+    ctx.console.print(
+        f"cache-teacher: cached {cache.targets.shape[0]} teacher targets (Eq. 3)"
+        + (" and the current base policy's chunks at the same states" if cache.fresh_ref is not None else "")
+    )
 
 
 def _fresh_reference(ctx: StepContext):
@@ -77,6 +87,11 @@ def load_teacher(path):
     return TeacherCache(tensors["targets"], tensors.get("fresh_ref"))
 
 
-STEP = StepDef(name="cache-teacher", code_version="cache-teacher-2", run=run,
-               optional_inputs=("handoff", "base-policy"), outputs={"teacher": "teacher-targets"},
-               description="Eq. 3 targets of the previous actor on the retained memory")
+STEP = StepDef(
+    name="cache-teacher",
+    code_version="cache-teacher-2",
+    run=run,
+    optional_inputs=("handoff", "base-policy"),
+    outputs={"teacher": "teacher-targets"},
+    description="Eq. 3 targets of the previous actor on the retained memory",
+)

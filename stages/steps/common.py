@@ -3,6 +3,7 @@
 Heavy libraries (torch, mujoco, lerobot) are imported inside the functions: `stages.plan` imports
 the step definitions, and `accrue --help` must stay fast.
 """
+
 from __future__ import annotations
 
 import json
@@ -12,7 +13,7 @@ from typing import Any
 
 from stages.errors import StageError
 
-TORCH_THREADS = 1      # fixed, so that a workflow run is reproducible from its seed on CPU
+TORCH_THREADS = 1  # fixed, so that a workflow run is reproducible from its seed on CPU
 
 
 def write_json(path: Path, data: Any) -> Path:
@@ -48,9 +49,9 @@ def load_base_policy(path: Path, seed: int):
     from accrue.scripted_reference import ScriptedReference
 
     scripted = Path(path) / "scripted_reference.json"
-    if scripted.is_file():    # the scripted stand-in (accrue.scripted_reference), not a lerobot checkpoint
+    if scripted.is_file():  # the scripted stand-in (accrue.scripted_reference), not a lerobot checkpoint
         return ScriptedReference(read_json(scripted)["known_bias"])
-    with contextlib.redirect_stdout(sys.stderr):    # lerobot prints while loading; stdout may be --json
+    with contextlib.redirect_stdout(sys.stderr):  # lerobot prints while loading; stdout may be --json
         return BasePolicy.load(path, device="cpu", seed=seed)
 
 

@@ -5,6 +5,7 @@ Layout: learner/ (the whole learner state), memory/ (replay shards of B^{<k+1}),
 only: the learner kept for task i), handoff.json (what was kept, and whether the stage had fewer than N
 complete episodes to keep).
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -32,7 +33,7 @@ def run(ctx: StepContext) -> None:
     c = ctx.config
     deterministic(c["seed"])
     checkpoint = ctx.input_path("checkpoint")
-    current = ReplayBuffer.load(ctx.input_path("replay"))                                   # B^k
+    current = ReplayBuffer.load(ctx.input_path("replay"))  # B^k
     previous = ReplayBuffer.load(ctx.input_path("handoff") / MEMORY_DIR) if ctx.has_input("handoff") else None
     memory, kept = hand_over(previous, current, c["retained_episodes"])
     out = ctx.new_output("handoff", "handoff")
@@ -46,18 +47,42 @@ def run(ctx: StepContext) -> None:
         per_task = sorted(int(p.name) for p in (out / PER_TASK_DIR).iterdir())
     info = read_json(checkpoint / train_step.CHECKPOINT_FILE)
     tasks = sorted({int(t) for t in memory.column("task").tolist()})
-    write_json(out / INFO_FILE, {"stage": c["stage"], "task_ids": info["task_ids"], "method": c["method"],
-                                 "retained_episodes": c["retained_episodes"], "memory_rows": len(memory),
-                                 "memory_tasks": tasks, "per_task": per_task, "memory": kept})
+    write_json(
+        out / INFO_FILE,
+        {
+            "stage": c["stage"],
+            "task_ids": info["task_ids"],
+            "method": c["method"],
+            "retained_episodes": c["retained_episodes"],
+            "memory_rows": len(memory),
+            "memory_tasks": tasks,
+            "per_task": per_task,
+            "memory": kept,
+        },
+    )
     if kept["short"]:
-        ctx.console.print(f"handoff: stage {c['stage']} ended fewer than N = {c['retained_episodes']} episodes "
-                          f"({kept['current_complete_episodes']}); the memory keeps what there is")
-        ctx.log_event("short-memory", stage=c["stage"], retained_episodes=c["retained_episodes"],
-                      complete_episodes=kept["current_complete_episodes"])
-    ctx.console.print(f"handoff: θ^{c['stage']}, ψ^{c['stage']} and {len(memory)} retained transitions "
-                      f"({kept['kept']} complete episodes per task index)")
+        ctx.console.print(
+            f"handoff: stage {c['stage']} ended fewer than N = {c['retained_episodes']} episodes "
+            f"({kept['current_complete_episodes']}); the memory keeps what there is"
+        )
+        ctx.log_event(
+            "short-memory",
+            stage=c["stage"],
+            retained_episodes=c["retained_episodes"],
+            complete_episodes=kept["current_complete_episodes"],
+        )
+    ctx.console.print(
+        f"handoff: θ^{c['stage']}, ψ^{c['stage']} and {len(memory)} retained transitions "
+        f"({kept['kept']} complete episodes per task index)"
+    )
 
 
-STEP = StepDef(name="handoff", code_version="handoff-2", run=run, inputs=("checkpoint", "replay"),
-               optional_inputs=("handoff",), outputs={"handoff": "handoff"},
-               description="actor, critic and last N complete episodes for the next stage")
+STEP = StepDef(
+    name="handoff",
+    code_version="handoff-2",
+    run=run,
+    inputs=("checkpoint", "replay"),
+    optional_inputs=("handoff",),
+    outputs={"handoff": "handoff"},
+    description="actor, critic and last N complete episodes for the next stage",
+)

@@ -1,5 +1,6 @@
 """`evaluate-all` on a robot: `trials` operator-labelled retention trials of π_base^k + θ^k on each earlier
 task (paper Table III), resumable like `train`. The current task's figure is its training window."""
+
 from __future__ import annotations
 
 from stages.runner_context import StepContext
@@ -24,37 +25,64 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
     deterministic(c["seed"])
     policy = load_base_policy(ctx.input_path("base-policy"), c["seed"])
     learner = load_learner(ctx.input_path("checkpoint") / "learner", device="cpu")
-    act = lambda s, ref, fresh: learner.act(s, ref, explore=False)   # noqa: E731 - the deterministic actor
+    act = lambda s, ref, fresh: learner.act(s, ref, explore=False)  # noqa: E731 - the deterministic actor
     features = per_task_features(c, tasks)
     session = HardwareSession(ctx, settings)
     for i, task in enumerate(tasks[:-1]):
-        mine = lambda t=task: [e for e in session.ordered() if e["task"] == t]   # noqa: E731
+        mine = lambda t=task: [e for e in session.ordered() if e["task"] == t]  # noqa: E731
         if len(mine()) >= n:
             continue
         bridge = make_bridge(c, settings, task, lambda line: ctx.log_event("robot-fault", message=line, stage=k))
         operator = make_operator(settings, bridge, ctx.console)
         operator.tell(f"retention trials on task {i + 1} ({task}): set up its parts")
         try:
-            episode_loop(ctx, session, operator, bridge, task=task, done=lambda mine=mine: len(mine()) >= n,
-                         policy_now=lambda: (act, None), reference=reference_fn(policy, task, horizon),
-                         features=features[task], settings=episode_settings(c, task, settings.clock),
-                         gamma=c["gamma"], index_base=0,
-                         metadata={"task_id": task, "stage": k, "phase": "evaluate", "policy": "base+actor"})
+            episode_loop(
+                ctx,
+                session,
+                operator,
+                bridge,
+                task=task,
+                done=lambda mine=mine: len(mine()) >= n,
+                policy_now=lambda: (act, None),
+                reference=reference_fn(policy, task, horizon),
+                features=features[task],
+                settings=episode_settings(c, task, settings.clock),
+                gamma=c["gamma"],
+                index_base=0,
+                metadata={"task_id": task, "stage": k, "phase": "evaluate", "policy": "base+actor"},
+            )
         finally:
             bridge.disconnect()
             operator.close()
     session.close("retention trials done")
     trials = {t: [bool(e["label"]["success"]) for e in session.ordered() if e["task"] == t] for t in tasks[:-1]}
     success = {t: sum(v) / len(v) for t, v in trials.items() if v}
-    write_json(ctx.new_output("eval", "eval") / "eval.json", {
-        "stage": k, "task_ids": tasks, "hardware": True, "success": success, "base_success": {},
-        "trials": trials, "successes": {t: sum(v) for t, v in trials.items()}, "episodes": n,
-        "method": c["method"], "seed": c["seed"], "per_task_checkpoint": []})
+    write_json(
+        ctx.new_output("eval", "eval") / "eval.json",
+        {
+            "stage": k,
+            "task_ids": tasks,
+            "hardware": True,
+            "success": success,
+            "base_success": {},
+            "trials": trials,
+            "successes": {t: sum(v) for t, v in trials.items()},
+            "episodes": n,
+            "method": c["method"],
+            "seed": c["seed"],
+            "per_task_checkpoint": [],
+        },
+    )
     episodes_output(ctx, session)
     for t, v in trials.items():
         ctx.console.print(f"evaluate-all: {t}: {sum(v)}/{len(v)} retention trials succeeded")
 
 
-STEP = StepDef(name="evaluate-all", code_version="hw-evaluate-all-1", run=lambda ctx: run(ctx, SessionSettings()),
-               inputs=("base-policy", "checkpoint"), outputs={"eval": "eval", "episodes": "episodes"},
-               description="operator-labelled retention trials on each earlier task (Table III)")
+STEP = StepDef(
+    name="evaluate-all",
+    code_version="hw-evaluate-all-1",
+    run=lambda ctx: run(ctx, SessionSettings()),
+    inputs=("base-policy", "checkpoint"),
+    outputs={"eval": "eval", "episodes": "episodes"},
+    description="operator-labelled retention trials on each earlier task (Table III)",
+)

@@ -5,6 +5,7 @@ steps that do are swapped for their hardware bodies (hw_warmup, hw_train, hw_eva
 hold what they compute from (robot, mapping, stop rule, learner) and whose session settings (operator,
 learner address, clock, faults) are bound to the body instead, outside the cache key.
 """
+
 from __future__ import annotations
 
 import dataclasses
@@ -14,24 +15,40 @@ from stages.errors import StageError
 from stages.runner_types import StepInvocation
 from stages.workflow import Workflow
 
-KEYED = ("type", "config", "imports", "state_keys", "action_keys", "action_limits", "done_key", "control_hz",
-         "episode_steps", "safety")
+KEYED = (
+    "type",
+    "config",
+    "imports",
+    "state_keys",
+    "action_keys",
+    "action_limits",
+    "done_key",
+    "control_hz",
+    "episode_steps",
+    "safety",
+)
 
 
 def session_settings(wf: Workflow):
     from stages.steps.hw_session import SessionSettings
 
     r = wf.robot
-    return SessionSettings(operator=r.operator, operator_name=r.operator_name, scripted=dict(r.scripted),
-                           learner_address=r.learner_address, clock=r.clock, faults=dict(r.faults),
-                           timeouts=dict(r.timeouts))
+    return SessionSettings(
+        operator=r.operator,
+        operator_name=r.operator_name,
+        scripted=dict(r.scripted),
+        learner_address=r.learner_address,
+        clock=r.clock,
+        faults=dict(r.faults),
+        timeouts=dict(r.timeouts),
+    )
 
 
 def robot_config(wf: Workflow) -> dict:
     r = wf.robot.model_dump()
     keyed = {k: r[k] for k in KEYED}
     if keyed["type"] == "accrue_sim" and keyed["done_key"] is None:
-        keyed["done_key"] = "episode.done"     # the simulated robot says when the plug is seated or time is up
+        keyed["done_key"] = "episode.done"  # the simulated robot says when the plug is seated or time is up
     return keyed
 
 
@@ -43,9 +60,11 @@ def hardware_steps(wf: Workflow, stage: int, steps: list[StepInvocation]) -> lis
     if r.type != "accrue_sim" and parse_spec(wf.base_policy.init) is None:
         missing = [t for t in wf.tasks[:stage] if t not in wf.base_policy.demos]
         if missing:
-            raise StageError(f"workflow {wf.name}: base_policy.demos: a real robot's demonstrations come from "
-                             f"lerobot-record; add the dataset of {missing[0]} "
-                             f"(`accrue add DIR --kind demos --workflow WF --task {missing[0]}`) and name it here")
+            raise StageError(
+                f"workflow {wf.name}: base_policy.demos: a real robot's demonstrations come from "
+                f"lerobot-record; add the dataset of {missing[0]} "
+                f"(`accrue add DIR --kind demos --workflow WF --task {missing[0]}`) and name it here"
+            )
     settings = session_settings(wf)
     common = {"robot": robot_config(wf), "workflow": wf.name}
     bodies = {"warmup": hw_warmup, "train": hw_train, "evaluate-all": hw_evaluate}
@@ -56,15 +75,29 @@ def hardware_steps(wf: Workflow, stage: int, steps: list[StepInvocation]) -> lis
             out.append(inv)
             continue
         c = dict(inv.config)
-        for sim_only in ("num_envs", "env_steps", "eval_every", "eval_episodes", "checkpoint_every", "episodes",
-                         "record_episodes"):
+        for sim_only in (
+            "num_envs",
+            "env_steps",
+            "eval_every",
+            "eval_episodes",
+            "checkpoint_every",
+            "episodes",
+            "record_episodes",
+        ):
             c.pop(sim_only, None)
         c.update(common)
         if name == "warmup":
             c.update(phase="warmup", episodes=wf.budgets.warmup_episodes)
         elif name == "train":
-            c.update(phase="train", stop_window=r.stop_window, stop_successes=r.stop_successes, budget_s=r.budget_s,
-                     max_episodes=r.max_episodes, checkpoint_every=r.checkpoint_every, publish_every=r.publish_every)
+            c.update(
+                phase="train",
+                stop_window=r.stop_window,
+                stop_successes=r.stop_successes,
+                budget_s=r.budget_s,
+                max_episodes=r.max_episodes,
+                checkpoint_every=r.checkpoint_every,
+                publish_every=r.publish_every,
+            )
         else:
             c.update(phase="evaluate", trials=r.retention_trials)
         module = bodies[name]

@@ -13,6 +13,7 @@ Settings that do not change what a step computes (the operator, the learner's ad
 the clock) are session settings: bound to the step body, outside its cache key, so a resumed session
 may use another operator or host.
 """
+
 from __future__ import annotations
 
 import os
@@ -34,12 +35,13 @@ EPISODES_DIR = "episodes"
 @dataclass
 class SessionSettings:
     """The unkeyed part of a workflow's robot section (see stages.workflow.RobotSpec)."""
-    operator: str = "terminal"              # terminal | scripted
+
+    operator: str = "terminal"  # terminal | scripted
     operator_name: str = ""
-    scripted: dict = field(default_factory=dict)   # delay_s, mistakes, corrects, abort_before
-    learner_address: str | None = None       # host:port of `accrue robot learner`; None: a local process
+    scripted: dict = field(default_factory=dict)  # delay_s, mistakes, corrects, abort_before
+    learner_address: str | None = None  # host:port of `accrue robot learner`; None: a local process
     clock: float = 1.0
-    faults: dict = field(default_factory=dict)     # accrue_sim fault fields
+    faults: dict = field(default_factory=dict)  # accrue_sim fault fields
     timeouts: dict = field(default_factory=dict)
     heartbeat_s: float = 0.5
     dead_after_s: float = 3.0
@@ -55,8 +57,12 @@ def make_bridge(c: dict, settings: SessionSettings, task: str, report):
     if r["type"] == "accrue_sim":
         config.update(task=task, **settings.faults)
         config.setdefault("seed", c["seed"] * 1000 + c["stage"] * 10 + {"warmup": 1, "train": 2}.get(c["phase"], 3))
-    return RobotBridge(robot_factory(r["type"], config, tuple(r.get("imports", ()))), RobotMapping.from_dict(r),
-                       Timeouts.from_dict(settings.timeouts), report=report)
+    return RobotBridge(
+        robot_factory(r["type"], config, tuple(r.get("imports", ()))),
+        RobotMapping.from_dict(r),
+        Timeouts.from_dict(settings.timeouts),
+        report=report,
+    )
 
 
 def make_operator(settings: SessionSettings, bridge, console):
@@ -65,11 +71,15 @@ def make_operator(settings: SessionSettings, bridge, console):
     name = settings.operator_name or os.environ.get("USER", "operator")
     if settings.operator == "scripted":
         s = settings.scripted
-        return ScriptedOperator(oracle=lambda: bool(bridge.hook("episode_success")()),
-                                reset_scene=lambda: bridge.hook("reset_scene") and bridge.hook("reset_scene")(),
-                                name=settings.operator_name or "scripted", delay_s=float(s.get("delay_s", 0.0)),
-                                mistakes=set(s.get("mistakes", ())), corrects=set(s.get("corrects", ())),
-                                abort_before=s.get("abort_before"))
+        return ScriptedOperator(
+            oracle=lambda: bool(bridge.hook("episode_success")()),
+            reset_scene=lambda: bridge.hook("reset_scene") and bridge.hook("reset_scene")(),
+            name=settings.operator_name or "scripted",
+            delay_s=float(s.get("delay_s", 0.0)),
+            mistakes=set(s.get("mistakes", ())),
+            corrects=set(s.get("corrects", ())),
+            abort_before=s.get("abort_before"),
+        )
     return TerminalOperator(name, console=console)
 
 
@@ -94,16 +104,32 @@ class HardwareSession:
             if s["ended"] == "running":
                 s["ended"] = "interrupted (process ended without closing the session)"
         self._discard_unsealed()
-        self.session = {"id": len(self.sessions) + 1, "chain": self.chain, "started": _now(), "last": _now(), "host": socket.gethostname(),
-                        "pid": os.getpid(), "operator": settings.operator_name or settings.operator,
-                        "episodes": 0, "robot_time_s": 0.0, "ended": "running"}
+        self.session = {
+            "id": len(self.sessions) + 1,
+            "chain": self.chain,
+            "started": _now(),
+            "last": _now(),
+            "host": socket.gethostname(),
+            "pid": os.getpid(),
+            "operator": settings.operator_name or settings.operator,
+            "episodes": 0,
+            "robot_time_s": 0.0,
+            "ended": "running",
+        }
         self.sessions.append(self.session)
-        self._log("robot-session-started", session=self.session["id"], host=self.session["host"],
-                  operator=self.session["operator"], sealed=len(self.episodes))
-        self._save()       # the session is on record before its first episode starts
+        self._log(
+            "robot-session-started",
+            session=self.session["id"],
+            host=self.session["host"],
+            operator=self.session["operator"],
+            sealed=len(self.episodes),
+        )
+        self._save()  # the session is on record before its first episode starts
         if resume is not None:
-            ctx.console.print(f"{ctx.step}: resumed with {len(self.episodes)} sealed episodes, "
-                              f"robot time {self.robot_time_s():.1f} s (session {self.session['id']})")
+            ctx.console.print(
+                f"{ctx.step}: resumed with {len(self.episodes)} sealed episodes, "
+                f"robot time {self.robot_time_s():.1f} s (session {self.session['id']})"
+            )
 
     # ------------------------------------------------------------------ queries
     def ordered(self, phase: str | None = None) -> list[dict]:
@@ -142,10 +168,18 @@ class HardwareSession:
         self.session["episodes"] += 1
         self.session["robot_time_s"] = round(self.session["robot_time_s"] + record["robot_time_s"], 6)
         cid = self._save()
-        self._log("robot-episode-sealed", index=index, success=record["label"]["success"],
-                  label_by=record["label"]["by"], label_at=record["label"]["at"], end=record["end"],
-                  faults=record["faults"] or None, robot_time_s=round(record["robot_time_s"], 3),
-                  weights_version=record.get("weights_version"), checkpoint=cid)
+        self._log(
+            "robot-episode-sealed",
+            index=index,
+            success=record["label"]["success"],
+            label_by=record["label"]["by"],
+            label_at=record["label"]["at"],
+            end=record["end"],
+            faults=record["faults"] or None,
+            robot_time_s=round(record["robot_time_s"], 3),
+            weights_version=record.get("weights_version"),
+            checkpoint=cid,
+        )
 
     def relabel(self, index: int, label: dict, gamma: float) -> dict:
         import numpy as np
@@ -160,8 +194,15 @@ class HardwareSession:
         e["label"] = label
         write_json(d / "episode.json", e)
         cid = self._save()
-        self._log("robot-episode-relabelled", index=index, success=label["success"], label_by=label["by"],
-                  label_at=label["at"], was=e["relabels"][-1]["success"], checkpoint=cid)
+        self._log(
+            "robot-episode-relabelled",
+            index=index,
+            success=label["success"],
+            label_by=label["by"],
+            label_at=label["at"],
+            was=e["relabels"][-1]["success"],
+            checkpoint=cid,
+        )
         return arrays
 
     def seal_learner(self, snapshot: Path) -> None:
@@ -176,8 +217,13 @@ class HardwareSession:
     def close(self, how: str) -> None:
         self.session["ended"] = how
         self._save()
-        self._log("robot-session-ended", session=self.session["id"], how=how, episodes=self.session["episodes"],
-                  robot_time_s=round(self.session["robot_time_s"], 3))
+        self._log(
+            "robot-session-ended",
+            session=self.session["id"],
+            how=how,
+            episodes=self.session["episodes"],
+            robot_time_s=round(self.session["robot_time_s"], 3),
+        )
 
     def started(self, index: int) -> None:
         self._log("robot-episode-started", index=index, session=self.session["id"])
@@ -190,10 +236,17 @@ class HardwareSession:
         self.session["last"] = _now()
         write_json(self.dir / SESSIONS_FILE, self.sessions)
         c = self.ctx.config
-        succ, n = self.window(c.get("stop_window", 20)) if c["phase"] == "train" else (
-            sum(bool(e["label"]["success"]) for e in self.episodes.values()), len(self.episodes))
-        progress = {"episodes": len(self.episodes), "success": f"{succ}/{n}",
-                    "robot_time_s": round(self.robot_time_s(), 1), "session": self.session["id"]}
+        succ, n = (
+            self.window(c.get("stop_window", 20))
+            if c["phase"] == "train"
+            else (sum(bool(e["label"]["success"]) for e in self.episodes.values()), len(self.episodes))
+        )
+        progress = {
+            "episodes": len(self.episodes),
+            "success": f"{succ}/{n}",
+            "robot_time_s": round(self.robot_time_s(), 1),
+            "session": self.session["id"],
+        }
         if (self.dir / "learner.json").is_file():
             progress["updates"] = read_json(self.dir / "learner.json")["updates"]
         return self.ctx.save_checkpoint(self.dir, progress)
@@ -204,8 +257,13 @@ class HardwareSession:
     def _events(self, name: str) -> list[dict]:
         from artifacts.auditlog import iter_events
 
-        return [e for e in iter_events(self.ctx.store) if e.get("event") == name and e.get("step") == self.ctx.step
-                and all(e.get(k) == v for k, v in self.where.items())]
+        return [
+            e
+            for e in iter_events(self.ctx.store)
+            if e.get("event") == name
+            and e.get("step") == self.ctx.step
+            and all(e.get(k) == v for k, v in self.where.items())
+        ]
 
     def _started_indices(self) -> list[int]:
         return [int(e["index"]) for e in self._events("robot-episode-started")]
@@ -215,8 +273,10 @@ class HardwareSession:
         told = {int(e["index"]) for e in self._events("robot-episode-discarded")}
         for index in sorted(set(self._started_indices()) - set(self.episodes) - told):
             self.discard(index, "in progress when the session ended; not sealed, so not counted")
-            self.ctx.console.print(f"{self.ctx.step}: episode {index} was in progress when the last session "
-                                   "ended: discarded (it was never sealed)")
+            self.ctx.console.print(
+                f"{self.ctx.step}: episode {index} was in progress when the last session "
+                "ended: discarded (it was never sealed)"
+            )
 
 
 def _now() -> str:
@@ -225,10 +285,24 @@ def _now() -> str:
     return dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds")
 
 
-
-def episode_loop(ctx: StepContext, session: HardwareSession, operator, bridge, *, task: str, done, policy_now,
-                 reference, features, settings, gamma: float, index_base: int, metadata: dict,
-                 on_sealed=lambda index, arrays, relabel=False: None, between=lambda: None) -> None:
+def episode_loop(
+    ctx: StepContext,
+    session: HardwareSession,
+    operator,
+    bridge,
+    *,
+    task: str,
+    done,
+    policy_now,
+    reference,
+    features,
+    settings,
+    gamma: float,
+    index_base: int,
+    metadata: dict,
+    on_sealed=lambda index, arrays, relabel=False: None,
+    between=lambda: None,
+) -> None:
     """Operator-labelled episodes on `task` until done() says enough; each sealed at once.
 
     policy_now() -> (policy(s, ref, fresh) -> chunk, weights version or None), asked at each episode start
@@ -244,16 +318,18 @@ def episode_loop(ctx: StepContext, session: HardwareSession, operator, bridge, *
 
     def lost(why: str):
         session.close(f"robot lost: {why}")
-        raise StageError(f"robot not reachable ({why}); {len(session.episodes)} episodes are sealed: fix the robot "
-                         f"and resume with `accrue stage run ... --step {ctx.step} --continue`")
+        raise StageError(
+            f"robot not reachable ({why}); {len(session.episodes)} episodes are sealed: fix the robot "
+            f"and resume with `accrue stage run ... --step {ctx.step} --continue`"
+        )
 
     try:
         bridge.connect()
     except RobotFault as exc:
         if not bridge.reconnect():
             lost(str(exc))
-    feat = lambda st: features({"state": st})      # noqa: E731
-    ref = lambda st: reference({"state": st})      # noqa: E731
+    feat = lambda st: features({"state": st})  # noqa: E731
+    ref = lambda st: reference({"state": st})  # noqa: E731
     sealed = session.ordered()
     last = sealed[-1]["index"] if sealed else None
     logs = Path(tempfile.mkdtemp(dir=ctx.scratch_dir("mcap")))
@@ -268,8 +344,9 @@ def episode_loop(ctx: StepContext, session: HardwareSession, operator, bridge, *
             on_sealed(last, arrays, relabel=True)
         if not answer.go:
             session.close("aborted by the operator")
-            raise StageError(f"aborted by the operator; {len(session.episodes)} episodes are sealed "
-                             f"(resume with --continue)")
+            raise StageError(
+                f"aborted by the operator; {len(session.episodes)} episodes are sealed (resume with --continue)"
+            )
         policy, version = policy_now()
         session.started(index)
         recorder = EpisodeRecorder(logs, control_hz=settings.control_hz, state_names=list(STATE_NAMES))
@@ -290,13 +367,27 @@ def episode_loop(ctx: StepContext, session: HardwareSession, operator, bridge, *
         else:
             label = Label(success=False, by="system", at=now_iso(), note=out.reason)
             operator.tell(f"episode {index} ended: {out.reason} (not a success)")
-        mcap = recorder.end(0, success=label.success, truncated=out.end == "time-limit",
-                            metadata={"label_by": label.by, "label_at": label.at, "end": out.end, "reason": out.reason})
+        mcap = recorder.end(
+            0,
+            success=label.success,
+            truncated=out.end == "time-limit",
+            metadata={"label_by": label.by, "label_at": label.at, "end": out.end, "reason": out.reason},
+        )
         arrays = transitions(out, label.success, gamma, index)
-        record = {"phase": ctx.config["phase"], "task": task, "label": label.to_json(), "end": out.end,
-                  "reason": out.reason, "faults": out.faults, "control_steps": out.control_steps,
-                  "chunks": int(len(out.action)), "robot_time_s": out.robot_time_s, "wall_s": round(out.wall_s, 3),
-                  "weights_version": version, "ended_at": now_iso()}
+        record = {
+            "phase": ctx.config["phase"],
+            "task": task,
+            "label": label.to_json(),
+            "end": out.end,
+            "reason": out.reason,
+            "faults": out.faults,
+            "control_steps": out.control_steps,
+            "chunks": int(len(out.action)),
+            "robot_time_s": out.robot_time_s,
+            "wall_s": round(out.wall_s, 3),
+            "weights_version": version,
+            "ended_at": now_iso(),
+        }
         session.seal_episode(index, record, arrays, mcap)
         on_sealed(index, arrays, relabel=False)
         last = index

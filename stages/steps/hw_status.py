@@ -2,6 +2,7 @@
 host, operator, episodes, robot time, how it ended), its running success and robot time so far, and how
 far training is from the stop rule. Read from the step's newest sealed checkpoint (a step in progress
 or interrupted) or its committed `episodes` output, without materialising transitions or logs."""
+
 from __future__ import annotations
 
 import json
@@ -30,17 +31,24 @@ def _sealed(store: Store, artifact_id: str) -> tuple[list[dict], list[dict]]:
 
 def hardware_status(store: Store, wf: Workflow) -> list[dict]:
     rows = []
-    attempts = [a for a in list_attempts(store, problems=[]) if a.get("workflow") == wf.name
-                and str(a.get("code_version", "")).startswith("hw-")]
+    attempts = [
+        a
+        for a in list_attempts(store, problems=[])
+        if a.get("workflow") == wf.name and str(a.get("code_version", "")).startswith("hw-")
+    ]
     for k in range(1, wf.num_stages + 1):
         for step in HW_STEPS:
-            mine = sorted((a for a in attempts if a.get("stage") == k and a["step"] == step),
-                          key=lambda a: a.get("started", ""))
+            mine = sorted(
+                (a for a in attempts if a.get("stage") == k and a["step"] == step), key=lambda a: a.get("started", "")
+            )
             if not mine:
                 continue
             latest = mine[-1]
-            source = (latest.get("outputs") or {}).get("episodes") if latest["state"] == "committed" else (
-                latest["checkpoints"][-1]["id"] if latest.get("checkpoints") else None)
+            source = (
+                (latest.get("outputs") or {}).get("episodes")
+                if latest["state"] == "committed"
+                else (latest["checkpoints"][-1]["id"] if latest.get("checkpoints") else None)
+            )
             if source is None:
                 continue
             try:
@@ -48,19 +56,30 @@ def hardware_status(store: Store, wf: Workflow) -> list[dict]:
             except StoreError as exc:
                 rows.append({"stage": k, "step": step, "state": latest["state"], "error": str(exc)})
                 continue
-            row = {"stage": k, "step": step, "state": latest["state"], "sessions": sessions,
-                   "episodes": len(episodes), "successes": sum(bool(e["label"]["success"]) for e in episodes),
-                   "robot_time_s": round(sum(e["robot_time_s"] for e in episodes), 3),
-                   "faults": sum(1 for e in episodes if e.get("faults"))}
+            row = {
+                "stage": k,
+                "step": step,
+                "state": latest["state"],
+                "sessions": sessions,
+                "episodes": len(episodes),
+                "successes": sum(bool(e["label"]["success"]) for e in episodes),
+                "robot_time_s": round(sum(e["robot_time_s"] for e in episodes), 3),
+                "faults": sum(1 for e in episodes if e.get("faults")),
+            }
             if step == "train" and wf.robot is not None:
                 r = wf.robot
-                window = [bool(e["label"]["success"]) for e in episodes][-r.stop_window:]
+                window = [bool(e["label"]["success"]) for e in episodes][-r.stop_window :]
                 row["window"] = f"{sum(window)}/{len(window)}"
-                need = max(0, r.stop_successes - sum(window)) if len(window) >= r.stop_window else \
-                    max(r.stop_window - len(window), r.stop_successes - sum(window))
-                row["stop_rule"] = (f"reached ({r.stop_successes}/{r.stop_window})" if len(window) >= r.stop_window
-                                    and sum(window) >= r.stop_successes else
-                                    f"{r.stop_successes}/{r.stop_window} needed: at least {need} more successful "
-                                    f"episode(s); RL robot time {row['robot_time_s']:.0f} of {r.budget_s:.0f} s")
+                need = (
+                    max(0, r.stop_successes - sum(window))
+                    if len(window) >= r.stop_window
+                    else max(r.stop_window - len(window), r.stop_successes - sum(window))
+                )
+                row["stop_rule"] = (
+                    f"reached ({r.stop_successes}/{r.stop_window})"
+                    if len(window) >= r.stop_window and sum(window) >= r.stop_successes
+                    else f"{r.stop_successes}/{r.stop_window} needed: at least {need} more successful "
+                    f"episode(s); RL robot time {row['robot_time_s']:.0f} of {r.budget_s:.0f} s"
+                )
             rows.append(row)
     return rows

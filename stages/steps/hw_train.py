@@ -10,6 +10,7 @@ episode, so episodes, the 20-episode window and RL robot time continue where the
 Outputs as the simulated `train` step (checkpoint, replay) plus `curve` (curve.json with "hardware": true:
 every episode's label and robot time, the stop rule and when it was reached) and `episodes`.
 """
+
 from __future__ import annotations
 
 import shutil
@@ -36,9 +37,13 @@ def episode_settings(c: dict, task: str, clock: float):
 
     spec = get_task(task)
     r = c["robot"]
-    return EpisodeSettings(horizon=c["horizon"], max_steps=int(r.get("episode_steps") or spec.max_steps),
-                           control_hz=float(r.get("control_hz") or spec.control_hz), clock=clock,
-                           safety=SafetyEnvelope.from_dict(r.get("safety")))
+    return EpisodeSettings(
+        horizon=c["horizon"],
+        max_steps=int(r.get("episode_steps") or spec.max_steps),
+        control_hz=float(r.get("control_hz") or spec.control_hz),
+        clock=clock,
+        safety=SafetyEnvelope.from_dict(r.get("safety")),
+    )
 
 
 def stop_state(session: HardwareSession, c: dict) -> tuple[bool, str]:
@@ -77,7 +82,7 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
     handoff = ctx.input_path("handoff") if ctx.has_input("handoff") else None
     session = HardwareSession(ctx, settings)
 
-    if not (session.dir / "learner.json").is_file():          # Algorithm 1 line 1, once per stage
+    if not (session.dir / "learner.json").is_file():  # Algorithm 1 line 1, once per stage
         prev = load_learner(handoff / "learner", device=cfg.device) if handoff else None
         learner = begin_stage(prev, cfg, warm.state_dim, horizon)
         save_learner(learner, session.dir / "learner")
@@ -85,12 +90,12 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
         session._save()
     sealed_info = read_json(session.dir / "learner.json")
     acting = {"learner": load_learner(session.dir / "learner", device="cpu"), "version": sealed_info["version"]}
-    pending: list[Path] = []                 # learner checkpoints to seal, from the link's thread
+    pending: list[Path] = []  # learner checkpoints to seal, from the link's thread
     lock = threading.Lock()
 
     def init_payload():
         tmp = ctx.scratch_dir("init")
-        for name in ("learner", "warmup", "prior"):       # a re-init after a learner restart starts clean
+        for name in ("learner", "warmup", "prior"):  # a re-init after a learner restart starts clean
             if (tmp / name).exists():
                 shutil.rmtree(tmp / name)
         copy_tree(session.dir / "learner", tmp / "learner")
@@ -100,14 +105,25 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
         if ctx.has_input("teacher") and (ctx.input_path("teacher") / "teacher.safetensors").is_file():
             shutil.copyfile(ctx.input_path("teacher") / "teacher.safetensors", tmp / "teacher.safetensors")
         info = read_json(session.dir / "learner.json")
-        write_json(tmp / "init.json", {"updates": info["updates"], "version": info["version"],
-                                       "publish_every": c["publish_every"], "checkpoint_every": c["checkpoint_every"],
-                                       "task_index": k - 1, "device": cfg.device, "torch_threads": 1})
+        write_json(
+            tmp / "init.json",
+            {
+                "updates": info["updates"],
+                "version": info["version"],
+                "publish_every": c["publish_every"],
+                "checkpoint_every": c["checkpoint_every"],
+                "task_index": k - 1,
+                "device": cfg.device,
+                "torch_threads": 1,
+            },
+        )
         return {}, tar_dir(tmp)
 
     def sealed_episodes():
-        return [({"index": e["index"], "relabel": True}, episode_npz(session.arrays(e["index"])))
-                for e in session.ordered("train")]
+        return [
+            ({"index": e["index"], "relabel": True}, episode_npz(session.arrays(e["index"])))
+            for e in session.ordered("train")
+        ]
 
     def on_snapshot(h: dict, d: Path):
         learner = load_learner(d / "learner", device="cpu")
@@ -121,8 +137,15 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
         if "event" in fields:
             ctx.log_event(fields.pop("event"), workflow=c["workflow"], stage=k, phase="train", message=line, **fields)
 
-    link = LearnerLink(init_payload, sealed_episodes, on_snapshot, report, address=settings.learner_address,
-                       heartbeat_s=settings.heartbeat_s, dead_after_s=settings.dead_after_s)
+    link = LearnerLink(
+        init_payload,
+        sealed_episodes,
+        on_snapshot,
+        report,
+        address=settings.learner_address,
+        heartbeat_s=settings.heartbeat_s,
+        dead_after_s=settings.dead_after_s,
+    )
     link.start()
     bridge = make_bridge(c, settings, task, lambda line: report(line, {"event": "robot-fault"}))
     operator = make_operator(settings, bridge, ctx.console)
@@ -133,9 +156,12 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
         if todo:
             session.seal_learner(todo[-1])
         succ, n = session.window(c["stop_window"])
-        ctx.console.print(f"train: {len(session.ordered('train'))} episodes, running success {succ}/{n}, RL robot "
-                          f"time {sum(e['robot_time_s'] for e in session.ordered('train')):.1f} s, weights "
-                          f"v{acting['version']}", soft_wrap=True)
+        ctx.console.print(
+            f"train: {len(session.ordered('train'))} episodes, running success {succ}/{n}, RL robot "
+            f"time {sum(e['robot_time_s'] for e in session.ordered('train')):.1f} s, weights "
+            f"v{acting['version']}",
+            soft_wrap=True,
+        )
 
     def policy_now():
         with lock:
@@ -147,18 +173,29 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
 
     reached = stop_state(session, c)
     try:
-        episode_loop(ctx, session, operator, bridge, task=task, done=lambda: stop_state(session, c)[0],
-                     policy_now=policy_now, reference=reference, features=features,
-                     settings=episode_settings(c, task, settings.clock), gamma=cfg.gamma,
-                     index_base=int(warm_info["next_episode"]),
-                     metadata={"task_id": task, "stage": k, "phase": "train", "policy": "base+actor"},
-                     on_sealed=on_sealed, between=between)
+        episode_loop(
+            ctx,
+            session,
+            operator,
+            bridge,
+            task=task,
+            done=lambda: stop_state(session, c)[0],
+            policy_now=policy_now,
+            reference=reference,
+            features=features,
+            settings=episode_settings(c, task, settings.clock),
+            gamma=cfg.gamma,
+            index_base=int(warm_info["next_episode"]),
+            metadata={"task_id": task, "stage": k, "phase": "train", "policy": "base+actor"},
+            on_sealed=on_sealed,
+            between=between,
+        )
         done, why = stop_state(session, c)
         snap = link.tmp / f"v{link.version}"
         if link.final_snapshot() and (link.tmp / f"v{link.version}").is_dir():
             session.seal_learner(link.tmp / f"v{link.version}")
         elif snap.is_dir():
-            session.seal_learner(snap)     # the learner is gone: the newest weights this actor received
+            session.seal_learner(snap)  # the learner is gone: the newest weights this actor received
         session.close(why or reached[1])
     finally:
         link.close()
@@ -173,8 +210,18 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
     save_learner(learner, out / "learner")
     info = read_json(session.dir / "learner.json")
     train_eps = session.ordered("train")
-    write_json(out / "checkpoint.json", {"stage": k, "task_ids": tasks, "method": cfg.method, "per_task": [],
-                                         "updates": info["updates"], "episodes": len(train_eps), "hardware": True})
+    write_json(
+        out / "checkpoint.json",
+        {
+            "stage": k,
+            "task_ids": tasks,
+            "method": cfg.method,
+            "per_task": [],
+            "updates": info["updates"],
+            "episodes": len(train_eps),
+            "hardware": True,
+        },
+    )
     buffer = replay_from_episodes(warm, [session.arrays(e["index"]) for e in train_eps], k - 1)
     buffer.save_new_shards(ctx.new_output("replay", "replay"))
     write_json(ctx.new_output("curve", "eval") / "curve.json", curve_json(c, session, warm_info, why, info))
@@ -188,21 +235,49 @@ def curve_json(c: dict, session: HardwareSession, warm_info: dict, why: str, lea
     for e in session.ordered("train"):
         t += e["robot_time_s"]
         labels.append(bool(e["label"]["success"]))
-        window = labels[-c["stop_window"]:]
-        rows.append({"index": e["index"], "success": labels[-1], "robot_time_s": e["robot_time_s"],
-                     "cum_robot_time_s": round(t, 6), "window_success": sum(window), "window_size": len(window),
-                     "weights_version": e.get("weights_version"), "end": e["end"], "label_by": e["label"]["by"]})
+        window = labels[-c["stop_window"] :]
+        rows.append(
+            {
+                "index": e["index"],
+                "success": labels[-1],
+                "robot_time_s": e["robot_time_s"],
+                "cum_robot_time_s": round(t, 6),
+                "window_success": sum(window),
+                "window_size": len(window),
+                "weights_version": e.get("weights_version"),
+                "end": e["end"],
+                "label_by": e["label"]["by"],
+            }
+        )
         if reached is None and len(window) >= c["stop_window"] and sum(window) >= c["stop_successes"]:
             reached = round(t, 6)
-    return {"stage": c["stage"], "task_ids": c["task_ids"], "hardware": True, "method": c["learner"]["method"],
-            "seed": c["seed"], "episodes": rows, "stop_window": c["stop_window"],
-            "stop_successes": c["stop_successes"], "reached_robot_time_s": reached, "stopped": why,
-            "rl_robot_time_s": round(t, 6), "warmup_robot_time_s": warm_info.get("robot_time_s", 0.0),
-            "warmup_episodes": warm_info.get("episodes", 0), "updates": learner_info["updates"],
-            "train_episodes": len(rows), "train_successes": sum(labels), "sessions": session.sessions}
+    return {
+        "stage": c["stage"],
+        "task_ids": c["task_ids"],
+        "hardware": True,
+        "method": c["learner"]["method"],
+        "seed": c["seed"],
+        "episodes": rows,
+        "stop_window": c["stop_window"],
+        "stop_successes": c["stop_successes"],
+        "reached_robot_time_s": reached,
+        "stopped": why,
+        "rl_robot_time_s": round(t, 6),
+        "warmup_robot_time_s": warm_info.get("robot_time_s", 0.0),
+        "warmup_episodes": warm_info.get("episodes", 0),
+        "updates": learner_info["updates"],
+        "train_episodes": len(rows),
+        "train_successes": sum(labels),
+        "sessions": session.sessions,
+    }
 
 
-STEP = StepDef(name="train", code_version="hw-train-1", run=lambda ctx: run(ctx, SessionSettings()),
-               inputs=("base-policy", "replay"), optional_inputs=("handoff", "teacher"),
-               outputs={"checkpoint": "checkpoint", "replay": "replay", "curve": "eval", "episodes": "episodes"},
-               description="asynchronous actor (robot) and learner (process) with operator labels; stops at 19/20")
+STEP = StepDef(
+    name="train",
+    code_version="hw-train-1",
+    run=lambda ctx: run(ctx, SessionSettings()),
+    inputs=("base-policy", "replay"),
+    optional_inputs=("handoff", "teacher"),
+    outputs={"checkpoint": "checkpoint", "replay": "replay", "curve": "eval", "episodes": "episodes"},
+    description="asynchronous actor (robot) and learner (process) with operator labels; stops at 19/20",
+)

@@ -1,6 +1,7 @@
 """`warmup` on a robot: Algorithm 1 line 3, π_base^k alone for `episodes` operator-labelled episodes; their
 chunk transitions are the first shard of B^k. Episodes are sealed one by one (resumable like `train`);
 their robot time is reported apart from RL's (Fig. 4's shaded warmup)."""
+
 from __future__ import annotations
 
 from stages.runner_context import StepContext
@@ -34,31 +35,63 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
     bridge = make_bridge(c, settings, task, lambda line: ctx.log_event("robot-fault", message=line, stage=k))
     operator = make_operator(settings, bridge, ctx.console)
     try:
-        episode_loop(ctx, session, operator, bridge, task=task, done=lambda: len(session.episodes) >= c["episodes"],
-                     policy_now=lambda: (rl_loop.execute_reference, None), reference=reference, features=features,
-                     settings=episode_settings(c, task, settings.clock), gamma=c["gamma"], index_base=0,
-                     metadata={"task_id": task, "stage": k, "phase": "warmup", "policy": "base"})
+        episode_loop(
+            ctx,
+            session,
+            operator,
+            bridge,
+            task=task,
+            done=lambda: len(session.episodes) >= c["episodes"],
+            policy_now=lambda: (rl_loop.execute_reference, None),
+            reference=reference,
+            features=features,
+            settings=episode_settings(c, task, settings.clock),
+            gamma=c["gamma"],
+            index_base=0,
+            metadata={"task_id": task, "stage": k, "phase": "warmup", "policy": "base"},
+        )
         session.close(f"{c['episodes']} warmup episodes")
     finally:
         bridge.disconnect()
         operator.close()
     eps = session.ordered()
-    dim = session.arrays(eps[0]["index"])["s"].shape[-1] if eps else features({"state": np.zeros((1, 29), np.float32)}).shape[1]
+    dim = (
+        session.arrays(eps[0]["index"])["s"].shape[-1]
+        if eps
+        else features({"state": np.zeros((1, 29), np.float32)}).shape[1]
+    )
     buffer = replay_from_episodes(ReplayBuffer(dim, horizon), [session.arrays(e["index"]) for e in eps], k - 1)
     out = ctx.new_output("replay", "replay")
     buffer.save_new_shards(out)
     successes = sum(bool(e["label"]["success"]) for e in eps)
-    write_json(out / "warmup.json", {
-        "stage": k, "task": task, "episodes": len(eps), "successes": successes,
-        "env_steps": sum(e["control_steps"] for e in eps), "transitions": len(buffer),
-        "next_episode": max([e["index"] for e in eps], default=-1) + 1, "hardware": True,
-        "robot_time_s": round(session.robot_time_s(), 6),
-        "episode_robot_time_s": [e["robot_time_s"] for e in eps], "labels": [bool(e["label"]["success"]) for e in eps]})
+    write_json(
+        out / "warmup.json",
+        {
+            "stage": k,
+            "task": task,
+            "episodes": len(eps),
+            "successes": successes,
+            "env_steps": sum(e["control_steps"] for e in eps),
+            "transitions": len(buffer),
+            "next_episode": max([e["index"] for e in eps], default=-1) + 1,
+            "hardware": True,
+            "robot_time_s": round(session.robot_time_s(), 6),
+            "episode_robot_time_s": [e["robot_time_s"] for e in eps],
+            "labels": [bool(e["label"]["success"]) for e in eps],
+        },
+    )
     episodes_output(ctx, session)
-    ctx.console.print(f"warmup: {len(eps)} base-policy episodes on the robot ({task}), {successes} labelled success, "
-                      f"robot time {session.robot_time_s():.1f} s")
+    ctx.console.print(
+        f"warmup: {len(eps)} base-policy episodes on the robot ({task}), {successes} labelled success, "
+        f"robot time {session.robot_time_s():.1f} s"
+    )
 
 
-STEP = StepDef(name="warmup", code_version="hw-warmup-1", run=lambda ctx: run(ctx, SessionSettings()),
-               inputs=("base-policy",), outputs={"replay": "replay", "episodes": "episodes"},
-               description="base-policy episodes on the robot, operator-labelled, seeding B^k")
+STEP = StepDef(
+    name="warmup",
+    code_version="hw-warmup-1",
+    run=lambda ctx: run(ctx, SessionSettings()),
+    inputs=("base-policy",),
+    outputs={"replay": "replay", "episodes": "episodes"},
+    description="base-policy episodes on the robot, operator-labelled, seeding B^k",
+)

@@ -7,6 +7,7 @@ steps). Intra-step checkpoints (learner + the replay shards appended since the l
 counters) are saved at fixed env-step points, so `--continue` after a kill repeats nothing that was
 saved and ends with the same bytes as a run that never stopped.
 """
+
 from __future__ import annotations
 
 from stages.runner_context import StepContext
@@ -14,13 +15,22 @@ from stages.runner_types import StepDef
 from stages.steps import handoff as handoff_step
 from stages.steps import warmup as warmup_step
 from stages.steps.cache_teacher import load_teacher
-from stages.steps.common import (copy_tree, deterministic, learner_config, load_base_policy, make_env,
-                                 per_task_features, read_json, reference_fn, write_json)
+from stages.steps.common import (
+    copy_tree,
+    deterministic,
+    learner_config,
+    load_base_policy,
+    make_env,
+    per_task_features,
+    read_json,
+    reference_fn,
+    write_json,
+)
 
 # the `checkpoint` output (and each intra-step checkpoint): learner/, per_task/<i>/ (Isolated), checkpoint.json
 LEARNER_DIR, PER_TASK_DIR, CHECKPOINT_FILE = "learner", "per_task", "checkpoint.json"
-REPLAY_DIR, LOOP_FILE = "replay", "loop.json"        # intra-step checkpoints only
-CURVE_FILE = "curve.json"                             # the `curve` output
+REPLAY_DIR, LOOP_FILE = "replay", "loop.json"  # intra-step checkpoints only
+CURVE_FILE = "curve.json"  # the `curve` output
 
 
 def run(ctx: StepContext) -> None:
@@ -37,7 +47,7 @@ def run(ctx: StepContext) -> None:
     task = tasks[-1]
     deterministic(seed)
     settings = dict(c["learner"])
-    if "device" not in settings:    # not pinned by the workflow: the GPU when there is one
+    if "device" not in settings:  # not pinned by the workflow: the GPU when there is one
         settings["device"] = "cuda" if torch.cuda.is_available() else "cpu"
     cfg = learner_config(settings)
     dev = cfg.device
@@ -57,7 +67,7 @@ def run(ctx: StepContext) -> None:
 
     checkpoint = ctx.last_checkpoint()
     if checkpoint is None:
-        buffer = ReplayBuffer.load(ctx.input_path("replay"))                          # B^k from warmup
+        buffer = ReplayBuffer.load(ctx.input_path("replay"))  # B^k from warmup
         next_episode = read_json(ctx.input_path("replay") / warmup_step.INFO_FILE)["next_episode"]
         resume = None
     else:
@@ -69,20 +79,28 @@ def run(ctx: StepContext) -> None:
         ctx.console.print(f"train: resumed at env step {loop_state.env_steps} ({loop_state.updates} updates)")
 
     env = make_env(task, c["num_envs"], rl_loop.env_seed(seed, k, "train"), c["obs_mode"])
-    collector = rl_loop.ChunkCollector(env, references[task], features[task], buffer, task_index=k - 1,
-                                       gamma=cfg.gamma, next_episode=next_episode)
+    collector = rl_loop.ChunkCollector(
+        env, references[task], features[task], buffer, task_index=k - 1, gamma=cfg.gamma, next_episode=next_episode
+    )
     evaluator = rl_loop.Evaluator(
         lambda t, n: make_env(t, n, rl_loop.env_seed(seed, k, "eval", tasks.index(t)), c["obs_mode"]),
-        references, features, c["eval_episodes"], c["num_envs"], horizon, cfg.gamma)
-    episode_span = c["num_envs"] * get_task(task).max_steps    # env steps for every env to run one episode
-    loop = rl_loop.LoopSettings(tasks, c["env_steps"], c["eval_every"], c["checkpoint_every"],
-                                min_checkpoint_gap=2 * episode_span)
+        references,
+        features,
+        c["eval_episodes"],
+        c["num_envs"],
+        horizon,
+        cfg.gamma,
+    )
+    episode_span = c["num_envs"] * get_task(task).max_steps  # env steps for every env to run one episode
+    loop = rl_loop.LoopSettings(
+        tasks, c["env_steps"], c["eval_every"], c["checkpoint_every"], min_checkpoint_gap=2 * episode_span
+    )
 
     staging = ctx.scratch_dir("checkpoint")
 
     def save_checkpoint(learner, st: rl_loop.LoopState) -> None:
         save_learner(learner, staging / LEARNER_DIR)
-        buffer.save_new_shards(staging / REPLAY_DIR)      # only the shards appended since the last one
+        buffer.save_new_shards(staging / REPLAY_DIR)  # only the shards appended since the last one
         write_json(staging / LOOP_FILE, st.to_json())
         ctx.save_checkpoint(staging, {"env_steps": st.env_steps, "updates": st.updates})
 
@@ -92,15 +110,27 @@ def run(ctx: StepContext) -> None:
         now = time.monotonic()
         rate = (st.updates - clock["updates"]) / max(now - clock["t"], 1e-9)
         clock.update(t=now, updates=st.updates)
-        line = (f"train: env steps {st.env_steps}/{loop.env_steps}  updates {st.updates} ({rate:.0f}/s)  "
-                f"episodes {st.episodes} (success {st.successes / max(st.episodes, 1):.2f})")
+        line = (
+            f"train: env steps {st.env_steps}/{loop.env_steps}  updates {st.updates} ({rate:.0f}/s)  "
+            f"episodes {st.episodes} (success {st.successes / max(st.episodes, 1):.2f})"
+        )
         if "eval" in info:
             line += "  eval " + " ".join(f"{t}={r:.2f}" for t, r in info["eval"].items())
         ctx.console.print(line, soft_wrap=True)
 
     learner, state = stage_rl.train_stage(
-        cfg, previous, memory, teacher, collector, evaluator, loop, frozen_acts=frozen, resume=resume,
-        on_checkpoint=save_checkpoint, on_progress=show)
+        cfg,
+        previous,
+        memory,
+        teacher,
+        collector,
+        evaluator,
+        loop,
+        frozen_acts=frozen,
+        resume=resume,
+        on_checkpoint=save_checkpoint,
+        on_progress=show,
+    )
     env.close()
     evaluator.close()
 
@@ -108,18 +138,43 @@ def run(ctx: StepContext) -> None:
     save_learner(learner, out / LEARNER_DIR)
     for i, p in kept.items():
         copy_tree(p, out / PER_TASK_DIR / str(i))
-    write_json(out / CHECKPOINT_FILE, {"stage": k, "task_ids": tasks, "method": cfg.method,
-                                       "per_task": sorted(kept), "env_steps": state.env_steps,
-                                       "updates": state.updates})
+    write_json(
+        out / CHECKPOINT_FILE,
+        {
+            "stage": k,
+            "task_ids": tasks,
+            "method": cfg.method,
+            "per_task": sorted(kept),
+            "env_steps": state.env_steps,
+            "updates": state.updates,
+        },
+    )
     buffer.save_new_shards(ctx.new_output("replay", "replay"))
-    write_json(ctx.new_output("curve", "eval") / CURVE_FILE, {
-        "stage": k, "task_ids": tasks, "grid": sorted(state.grid_done),
-        "success": {t: state.curve[t] for t in tasks}, "episodes_per_point": c["eval_episodes"],
-        "method": cfg.method, "ablation": cfg.ablation, "seed": seed, "env_steps": state.env_steps,
-        "updates": state.updates, "train_episodes": state.episodes, "train_successes": state.successes})
+    write_json(
+        ctx.new_output("curve", "eval") / CURVE_FILE,
+        {
+            "stage": k,
+            "task_ids": tasks,
+            "grid": sorted(state.grid_done),
+            "success": {t: state.curve[t] for t in tasks},
+            "episodes_per_point": c["eval_episodes"],
+            "method": cfg.method,
+            "ablation": cfg.ablation,
+            "seed": seed,
+            "env_steps": state.env_steps,
+            "updates": state.updates,
+            "train_episodes": state.episodes,
+            "train_successes": state.successes,
+        },
+    )
 
 
-STEP = StepDef(name="train", code_version="train-3", run=run, inputs=("base-policy", "replay"),
-               optional_inputs=("handoff", "teacher"),
-               outputs={"checkpoint": "checkpoint", "replay": "replay", "curve": "eval"},
-               description="off-policy RL on chunks with an evaluation grid and resumable checkpoints")
+STEP = StepDef(
+    name="train",
+    code_version="train-3",
+    run=run,
+    inputs=("base-policy", "replay"),
+    optional_inputs=("handoff", "teacher"),
+    outputs={"checkpoint": "checkpoint", "replay": "replay", "curve": "eval"},
+    description="off-policy RL on chunks with an evaluation grid and resumable checkpoints",
+)

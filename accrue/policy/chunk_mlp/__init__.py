@@ -10,6 +10,7 @@ Why not ACT: on the quickstart's kind of demonstrations (60, three tasks, 800 st
 where this MLP reached 0.46-0.54 (scripts/base_policy_table.py measures it stage by stage). The chunk is
 predicted from one observation, like ACT's.
 """
+
 from accrue.policy.chunk_mlp.configuration_chunk_mlp import POLICY_TYPE, ChunkMLPConfig
 from accrue.policy.chunk_mlp.modeling_chunk_mlp import ChunkMLPPolicy
 

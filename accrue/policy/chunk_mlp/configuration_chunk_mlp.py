@@ -1,5 +1,6 @@
 """lerobot config of the `accrue_chunk_mlp` policy (module name follows lerobot's plugin convention:
 configuration_X -> modeling_X (class XPolicy) and processor_X (make_<type>_pre_post_processors))."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -15,19 +16,21 @@ POLICY_TYPE = "accrue_chunk_mlp"
 @dataclass
 class ChunkMLPConfig(PreTrainedConfig):
     n_obs_steps: int = 1
-    chunk_size: int = 4                  # actions predicted per observation
-    n_action_steps: int = 4              # actions executed per call of select_action's queue
+    chunk_size: int = 4  # actions predicted per observation
+    n_action_steps: int = 4  # actions executed per call of select_action's queue
     hidden_dims: tuple[int, ...] = (256, 256)
 
-    normalization_mapping: dict[str, NormalizationMode] = field(default_factory=lambda: {
-        "STATE": NormalizationMode.MEAN_STD,
-        "ENV": NormalizationMode.MEAN_STD,
-        # actions are already in [-1, 1]; per-dimension standardisation would weight the L1 loss towards
-        # the near-constant dimensions (tilt, the round peg's yaw) and away from the xy servo that decides
-        # success (measured on the quickstart's 60 demos, 800 steps: 0.34/0.28/0.44 with MEAN_STD,
-        # 0.54/0.46/0.54 without)
-        "ACTION": NormalizationMode.IDENTITY,
-    })
+    normalization_mapping: dict[str, NormalizationMode] = field(
+        default_factory=lambda: {
+            "STATE": NormalizationMode.MEAN_STD,
+            "ENV": NormalizationMode.MEAN_STD,
+            # actions are already in [-1, 1]; per-dimension standardisation would weight the L1 loss towards
+            # the near-constant dimensions (tilt, the round peg's yaw) and away from the xy servo that decides
+            # success (measured on the quickstart's 60 demos, 800 steps: 0.34/0.28/0.44 with MEAN_STD,
+            # 0.54/0.46/0.54 without)
+            "ACTION": NormalizationMode.IDENTITY,
+        }
+    )
 
     optimizer_lr: float = 1e-3
     optimizer_weight_decay: float = 1e-4
@@ -77,4 +80,3 @@ class ChunkMLPConfig(PreTrainedConfig):
     @property
     def action_dim(self) -> int:
         return self.action_feature.shape[0]
-

@@ -1,13 +1,13 @@
 """The `accrue_chunk_mlp` network: normalised (state ‖ task embedding) -> MLP -> (chunk_size, action_dim)."""
+
 from __future__ import annotations
 
 from collections import deque
 
 import torch
-from torch import Tensor, nn
-
 from lerobot.policies.pretrained import PreTrainedPolicy
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
+from torch import Tensor, nn
 
 from accrue.policy.chunk_mlp.configuration_chunk_mlp import POLICY_TYPE, ChunkMLPConfig
 

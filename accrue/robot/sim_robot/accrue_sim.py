@@ -7,6 +7,7 @@ operator in place of a person: `reset_scene()` (the operator puts the parts back
 (what the operator would see). Pacing (real time or a clock factor) is the control loop's business, as
 with lerobot's own record loop. Faults are injected from the config (see config_accrue_sim).
 """
+
 from __future__ import annotations
 
 import time
@@ -73,8 +74,12 @@ class AccrueSim(Robot):
             spec = get_task(self.config.task)
             r, f = spec.randomisation, float(self.config.estimate_noise)
             if f != 1.0:
-                spec = dataclasses.replace(spec, randomisation=dataclasses.replace(
-                    r, estimate_xy=r.estimate_xy * f, estimate_yaw=r.estimate_yaw * f))
+                spec = dataclasses.replace(
+                    spec,
+                    randomisation=dataclasses.replace(
+                        r, estimate_xy=r.estimate_xy * f, estimate_yaw=r.estimate_yaw * f
+                    ),
+                )
             self._env = VecAssemblyEnv(spec, num_envs=1, seed=self.config.seed, nthread=1)
             self.reset_scene()
         self._connected = True
@@ -104,7 +109,7 @@ class AccrueSim(Robot):
             self._connected = False
             raise DeviceNotConnectedError(f"{self}: link lost (injected fault at step {steps})")
         if steps in self.config.drop_command_steps:
-            return {}                           # the command never reached the controller
+            return {}  # the command never reached the controller
         if not self._done:
             a = np.array([[float(action[n]) for n in ACTION_NAMES]], dtype=np.float64)
             res = self._env.step(a)

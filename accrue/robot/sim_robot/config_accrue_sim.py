@@ -1,5 +1,6 @@
 """`accrue_sim`: the config of accrue's simulated robot, registered in lerobot's RobotConfig registry
 like any third-party robot (importing accrue.robot.sim_robot registers it)."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field
@@ -10,11 +11,11 @@ from lerobot.robots.config import RobotConfig
 @RobotConfig.register_subclass("accrue_sim")
 @dataclass(kw_only=True)
 class AccrueSimConfig(RobotConfig):
-    task: str = "nist/rect_peg"            # an accrue.sim task id
+    task: str = "nist/rect_peg"  # an accrue.sim task id
     seed: int = 0
-    estimate_noise: float = 1.0             # scale of the socket-estimate error (a better or worse camera)
+    estimate_noise: float = 1.0  # scale of the socket-estimate error (a better or worse camera)
     # injectable faults, counted in control steps (send_action calls) since the robot object was made
-    disconnect_after_steps: int = 0         # the link drops at this step (0: never); connect() restores it
-    late_observation_steps: list[int] = field(default_factory=list)   # get_observation answers late here
+    disconnect_after_steps: int = 0  # the link drops at this step (0: never); connect() restores it
+    late_observation_steps: list[int] = field(default_factory=list)  # get_observation answers late here
     late_by_s: float = 2.0
-    drop_command_steps: list[int] = field(default_factory=list)        # send_action ignores these commands
+    drop_command_steps: list[int] = field(default_factory=list)  # send_action ignores these commands
