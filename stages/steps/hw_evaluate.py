@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from stages.runner_context import StepContext
 from stages.runner_types import StepDef
+from stages.steps import train as train_step
 from stages.steps.common import deterministic, load_base_policy, per_task_features, reference_fn, write_json
 from stages.steps.hw_session import (
     HardwareSession,
@@ -18,14 +19,15 @@ from stages.steps.hw_train import episode_settings
 
 
 def run(ctx: StepContext, settings: SessionSettings) -> None:
+    from accrue import rl_loop
     from accrue.learner import load_learner
 
     c = ctx.config
     k, tasks, horizon, n = c["stage"], c["task_ids"], c["horizon"], c["trials"]
     deterministic(c["seed"])
     policy = load_base_policy(ctx.input_path("base-policy"), c["seed"])
-    learner = load_learner(ctx.input_path("checkpoint") / "learner", device="cpu")
-    act = lambda s, ref, fresh: learner.act(s, ref, explore=False)  # noqa: E731 - the deterministic actor
+    learner = load_learner(ctx.input_path("checkpoint") / train_step.LEARNER_DIR, device="cpu")
+    act = rl_loop.actor_act(learner)  # the deterministic actor the method deploys
     features = per_task_features(c, tasks)
     session = HardwareSession(ctx, settings)
     for i, task in enumerate(tasks[:-1]):

@@ -19,6 +19,9 @@ from pathlib import Path
 
 from stages.runner_context import StepContext
 from stages.runner_types import StepDef
+from stages.steps import handoff as handoff_step
+from stages.steps import train as train_step
+from stages.steps import warmup as warmup_step
 from stages.steps.common import deterministic, load_base_policy, per_task_features, read_json, reference_fn, write_json
 from stages.steps.hw_session import (
     HardwareSession,
@@ -78,12 +81,12 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
     features = per_task_features(c, [task])[task]
     warm_dir = ctx.input_path("replay")
     warm = ReplayBuffer.load(warm_dir)
-    warm_info = read_json(warm_dir / "warmup.json")
+    warm_info = read_json(warm_dir / warmup_step.INFO_FILE)
     handoff = ctx.input_path("handoff") if ctx.has_input("handoff") else None
     session = HardwareSession(ctx, settings)
 
     if not (session.dir / "learner.json").is_file():  # Algorithm 1 line 1, once per stage
-        prev = load_learner(handoff / "learner", device=cfg.device) if handoff else None
+        prev = load_learner(handoff / handoff_step.LEARNER_DIR, device=cfg.device) if handoff else None
         learner = begin_stage(prev, cfg, warm.state_dim, horizon)
         save_learner(learner, session.dir / "learner")
         write_json(session.dir / "learner.json", {"updates": 0, "version": 0, "episodes": []})
@@ -101,7 +104,7 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
         copy_tree(session.dir / "learner", tmp / "learner")
         copy_tree(warm_dir, tmp / "warmup")
         if handoff is not None:
-            copy_tree(handoff / "memory", tmp / "prior")
+            copy_tree(handoff / handoff_step.MEMORY_DIR, tmp / "prior")
         if ctx.has_input("teacher") and (ctx.input_path("teacher") / "teacher.safetensors").is_file():
             shutil.copyfile(ctx.input_path("teacher") / "teacher.safetensors", tmp / "teacher.safetensors")
         info = read_json(session.dir / "learner.json")
@@ -207,11 +210,11 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
     learner = load_learner(session.dir / "learner", device="cpu")
     end_stage(learner)
     out = ctx.new_output("checkpoint", "checkpoint")
-    save_learner(learner, out / "learner")
+    save_learner(learner, out / train_step.LEARNER_DIR)
     info = read_json(session.dir / "learner.json")
     train_eps = session.ordered("train")
     write_json(
-        out / "checkpoint.json",
+        out / train_step.CHECKPOINT_FILE,
         {
             "stage": k,
             "task_ids": tasks,

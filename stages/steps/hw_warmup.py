@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from stages.runner_context import StepContext
 from stages.runner_types import StepDef
+from stages.steps import warmup as warmup_step
 from stages.steps.common import deterministic, load_base_policy, per_task_features, reference_fn, write_json
 from stages.steps.hw_session import (
     HardwareSession,
@@ -65,7 +66,7 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
     buffer.save_new_shards(out)
     successes = sum(bool(e["label"]["success"]) for e in eps)
     write_json(
-        out / "warmup.json",
+        out / warmup_step.INFO_FILE,
         {
             "stage": k,
             "task": task,
