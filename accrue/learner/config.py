@@ -135,7 +135,9 @@ class LearnerConfig:
 
     def validate(self) -> None:
         def bad(name: str, why: str) -> AccrueError:
-            return AccrueError(f"learner.{name}: {why} (got {reprlib.repr(getattr(self, name))})")  # bounded
+            got = reprlib.repr(getattr(self, name))  # bounded per level; nested values still add up
+            got = got if len(got) <= 200 else got[:199] + "…"
+            return AccrueError(f"learner.{name}: {why} (got {got})")
 
         for name in ("algo", "method", "ablation", "distill_inputs", "obs_norm_update"):
             allowed = {
