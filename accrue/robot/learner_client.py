@@ -79,6 +79,13 @@ class LearnerLink:
     def close(self) -> None:
         self.stop.set()
         self.thread.join(timeout=5)
+        if self.local and self.proc is not None and self.proc.poll() is not None and not self.lost_reported:
+            # died after the last heartbeat: still say so, the session's log must show it
+            self.lost_reported = True
+            self.report(
+                f"learner process exited (code {self.proc.returncode}) before the session ended",
+                {"event": "robot-learner-lost", "code": self.proc.returncode},
+            )
         if self.peer is not None and self.local:
             try:
                 self.peer.call("Shutdown", {}, timeout=2.0)
