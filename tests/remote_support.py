@@ -103,6 +103,15 @@ def delete_remote_key(url: str, key: str) -> None:
         (Path(url) / key).unlink()
 
 
+def cli(store: Path, *args: str):
+    """`accrue ARGS --store STORE` in a subprocess."""
+    return accrue(*args, "--store", str(store))
+
+
+def with_remote(store: Path, url: str, name: str = "origin") -> None:
+    assert cli(store, "remote", "add", name, url).returncode == 0
+
+
 def make_store(path: Path, files: int = 6, seed: int = 3) -> Store:
     """A store with a directory artifact (handoff), a file artifact (replay) and a committed step
     record whose input is the handoff, so lineage has something to walk."""

@@ -12,12 +12,8 @@ from pathlib import Path
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from remote_support import make_store, moto_endpoint, s3_client, s3_env, snapshot  # noqa: E402,F401
-from test_cli_store import accrue, one_line_error  # noqa: E402
-
-
-def cli(store: Path, *args: str):
-    return accrue(*args, "--store", str(store))
+from remote_support import cli, make_store, moto_endpoint, s3_client, s3_env, snapshot  # noqa: E402,F401
+from test_cli_store import one_line_error  # noqa: E402
 
 
 @pytest.fixture

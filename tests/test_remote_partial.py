@@ -9,15 +9,11 @@ import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from remote_support import make_store, moto_endpoint, overwrite_remote_key, remote_url, s3_env, user_refs  # noqa: E402,F401
-from test_cli_store import accrue, one_line_error  # noqa: E402
+from remote_support import cli, make_store, moto_endpoint, overwrite_remote_key, remote_url, s3_env, user_refs  # noqa: E402,F401
+from test_cli_store import one_line_error  # noqa: E402
 from test_runner_support import count_invocation  # noqa: E402
 
 from artifacts.store import Store  # noqa: E402
-
-
-def cli(store: Path, *args: str):
-    return accrue(*args, "--store", str(store))
 
 
 def robot_with_checkpoint(tmp_path: Path, url: str) -> tuple[Path, str]:

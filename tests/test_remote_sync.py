@@ -10,6 +10,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from remote_support import (  # noqa: E402,F401
+    cli,
     delete_remote_key,
     make_store,
     moto_endpoint,
@@ -19,20 +20,12 @@ from remote_support import (  # noqa: E402,F401
     s3_env,
     snapshot,
     user_refs,
+    with_remote,
 )
-from test_cli_store import accrue  # noqa: E402
 
 from artifacts.store import Store  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-
-
-def cli(store: Path, *args: str):
-    return accrue(*args, "--store", str(store))
-
-
-def with_remote(store: Path, url: str, name: str = "origin") -> None:
-    assert cli(store, "remote", "add", name, url).returncode == 0
 
 
 def test_push_then_pull_into_an_empty_store_gives_the_same_refs(tmp_path, remote_url):
