@@ -87,13 +87,27 @@ def test_evaluation_is_repeatable_and_counts_exactly_m_episodes():
     first = ev.success_rate(TASK)
     assert first == ev.success_rate(TASK)
     assert first in (0.0, 1 / 3, 2 / 3, 1.0)
-    # the act function is what is scored: passing ã through reproduces the base rate exactly, and a chunk
-    # that lifts the plug away from the socket never succeeds
-    assert ev.success_rate(TASK, lambda s, ref, fresh: ref) == first
+    # the act function is what is scored: with a reference that succeeds (the scripted stand-in with the
+    # fixture's bias known), passing ã through reproduces its rate exactly, and lifting the plug scores 0
+    from accrue.scripted_reference import ScriptedReference
+    from accrue.sim import get_task
+
+    scripted, instruction = ScriptedReference(1.0), get_task(TASK).instruction
+    good = rl_loop.Evaluator(
+        lambda t, n: make_vec_env(t, n, seed=99),
+        {TASK: lambda obs: scripted.reference_chunk(obs, instruction, H)},
+        state_features,
+        4,
+        N,
+        H,
+        0.99,
+    )
+    base = good.success_rate(TASK)
+    assert base > 0
+    assert good.success_rate(TASK, lambda s, ref, fresh: ref) == base
     lift = np.zeros((1, H, 6), dtype=np.float32)
     lift[..., 2] = 1.0
-    assert ev.success_rate(TASK, lambda s, ref, fresh: np.repeat(lift, len(s), 0)) == 0.0
-    ev.close()
+    assert good.success_rate(TASK, lambda s, ref, fresh: np.repeat(lift, len(s), 0)) == 0.0
 
 
 def run_loop(tmp_path, stop_after_checkpoint=None, resume_dir=None):

@@ -110,8 +110,6 @@ class ChunkLearner:
         π_θ(s, ã), Q_ψ(s, a, ã))."""
         return ref if self.rules.use_reference else torch.zeros_like(ref)
 
-    _actor_ref = _ref_in  # the Eq. 3 teacher reads ã through the same rule
-
     def deployed_actor(self) -> Actor:
         """The actor the method would deploy if the stage ended now: RETAIN's discounted interpolation
         (1−α)·θ_prev + α·θ (a copy; the training actor is untouched), the actor itself otherwise."""
