@@ -195,4 +195,11 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    from stages.errors import StageError
+
+    try:
+        main()
+    except subprocess.CalledProcessError as exc:  # accrue already printed its one-line error
+        sys.exit(f"error: {' '.join(map(str, exc.cmd[3:]))} exited with {exc.returncode}")
+    except StageError as exc:
+        sys.exit(f"error: {exc}")
