@@ -99,6 +99,34 @@ def sim_factory(tmp_path_factory):
     return make
 
 
+def test_fault_schedules_belong_to_the_arm_a_config_describes(tmp_path):
+    """A driver rebuilt from the same config talks to the same arm (its fault does not fire again); a new
+    config is a new arm with a fresh schedule, even one equal in every field (a schedule keyed by id(config)
+    once gave a later step's config a dead config's spent count, and that step never faulted)."""
+    from lerobot.utils.errors import DeviceNotConnectedError
+
+    from accrue.robot.sim_robot.accrue_sim import AccrueSim
+    from accrue.robot.sim_robot.config_accrue_sim import AccrueSimConfig
+    from accrue.sim.observation import ACTION_NAMES
+
+    zero = {n: 0.0 for n in ACTION_NAMES}
+
+    def faults_within(config, steps: int) -> bool:
+        robot = AccrueSim(config)
+        robot.connect()
+        try:
+            for _ in range(steps):
+                robot.send_action(zero)
+        except DeviceNotConnectedError:
+            return True
+        return False
+
+    first = AccrueSimConfig(calibration_dir=tmp_path, disconnect_after_steps=2)
+    assert faults_within(first, 2)
+    assert not faults_within(first, 5)  # rebuilt driver, same arm: the fault already fired
+    assert faults_within(AccrueSimConfig(calibration_dir=tmp_path, disconnect_after_steps=2), 2)
+
+
 def test_sim_robot_is_a_registered_lerobot_robot(sim_factory):
     from lerobot.robots.config import RobotConfig
     from lerobot.robots.robot import Robot

@@ -22,8 +22,17 @@ from accrue.sim.observation import ACTION_NAMES, STATE_NAMES
 DONE_KEY = "episode.done"
 
 # Fault schedules count the steps of the simulated *arm*, not of one driver object: a bridge that rebuilds
-# the driver after a timeout talks to the same arm, whose faults do not fire again. Keyed by the config.
-_ARM_STEPS: dict[int, list] = {}
+# the driver after a timeout talks to the same arm, whose faults do not fire again. The count lives on the
+# config object the drivers share. (A module-level map keyed by id(config) once handed a later step's new
+# config, allocated at a dead config's address, a spent schedule: that step never faulted.)
+_ARM_ATTR = "_accrue_sim_arm"
+
+
+def _arm_of(config: AccrueSimConfig) -> list:
+    """[send_action calls, late observations already served] of the arm behind this config."""
+    if not hasattr(config, _ARM_ATTR):
+        object.__setattr__(config, _ARM_ATTR, [0, set()])
+    return getattr(config, _ARM_ATTR)
 
 
 class AccrueSim(Robot):
@@ -36,7 +45,7 @@ class AccrueSim(Robot):
         self._env = None
         self._connected = False
         # [send_action calls, late observations already served] of this arm, for fault injection
-        self._arm = _ARM_STEPS.setdefault(id(config), [0, set()])
+        self._arm = _arm_of(config)
         self._obs: np.ndarray | None = None
         self._done = False
         self._success = False

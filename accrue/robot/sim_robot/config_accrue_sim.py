@@ -14,7 +14,8 @@ class AccrueSimConfig(RobotConfig):
     task: str = "nist/rect_peg"  # an accrue.sim task id
     seed: int = 0
     estimate_noise: float = 1.0  # scale of the socket-estimate error (a better or worse camera)
-    # injectable faults, counted in control steps (send_action calls) since the robot object was made
+    # injectable faults, counted in control steps (send_action calls) of this config's arm (every
+    # driver built from this config object shares one count, so a rebuilt driver does not fault again)
     disconnect_after_steps: int = 0  # the link drops at this step (0: never); connect() restores it
     late_observation_steps: list[int] = field(default_factory=list)  # get_observation answers late here
     late_by_s: float = 2.0
