@@ -37,6 +37,18 @@ SpecArg = Annotated[
 ]
 
 
+def _comma_list(value: str | None, flag: str = "", kind=str) -> list | None:
+    if value is None:
+        return None
+    items = [v.strip() for v in value.split(",") if v.strip()]
+    try:
+        return [kind(v) for v in items]
+    except ValueError:
+        from stages.errors import StageError
+
+        raise StageError(f"{flag}: expected comma-separated integers (got {value!r})") from None
+
+
 @bench_app.command("run")
 def run(
     spec: SpecArg,
@@ -74,22 +86,41 @@ def run(
             "--logs", help="Directory of the cells' step logs (default runs/bench/<spec>/logs).", show_default=False
         ),
     ] = None,
+    methods: Annotated[
+        Optional[str],
+        typer.Option("--methods", help="Only these methods of the spec (comma-separated).", show_default=False),
+    ] = None,
+    orderings: Annotated[
+        Optional[str],
+        typer.Option("--orderings", help="Only these orderings of the spec (comma-separated).", show_default=False),
+    ] = None,
+    seeds: Annotated[
+        Optional[str],
+        typer.Option(
+            "--seeds",
+            help="Only these seeds of the spec (comma-separated), e.g. two seeds of every method first and the "
+            "third later; the report counts what is missing.",
+            show_default=False,
+        ),
+    ] = None,
     store: StoreOpt = None,
     as_json: JsonOpt = False,
 ) -> int:
     """Run every cell of SPEC that is not finished yet (finished cells are skipped; a failed cell is retried,
     then reported while the others go on). Exit 1 if any cell failed."""
     from stages.bench.execute import run_bench, summary_rows
-    from stages.bench.spec import load_spec
+    from stages.bench.spec import load_spec, select_cells
     from stages.errors import StageError
 
     if retries is not None and retries < 0:
         raise StageError(f"--retries: must be >= 0 (got {retries})")
     sp = load_spec(spec)
+    cells = select_cells(sp, _comma_list(methods), _comma_list(orderings), _comma_list(seeds, "--seeds", int))
     st = open_store(store)
     results = run_bench(
         sp,
         st,
+        cells=cells,
         executor="serial" if serial else executor,
         address=address,
         num_cpus=num_cpus,

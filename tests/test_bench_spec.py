@@ -181,3 +181,31 @@ def test_unreachable_cluster_address_is_one_line_and_exit_2(tmp_path):
     )
     assert res.returncode == 2, res.stderr
     assert res.stderr.startswith("error: --address 127.0.0.1:1: nothing answers there") and res.stderr.count("\n") == 1
+
+
+def test_a_part_of_the_grid_can_run_first(tmp_path):
+    from stages.bench.spec import select_cells
+
+    spec = load_spec(write(tmp_path))
+    part = select_cells(spec, seeds=[1], methods=["no-ref", "accrue"])
+    assert [(c.method, c.ordering, c.seed) for c in part] == [
+        ("accrue", "S1", 1),
+        ("accrue", "S2", 1),
+        ("no-ref", "S1", 1),
+        ("no-ref", "S2", 1),
+    ]  # the spec's own cells, in its order
+    assert all(c is spec.cell(c.method, c.ordering, c.seed) for c in part)
+    assert select_cells(spec) == spec.cells
+    with pytest.raises(StageError, match=r"--seeds: 7 not in grid.yaml \(it has 0, 1\)"):
+        select_cells(spec, seeds=[7])
+    with pytest.raises(StageError, match="--orderings: S9 not in"):
+        select_cells(spec, orderings=["S9"])
+    res = subprocess.run(
+        [sys.executable, "-m", "cli.main", "bench", str(write(tmp_path)), "--seeds", "0,x"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=ROOT,
+        env={"ACCRUE_STORE": str(tmp_path / "nostore"), "PATH": "/usr/bin:/bin"},
+    )
+    assert res.returncode == 2 and res.stderr == "error: --seeds: expected comma-separated integers (got '0,x')\n"

@@ -108,6 +108,33 @@ class BenchSpec:
         raise StageError(f"{self.path}: no cell {method}/{ordering}/seed {seed}")
 
 
+def select_cells(
+    spec: BenchSpec,
+    methods: list[str] | None = None,
+    orderings: list[str] | None = None,
+    seeds: list[int] | None = None,
+) -> list[Cell]:
+    """The spec's cells restricted to these methods / orderings / seeds (None: all), in the spec's order.
+    A part of the grid first (say seeds 0-1 of every method) and the rest later: the cells are the
+    spec's own, so the later full run skips what the first one finished."""
+    chosen = {"--methods": methods, "--orderings": orderings, "--seeds": seeds}
+    grid = {"--methods": spec.methods, "--orderings": list(spec.orderings), "--seeds": spec.seeds}
+    for flag, values in chosen.items():
+        unknown = [v for v in values or [] if v not in grid[flag]]
+        if unknown:
+            raise StageError(
+                f"{flag}: {', '.join(map(str, unknown))} not in {spec.path.name} "
+                f"(it has {', '.join(map(str, grid[flag]))})"
+            )
+    return [
+        c
+        for c in spec.cells
+        if (methods is None or c.method in methods)
+        and (orderings is None or c.ordering in orderings)
+        and (seeds is None or c.seed in seeds)
+    ]
+
+
 # ------------------------------------------------------------------------- overrides
 def expand_dotted(mapping: dict, where: str) -> dict:
     """{"a.b": 1, "c": {"d.e": 2}} -> {"a": {"b": 1}, "c": {"d": {"e": 2}}} (merging shared prefixes)."""
