@@ -202,3 +202,55 @@ def test_bench_tables_script_fills_marked_readme_blocks(bench, tmp_path, capsys)
     readme.write_text("no markers\n")
     assert bench_tables.main([str(path), "--store", str(store.root), "--readme", str(readme)]) == 2
     assert "no <!-- bench:known -->" in capsys.readouterr().err
+
+
+CLAIMS = [
+    {"claim": "forgets less", "metric": "NBT", "reference_is": "lower", "than": ["sequential"]},
+    {"claim": "learns more", "metric": "AUC", "reference_is": "higher", "than": ["sequential"]},
+    {"claim": "transfers no worse", "metric": "FWT", "reference_is": "not-lower", "than": ["sequential"]},
+    {"claim": "transfers better", "metric": "FWT", "reference_is": "higher", "than": ["sequential"]},
+    {"claim": "forgets more", "metric": "F_final", "reference_is": "higher", "than": ["sequential"]},
+]
+
+
+def test_claims_are_judged_on_the_paired_differences(bench):
+    """By hand (sequential − accrue over the three pairs): NBT +0.5, +0.6, +0.5; AUC −0.125, −0.175, −0.25;
+    FWT 0, −0.05, −0.1 (CI [−0.1, 0]: accrue is not shown lower, nor resolved higher)."""
+    spec, store, path = bench
+    data = yaml.safe_load(path.read_text())
+    data["reference"] = "accrue"
+    data["claims"] = CLAIMS
+    path.write_text(yaml.safe_dump(data))
+    report, _ = build_report(store, load_spec(path))
+    got = {c["claim"]: c["verdict"] for c in report["claims"]}
+    assert got == {
+        "forgets less": "holds",
+        "learns more": "holds",
+        "transfers no worse": "holds",
+        "transfers better": "not resolved",
+        "forgets more": "contradicted",
+    }
+    fwt = next(c for c in report["claims"] if c["claim"] == "transfers better")["against"][0]
+    assert fwt["pairs"] == 3 and fwt["difference"]["ci_high"] == pytest.approx(0.0)
+    text = markdown(report)
+    assert "| forgets less | accrue lower on NBT | sequential | +0.533 [+0.500, +0.600] | holds | **holds** |" in text
+
+
+@pytest.mark.parametrize(
+    "claims, message",
+    [
+        ([{**CLAIMS[0], "metric": "SPEED"}], r"claims\[0\].metric: 'SPEED' is not one of"),
+        ([{**CLAIMS[0], "than": ["accrue"]}], r"claims\[0\].than: .*other than accrue"),
+        ([{**CLAIMS[0], "reference_is": "better"}], r"claims\[0\].reference_is: 'better' is not one of"),
+        ([{"claim": "x"}], r"claims\[0\]: expected exactly the fields claim, metric, reference_is, than"),
+    ],
+)
+def test_a_bad_claim_names_its_field(bench, claims, message):
+    from stages.errors import StageError
+
+    _, _, path = bench
+    data = yaml.safe_load(path.read_text())
+    data["claims"] = claims
+    path.write_text(yaml.safe_dump(data))
+    with pytest.raises(StageError, match=message):
+        load_spec(path)

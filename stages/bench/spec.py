@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from stages.bench.claims import DIRECTIONS, Claim
 from stages.errors import StageError
 
 _LABEL = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,39}$")
@@ -52,7 +53,9 @@ SPEC_FIELDS = (
     "resources",
     "retries",
     "reference",
+    "claims",
 )
+CLAIM_FIELDS = ("claim", "metric", "reference_is", "than")
 RESOURCE_FIELDS = ("num_cpus", "num_gpus", "custom")
 MAX_NAME = 64
 
@@ -100,6 +103,7 @@ class BenchSpec:
     retries: int
     reference: str | None
     cells: list[Cell]
+    claims: list[Claim] = field(default_factory=list)
 
     def cell(self, method: str, ordering: str, seed: int) -> Cell:
         for c in self.cells:
@@ -341,6 +345,7 @@ def load_spec(path: Path | str) -> BenchSpec:
         raise StageError(
             f"{src}: reference: {reference!r} is not one of the spec's methods ({', '.join(method_names)})"
         )
+    claims = _claims(data.get("claims"), f"{src}: claims", method_names, reference)
     return BenchSpec(
         path=path,
         name=name,
@@ -352,7 +357,35 @@ def load_spec(path: Path | str) -> BenchSpec:
         retries=retries,
         reference=reference,
         cells=cells,
+        claims=claims,
     )
+
+
+def _claims(value: Any, where: str, methods: list[str], reference: str | None) -> list[Claim]:
+    """claims: [{claim: words, metric: NBT, reference_is: lower, than: [sequential, er]}, ...]"""
+    from stages.report.tables import TABLE_METRICS
+
+    if value is None:
+        return []
+    if not isinstance(value, list):
+        raise StageError(f"{where}: expected a list of claims (got {type(value).__name__})")
+    if value and reference is None:
+        raise StageError(f"{where}: a claim is about the spec's reference method, and this spec has none")
+    out = []
+    for i, raw in enumerate(value):
+        at = f"{where}[{i}]"
+        if not isinstance(raw, dict) or set(raw) != set(CLAIM_FIELDS):
+            raise StageError(f"{at}: expected exactly the fields {', '.join(CLAIM_FIELDS)}")
+        if raw["metric"] not in TABLE_METRICS:
+            raise StageError(f"{at}.metric: {raw['metric']!r} is not one of {', '.join(TABLE_METRICS)}")
+        if raw["reference_is"] not in DIRECTIONS:
+            raise StageError(f"{at}.reference_is: {raw['reference_is']!r} is not one of {', '.join(DIRECTIONS)}")
+        than = raw["than"] if isinstance(raw["than"], list) else [raw["than"]]
+        bad = [m for m in than if m not in methods or m == reference]
+        if not than or bad:
+            raise StageError(f"{at}.than: {bad or than!r}: name the spec's methods other than {reference}")
+        out.append(Claim(str(raw["claim"]), raw["metric"], raw["reference_is"], tuple(than)))
+    return out
 
 
 def workflow_data(cell: Cell) -> dict:

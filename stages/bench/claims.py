@@ -1,0 +1,95 @@
+"""A spec's claims about its reference method, judged on the measured paired differences.
+
+A claim (declared in the spec, usually a sentence of the paper) says the reference is lower or higher than
+each of some methods on one metric, or not lower / not higher. Its evidence is the paired difference
+d = method − reference over the (ordering, seed) pairs both ran, with its bootstrap CI [lo, hi]:
+
+    reference_is   holds                          contradicted
+    lower          lo > 0 (reference lower)       hi < 0 (reference higher)    otherwise: not resolved
+    higher         hi < 0                         lo > 0                       otherwise: not resolved
+    not-lower      unless contradicted            lo > 0 (reference lower)
+    not-higher     unless contradicted            hi < 0 (reference higher)
+
+A claim over several methods holds when it holds against each, is contradicted when it is contradicted
+against any, and is otherwise not resolved. A method without pairs leaves the claim not resolved.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from stages.report.tables import fmt_ci, markdown_table
+
+DIRECTIONS = ("lower", "higher", "not-lower", "not-higher")
+HOLDS, CONTRADICTED, UNRESOLVED, NO_DATA = "holds", "contradicted", "not resolved", "no runs"
+
+
+@dataclass(frozen=True)
+class Claim:
+    text: str  # the claim in words (the paper's, where it is the paper's)
+    metric: str  # one of TABLE_METRICS
+    reference_is: str  # one of DIRECTIONS
+    than: tuple[str, ...]  # the methods it is compared with
+
+
+def verdict(reference_is: str, lo: float | None, hi: float | None) -> str:
+    """The verdict of one comparison from the CI [lo, hi] of d = method − reference."""
+    if lo is None or hi is None:
+        return NO_DATA
+    reference_lower, reference_higher = lo > 0, hi < 0  # resolved by the CI
+    if reference_is == "lower":
+        return HOLDS if reference_lower else CONTRADICTED if reference_higher else UNRESOLVED
+    if reference_is == "higher":
+        return HOLDS if reference_higher else CONTRADICTED if reference_lower else UNRESOLVED
+    if reference_is == "not-lower":
+        return CONTRADICTED if reference_lower else HOLDS
+    if reference_is == "not-higher":
+        return CONTRADICTED if reference_higher else HOLDS
+    raise ValueError(reference_is)
+
+
+def combine(verdicts: list[str]) -> str:
+    if CONTRADICTED in verdicts:
+        return CONTRADICTED
+    if verdicts and all(v == HOLDS for v in verdicts):
+        return HOLDS
+    return UNRESOLVED
+
+
+def judge(claims: list[Claim], differences: list[dict]) -> list[dict]:
+    """Each claim with its per-method evidence and overall verdict (JSON-able)."""
+    by_method = {d["method"]: d for d in differences}
+    out = []
+    for c in claims:
+        against = []
+        for m in c.than:
+            d = by_method.get(m)
+            s = d["metrics"][c.metric] if d else {"mean": None, "ci_low": None, "ci_high": None, "n": 0}
+            lo, hi = (s["ci_low"], s["ci_high"]) if s["n"] >= 2 else (None, None)  # one pair has no CI
+            against.append({"method": m, "pairs": s["n"], "difference": s, "verdict": verdict(c.reference_is, lo, hi)})
+        out.append(
+            {
+                "claim": c.text,
+                "metric": c.metric,
+                "reference_is": c.reference_is,
+                "verdict": combine([a["verdict"] for a in against]),
+                "against": against,
+            }
+        )
+    return out
+
+
+def claims_markdown(judged: list[dict], reference: str) -> str:
+    rows = [
+        [
+            c["claim"] if i == 0 else "",
+            f"{reference} {c['reference_is']} on {c['metric']}" if i == 0 else "",
+            a["method"],
+            fmt_ci(a["difference"], signed=True),
+            a["verdict"],
+            f"**{c['verdict']}**" if i == 0 else "",
+        ]
+        for c in judged
+        for i, a in enumerate(c["against"])
+    ]
+    return markdown_table(["claim", "test", "vs", f"Δ (vs − {reference}) [CI]", "verdict", "claim verdict"], rows)
