@@ -4,8 +4,8 @@ on local Ray, both in the given store (their shared demos and fine-tunes already
 parts do the same kind of work: warmup, train, evaluate-all, handoff per stage). Prints and writes cells
 per hour of each, Ray's start-up, and the ratio.
 
-    nice -n 0 .venv/bin/python benchmarks/bench_executors.py workflows/bench/nist-ablations.yaml \
-        --store runs/bench/store --serial-seeds 0 --ray-seeds 1 [--out benchmarks/results/bench_executors.json]
+    .venv/bin/python benchmarks/bench_executors.py workflows/bench/nist-small.yaml --store runs/bench/store \
+        --methods sequential --serial-seeds 0 --ray-seeds 1 2 [--out benchmarks/results/bench_executors.json]
 
 Every cell of both parts must be unfinished (a finished cell would be skipped and flatter its part). Run
 it on an otherwise idle machine: the figure is the scheduler's, not the load's (load averages recorded).
@@ -27,14 +27,14 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 
-def run_part(spec, store, seeds: list[int], executor: str, logs: Path) -> dict:
+def run_part(spec, store, methods: list[str] | None, seeds: list[int], executor: str, logs: Path) -> dict:
     from rich.console import Console
 
     from stages.bench.execute import run_bench, start_ray
     from stages.bench.spec import select_cells
     from stages.bench.state import is_done
 
-    cells = select_cells(spec, seeds=seeds)
+    cells = select_cells(spec, methods=methods, seeds=seeds)
     done = [c.name for c in cells if is_done(store, c)]
     if done:
         raise SystemExit(
@@ -74,6 +74,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("spec", type=Path)
     ap.add_argument("--store", type=Path, required=True)
+    ap.add_argument("--methods", nargs="+", default=None, help="only these methods of the spec (both parts)")
     ap.add_argument("--serial-seeds", type=int, nargs="+", required=True)
     ap.add_argument("--ray-seeds", type=int, nargs="+", required=True)
     ap.add_argument("--logs", type=Path, default=ROOT / "runs" / "bench" / "executors-logs")
@@ -86,11 +87,12 @@ def main() -> None:
     spec, store = load_spec(args.spec), Store.open(args.store)
     if set(args.serial_seeds) & set(args.ray_seeds):
         raise SystemExit("error: --serial-seeds and --ray-seeds must not overlap")
-    serial = run_part(spec, store, args.serial_seeds, "serial", args.logs)
-    ray_part = run_part(spec, store, args.ray_seeds, "ray", args.logs)
+    serial = run_part(spec, store, args.methods, args.serial_seeds, "serial", args.logs)
+    ray_part = run_part(spec, store, args.methods, args.ray_seeds, "ray", args.logs)
     figures = {
         "command": "python benchmarks/bench_executors.py " + " ".join(sys.argv[1:]),
         "spec": str(args.spec),
+        "methods": args.methods,
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform()},
         "serial": serial,
         "ray": ray_part,
