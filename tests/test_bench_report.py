@@ -254,3 +254,15 @@ def test_a_bad_claim_names_its_field(bench, claims, message):
     path.write_text(yaml.safe_dump(data))
     with pytest.raises(StageError, match=message):
         load_spec(path)
+
+
+def test_a_comparison_on_fewer_than_three_pairs_is_not_judged():
+    """Two pairs bootstrap to their own range, which would call any consistent pair of runs resolved."""
+    from stages.bench.claims import Claim, judge
+
+    two = {"mean": 0.5, "ci_low": 0.4, "ci_high": 0.6, "n": 2, "undefined": 0}
+    three = {**two, "n": 3}
+    diffs = [{"method": "a", "metrics": {"NBT": two}}, {"method": "b", "metrics": {"NBT": three}}]
+    [judged] = judge([Claim("x", "NBT", "lower", ("a", "b"))], diffs)
+    assert [a["verdict"] for a in judged["against"]] == ["too few pairs", "holds"]
+    assert judged["verdict"] == "not resolved"

@@ -11,7 +11,8 @@ d = method − reference over the (ordering, seed) pairs both ran, with its boot
     not-higher     unless contradicted            hi < 0 (reference higher)
 
 A claim over several methods holds when it holds against each, is contradicted when it is contradicted
-against any, and is otherwise not resolved. A method without pairs leaves the claim not resolved.
+against any, and is otherwise not resolved. A comparison with fewer than MIN_PAIRS pairs is not judged
+("too few pairs", or "no runs"), and leaves its claim not resolved.
 """
 
 from __future__ import annotations
@@ -22,6 +23,10 @@ from stages.report.tables import fmt_ci, markdown_table
 
 DIRECTIONS = ("lower", "higher", "not-lower", "not-higher")
 HOLDS, CONTRADICTED, UNRESOLVED, NO_DATA = "holds", "contradicted", "not resolved", "no runs"
+TOO_FEW = "too few pairs"
+# a percentile bootstrap of two values is just their range: it says nothing about the spread, so a
+# comparison is judged from this many pairs on
+MIN_PAIRS = 3
 
 
 @dataclass(frozen=True)
@@ -65,8 +70,13 @@ def judge(claims: list[Claim], differences: list[dict]) -> list[dict]:
         for m in c.than:
             d = by_method.get(m)
             s = d["metrics"][c.metric] if d else {"mean": None, "ci_low": None, "ci_high": None, "n": 0}
-            lo, hi = (s["ci_low"], s["ci_high"]) if s["n"] >= 2 else (None, None)  # one pair has no CI
-            against.append({"method": m, "pairs": s["n"], "difference": s, "verdict": verdict(c.reference_is, lo, hi)})
+            if s["n"] == 0:
+                judged = NO_DATA
+            elif s["n"] < MIN_PAIRS:
+                judged = TOO_FEW
+            else:
+                judged = verdict(c.reference_is, s["ci_low"], s["ci_high"])
+            against.append({"method": m, "pairs": s["n"], "difference": s, "verdict": judged})
         out.append(
             {
                 "claim": c.text,
