@@ -17,7 +17,7 @@ from pathlib import Path
 from accrue.metrics import aggregate_runs, paired_differences, run_record
 from artifacts.errors import StoreError
 from artifacts.store import Store
-from stages.bench.claims import claims_markdown, judge
+from stages.bench.claims import MIN_PAIRS, claims_markdown, judge
 from stages.bench.spec import BenchSpec
 from stages.bench.state import cell_states
 from stages.errors import StageError
@@ -197,7 +197,8 @@ def markdown(report: dict, command: str | None = None, heading_level: int = 3) -
             f"Claims the spec makes about `{report['reference']}` (mostly the paper's), judged on the paired "
             "differences above: *holds* when the 95% CI of the difference excludes 0 on the claimed side, "
             "*contradicted* when it excludes 0 on the other side, *not resolved* when it contains 0 (for "
-            '"not lower" / "not higher" claims, only a resolved difference the wrong way contradicts):',
+            '"not lower" / "not higher" claims, only a resolved difference the wrong way contradicts); a '
+            f"comparison on fewer than {MIN_PAIRS} pairs is not judged:",
             "",
             claims_markdown(report["claims"], report["reference"]),
         ]
