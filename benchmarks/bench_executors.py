@@ -81,10 +81,15 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "bench_executors.json")
     args = ap.parse_args()
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+    from artifacts.errors import StoreError
     from artifacts.store import Store
     from stages.bench.spec import load_spec
+    from stages.errors import StageError
 
-    spec, store = load_spec(args.spec), Store.open(args.store)
+    try:
+        spec, store = load_spec(args.spec), Store.open(args.store)
+    except (StageError, StoreError) as exc:
+        raise SystemExit(f"error: {exc}") from None
     if set(args.serial_seeds) & set(args.ray_seeds):
         raise SystemExit("error: --serial-seeds and --ray-seeds must not overlap")
     serial = run_part(spec, store, args.methods, args.serial_seeds, "serial", args.logs)
