@@ -219,10 +219,8 @@ def report(
     from stages.bench.spec import load_spec
 
     sp = load_spec(spec)
-    rep, curves = build_report(open_store(store), sp)
-    files = write_report(
-        rep, curves, out if out is not None else default_out_dir(sp), command=f"accrue bench report {spec}"
-    )
+    rep = build_report(open_store(store), sp)
+    files = write_report(rep, out if out is not None else default_out_dir(sp), command=f"accrue bench report {spec}")
     if as_json:
         print_json({**rep, "files": files})
         return

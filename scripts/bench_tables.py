@@ -26,7 +26,7 @@ def tables(spec_path: Path, store, command: str) -> tuple[str, str]:
     from stages.bench.spec import load_spec
 
     spec = load_spec(spec_path)
-    report, _ = build_report(store, spec)
+    report = build_report(store, spec)
     return spec.name, markdown(report, command=command, heading_level=3)
 
 

@@ -105,7 +105,7 @@ def test_tiny_grid_on_ray_with_a_failing_method(ray_address, store, tmp_path):
     # the second method reused the first one's steps that do not depend on the method
     assert by_state[("sequential", 0)].steps_cached > 0
     assert counts(cell_states(store, spec)) == {"done": 4, "running": 0, "failed": 2, "partial": 0, "pending": 0}
-    report, _ = build_report(store, spec)
+    report = build_report(store, spec)
     runs = {m["method"]: m["runs"] for m in report["aggregate"]["methods"]}
     assert runs == {"accrue": 2, "sequential": 2, "broken": 0}
     assert {m["method"] for m in report["missing"]} == {"broken"}

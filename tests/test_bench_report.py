@@ -135,7 +135,7 @@ def test_status_from_the_store(bench):
 
 def test_aggregates_equal_a_hand_computation(bench):
     spec, store, _ = bench
-    report, curves = build_report(store, spec)
+    report = build_report(store, spec)
     agg = {m["method"]: m for m in report["aggregate"]["methods"]}
     done = [v for (m, _, _), v in VALUES.items() if m == "accrue" and v is not None]
     for name in ("FWT", "NBT", "AUC", "ACC_final", "F_final"):
@@ -153,19 +153,26 @@ def test_aggregates_equal_a_hand_computation(bench):
     assert diff["metrics"]["NBT"]["mean"] == pytest.approx(((0.6 - 0.1) + (0.6 - 0.0) + (0.6 - 0.1)) / 3)
     assert [m["cell"] for m in report["missing"]] == [spec.cell("accrue", "S2", 1).name]
     assert report["missing"][0]["state"] == "failed" and report["missing"][0]["error"] == "step train: boom"
-    assert len(curves["accrue"]) == 3 and curves["accrue"][0][1]["earlier"] == [0.7, 0.7]
+    # mean stage curves over the three finished accrue runs (the failed cell's stage 1 is not averaged)
+    stage1, stage2 = report["stage_curves"]["accrue"]
+    assert stage1["runs"] == stage2["runs"] == 3 and stage1["grid"] == [0, 100] and stage1["earlier"] is None
+    assert [p["mean"] for p in stage2["current"]] == pytest.approx([0.0, (0.6 + 1.0 + 0.8) / 3])
+    assert [p["mean"] for p in stage2["earlier"]] == pytest.approx([(0.7 + 0.6 + 0.9) / 3] * 2)
+    assert stage2["earlier"][0]["ci_low"] < stage2["earlier"][0]["mean"] < stage2["earlier"][0]["ci_high"]
 
 
 def test_markdown_csv_and_plots_show_missing_cells(bench, tmp_path):
     spec, store, _ = bench
-    report, curves = build_report(store, spec)
+    report = build_report(store, spec)
     text = markdown(report, command="accrue bench report known.yaml")
     assert "| accrue | 3 of 4 |" in text and "| sequential | 4 |" in text
     assert "| accrue | S2 | 0 (1 of 2) |" in text
     assert "accrue · S2 · seed 1 — failed (stages done: 1): step train: boom" in text
     assert "Difference from `accrue`" in text and "| sequential | 3 | +0.533 [+0.500, +0.600] |" in text
     assert "seeds 0, 1" in text and "S2 = nist/gear → nist/rect_peg" in text and "4000 resamples" in text
-    files = write_report(report, curves, tmp_path / "out")
+    assert "| accrue | 3 | 0.00 → 0.80 | 0.00 → 0.80 |" in text  # stage start → end, mean over runs
+    assert "| sequential | 4 | 0.00 → 0.80 | 0.00 → 0.60 |" in text
+    files = write_report(report, tmp_path / "out")
     for path in files.values():
         assert path and Path(path).stat().st_size > 0
     rows = list(csv.DictReader(io.StringIO(Path(files["cells_csv"]).read_text())))
@@ -176,6 +183,10 @@ def test_markdown_csv_and_plots_show_missing_cells(bench, tmp_path):
     nbt = next(r for r in summary if r["method"] == "accrue" and r["ordering"] == "all" and r["metric"] == "NBT")
     assert float(nbt["mean"]) == pytest.approx((0.1 + 0.0 + 0.1) / 3) and nbt["n"] == "3"
     assert json.loads(Path(files["json"]).read_text())["cells_done"] == 7
+    curve = list(csv.DictReader(io.StringIO(Path(files["stage_curves_csv"]).read_text())))
+    end2 = next(r for r in curve if r["method"] == "sequential" and r["stage"] == "2" and r["env_step"] == "100")
+    assert float(end2["current_mean"]) == pytest.approx(0.6) and float(end2["earlier_mean"]) == pytest.approx(0.2)
+    assert end2["runs"] == "4" and len(curve) == 2 * 2 * 2  # methods x stages x grid points
 
 
 def test_a_method_with_no_finished_run_keeps_its_row(bench, tmp_path):
@@ -183,7 +194,7 @@ def test_a_method_with_no_finished_run_keeps_its_row(bench, tmp_path):
     data = yaml.safe_load(path.read_text())
     data["methods"]["ewc"] = {}
     path.write_text(yaml.safe_dump(data))
-    report, _ = build_report(store, load_spec(path))
+    report = build_report(store, load_spec(path))
     text = markdown(report)
     assert "| ewc | 0 of 4 | — | — | — | — | — |" in text
     assert "| ewc | 0 | — | — | — | — | — |" in text  # and its row of differences
@@ -221,7 +232,7 @@ def test_claims_are_judged_on_the_paired_differences(bench):
     data["reference"] = "accrue"
     data["claims"] = CLAIMS
     path.write_text(yaml.safe_dump(data))
-    report, _ = build_report(store, load_spec(path))
+    report = build_report(store, load_spec(path))
     got = {c["claim"]: c["verdict"] for c in report["claims"]}
     assert got == {
         "forgets less": "holds",

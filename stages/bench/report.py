@@ -3,7 +3,8 @@ ACC_final and F_final with 95% bootstrap CIs; the per-ordering breakdown; every 
 (or cannot be read) listed as missing, with why.
 
     report = build_report(store, spec)                   # JSON-able dict
-    files = write_report(report, curves, out_dir)        # report.md, summary.csv, cells.csv, report.json, PNGs
+    files = write_report(report, out_dir)        # report.md, summary.csv, cells.csv, stage_curves.csv,
+                                                         # report.json, PNGs
     text = markdown(report, command=...)                 # what scripts/bench_tables.py pastes into the README
 """
 
@@ -18,6 +19,7 @@ from accrue.metrics import aggregate_runs, paired_differences, run_record
 from artifacts.errors import StoreError
 from artifacts.store import Store
 from stages.bench.claims import MIN_PAIRS, claims_markdown, judge
+from stages.bench.curves import mean_stage_curves, stage_curves_csv, stage_success_rows
 from stages.bench.spec import BenchSpec
 from stages.bench.state import cell_states
 from stages.errors import StageError
@@ -38,6 +40,7 @@ FILES = {
     "markdown": "report.md",
     "summary_csv": "summary.csv",
     "cells_csv": "cells.csv",
+    "stage_curves_csv": "stage_curves.csv",
     "json": "report.json",
     "metric_bars": "metrics.png",
     "stage_curves": "stage_curves.png",
@@ -61,8 +64,8 @@ def _stage_curves(run) -> list[dict]:
     return out
 
 
-def build_report(store: Store, spec: BenchSpec) -> tuple[dict, dict]:
-    """(report, curves by method for the plots)."""
+def build_report(store: Store, spec: BenchSpec) -> dict:
+    """The report: tables, paired differences, claims and mean stage curves, all JSON-able."""
     states = cell_states(store, spec)
     cells, records, missing = [], [], []
     curves: dict[str, list] = {m: [] for m in spec.methods}
@@ -129,8 +132,9 @@ def build_report(store: Store, spec: BenchSpec) -> tuple[dict, dict]:
         "aggregate": agg,
         "differences": differences,
         "claims": judge(spec.claims, differences),
+        "stage_curves": mean_stage_curves(curves),
     }
-    return report, curves
+    return report
 
 
 def cells_csv(report: dict) -> str:
@@ -202,6 +206,14 @@ def markdown(report: dict, command: str | None = None, heading_level: int = 3) -
             "",
             claims_markdown(report["claims"], report["reference"]),
         ]
+    if report.get("stage_curves"):
+        header, rows = stage_success_rows(report["stage_curves"])
+        lines += [
+            "Success on the task of each stage at its first and last evaluation, start → end (mean over runs; "
+            "the start is the inherited actor, or a fresh one, on the new task before any update):",
+            "",
+            markdown_table(header, rows),
+        ]
     if report["missing"]:
         lines += [f"Missing cells ({len(report['missing'])}):", ""]
         for m in report["missing"]:
@@ -214,7 +226,7 @@ def markdown(report: dict, command: str | None = None, heading_level: int = 3) -
     return "\n".join(lines)
 
 
-def write_report(report: dict, curves: dict, out_dir: Path, command: str | None = None) -> dict[str, str | None]:
+def write_report(report: dict, out_dir: Path, command: str | None = None) -> dict[str, str | None]:
     from stages.report.bench_plots import plot_metric_bars, plot_stage_curves
 
     out = Path(out_dir)
@@ -222,9 +234,11 @@ def write_report(report: dict, curves: dict, out_dir: Path, command: str | None 
     (out / FILES["markdown"]).write_text(markdown(report, command, heading_level=1), encoding="utf-8")
     (out / FILES["summary_csv"]).write_text(summary_csv(report["aggregate"]), encoding="utf-8")
     (out / FILES["cells_csv"]).write_text(cells_csv(report), encoding="utf-8")
-    files: dict[str, str | None] = {k: str(out / FILES[k]) for k in ("markdown", "summary_csv", "cells_csv", "json")}
+    (out / FILES["stage_curves_csv"]).write_text(stage_curves_csv(report["stage_curves"]), encoding="utf-8")
+    written = ("markdown", "summary_csv", "cells_csv", "stage_curves_csv", "json")
+    files: dict[str, str | None] = {k: str(out / FILES[k]) for k in written}
     files["metric_bars"] = str(plot_metric_bars(report["aggregate"], out / FILES["metric_bars"]))
-    stage = plot_stage_curves({m: rs for m, rs in curves.items() if rs}, out / FILES["stage_curves"])
+    stage = plot_stage_curves(report["stage_curves"], out / FILES["stage_curves"])
     if stage is None:
         (out / FILES["stage_curves"]).unlink(missing_ok=True)
     files["stage_curves"] = None if stage is None else str(stage)

@@ -2,11 +2,12 @@
 
     plot_metric_bars(agg, path)          one panel per metric: per method, the mean over its runs with
                                          its 95% bootstrap CI as an error bar; "—" where undefined
-    plot_stage_curves(curves, path)      one panel per stage position k: per method, the mean success of
+    plot_stage_curves(means, path)      one panel per stage position k: per method, the mean success of
                                          the task learned in stage k (solid) and of the earlier tasks
                                          (dashed) against stage k's env steps, with 95% bootstrap bands
 
-`curves` is {method: [per run: [per stage k: {"grid": [...], "current": [...], "earlier": [...] | None}]]}.
+`means` is stages.bench.curves.mean_stage_curves' result: per method, per stage k, the grid and a mean
+with its CI at every grid point for the current task and for the earlier tasks.
 """
 
 from __future__ import annotations
@@ -14,7 +15,6 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from accrue.metrics import summarize_values
 from stages.report.plots import _figure, _save
 from stages.report.tables import ARROWS, TABLE_METRICS
 
@@ -49,26 +49,15 @@ def plot_metric_bars(agg: dict, path: Path) -> Path:
     return _save(fig, path)
 
 
-def _band(rows: list[list[float]]) -> tuple[list, list, list]:
-    mean, lo, hi = [], [], []
-    for column in zip(*rows):
-        s = summarize_values(list(column))
-        mean.append(s["mean"])
-        lo.append(s["ci_low"])
-        hi.append(s["ci_high"])
-    return mean, lo, hi
-
-
-def plot_stage_curves(curves: dict[str, list], path: Path) -> Path | None:
+def plot_stage_curves(means: dict[str, list[dict]], path: Path) -> Path | None:
     """None when no run has curves."""
     from matplotlib.lines import Line2D
     from matplotlib.ticker import EngFormatter
 
-    runs = [r for rs in curves.values() for r in rs]
-    if not runs:
+    if not means:
         return None
-    K = max(len(r) for r in runs)
-    methods = list(curves)
+    K = max(len(stages) for stages in means.values())
+    methods = list(means)
     colours = method_colours(methods)
     ncols = min(K, 3)
     nrows = math.ceil(K / ncols)
@@ -79,17 +68,15 @@ def plot_stage_curves(curves: dict[str, list], path: Path) -> Path | None:
         ax.set_ylim(-0.03, 1.03)
         ax.grid(True, alpha=0.3)
         ax.set_title(f"stage {k + 1}", fontsize=10)
-        for method, rs in curves.items():
-            stage = [r[k] for r in rs if len(r) > k]
-            if not stage:
+        for method, stages in means.items():
+            if len(stages) <= k:
                 continue
-            grid = stage[0]["grid"]
-            same = [s for s in stage if s["grid"] == grid]  # one grid per method (its own budgets)
+            grid = stages[k]["grid"]
             for key, style in (("current", "-"), ("earlier", "--")):
-                rows = [s[key] for s in same if s[key] is not None]
-                if not rows:
+                points = stages[k][key]
+                if points is None:
                     continue
-                mean, lo, hi = _band(rows)
+                mean, lo, hi = ([p[f] for p in points] for f in ("mean", "ci_low", "ci_high"))
                 ax.plot(grid, mean, color=colours[method], ls=style, lw=2 if key == "current" else 1.3)
                 ax.fill_between(grid, lo, hi, color=colours[method], alpha=0.15 if key == "current" else 0.08)
         ax.xaxis.set_major_formatter(EngFormatter(sep=""))
