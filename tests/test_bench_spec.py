@@ -154,7 +154,7 @@ def test_shipped_specs_load():
         if path.stem in ("nist-small", "nist-ablations"):
             assert spec.claims and spec.reference == "accrue"
         if path.stem == "nist-small":
-            assert set(spec.methods) == {"accrue", "sequential", "er", "ewc", "retain", "single-task", "isolated"}
+            assert set(spec.methods) >= {"accrue", "sequential", "er", "ewc", "retain", "single-task", "isolated"}
             assert len(spec.orderings) >= 2 and len(spec.seeds) >= 3
         if path.stem == "retained-n":
             assert sorted(c.workflow.budgets.retained_episodes for c in spec.cells if c.seed == spec.seeds[0]) == [
