@@ -26,20 +26,18 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 
-def handoff_dir(store, workflow: str, stage: int, dest: Path) -> Path | None:
-    """The stage's committed handoff artifact, materialised under dest; None when it has not committed."""
+def handoff_dir(store, workflow: str, stage: int, dest: Path) -> Path:
+    """The stage's committed handoff artifact, materialised under dest (a StoreError names what is missing)."""
     from artifacts.manifests import materialize
-    from artifacts.refs import read_ref
+    from artifacts.resolve import resolve
     from stages.runner import step_ref
 
-    record_id = read_ref(store, step_ref(workflow, stage, "handoff"))
-    if record_id is None:
-        return None
-    artifact_id = store.read_json(record_id)["outputs"]["handoff"]
+    artifact_id = resolve(store, f"{step_ref(workflow, stage, 'handoff')}:handoff")
     return materialize(store, artifact_id, dest / f"{workflow}-{stage}")
 
 
-def stage_drift(handoff: Path, stage: int) -> dict:
+def stage_drift(handoff: Path, stage: int) -> dict | None:
+    """None when the memory holds no row of this stage's task."""
     import torch
 
     from accrue.learner import ReplayBuffer
@@ -49,6 +47,8 @@ def stage_drift(handoff: Path, stage: int) -> dict:
     learner = load_learner(handoff / LEARNER_DIR, device="cpu")
     memory = ReplayBuffer.load(handoff / MEMORY_DIR)
     rows = memory.column("task") == stage - 1  # task index of stage k is k − 1
+    if not bool(rows.any()):
+        return None
     state, ref = memory.column("state")[rows], memory.column("ref")[rows]
     action = torch.as_tensor(learner.act(state, ref, explore=False)).view_as(ref)
     return {"stage": stage, "rows": int(rows.sum()), "drift": float((action - ref).square().mean().sqrt())}
@@ -78,17 +78,10 @@ def main(argv: list[str] | None = None) -> int:
         rows = []
         with tempfile.TemporaryDirectory() as tmp:
             for cell in done:
-                for k in range(1, len(cell.tasks) + 1):
-                    path = handoff_dir(store, cell.name, k, Path(tmp))
-                    if path is not None:
-                        rows.append(
-                            {
-                                "method": cell.method,
-                                "ordering": cell.ordering,
-                                "seed": cell.seed,
-                                **stage_drift(path, k),
-                            }
-                        )
+                for k in range(1, len(cell.tasks) + 1):  # a done cell has committed every stage
+                    drift = stage_drift(handoff_dir(store, cell.name, k, Path(tmp)), k)
+                    if drift is not None:
+                        rows.append({"method": cell.method, "ordering": cell.ordering, "seed": cell.seed, **drift})
     except (AccrueError, StoreError, StageError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -3,7 +3,7 @@ ACC_final and F_final with 95% bootstrap CIs; the per-ordering breakdown; every 
 (or cannot be read) listed as missing, with why.
 
     report = build_report(store, spec)                   # JSON-able dict
-    files = write_report(report, out_dir)        # report.md, summary.csv, cells.csv, stage_curves.csv,
+    files = write_report(report, out_dir)                # report.md, summary.csv, cells.csv, stage_curves.csv,
                                                          # report.json, PNGs
     text = markdown(report, command=...)                 # what scripts/bench_tables.py pastes into the README
 """

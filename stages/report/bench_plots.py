@@ -2,7 +2,7 @@
 
     plot_metric_bars(agg, path)          one panel per metric: per method, the mean over its runs with
                                          its 95% bootstrap CI as an error bar; "—" where undefined
-    plot_stage_curves(means, path)      one panel per stage position k: per method, the mean success of
+    plot_stage_curves(means, path)       one panel per stage position k: per method, the mean success of
                                          the task learned in stage k (solid) and of the earlier tasks
                                          (dashed) against stage k's env steps, with 95% bootstrap bands
 
