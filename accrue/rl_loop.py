@@ -291,7 +291,7 @@ def train_loop(
         state.successes += stats.successes
         # lines 8-9: critic on B^k (Eq. 2), actor on B^k and B^{<k} (Eq. 5): `utd` updates per chunk step
         info = learner.train_step(collector.buffer, prior, teacher, fresh_ref)
-        state.updates += learner.cfg.utd
+        state.updates += learner.cfg.utd if info else 0  # {}: still before learning_starts
         crossed = [p for p in ckpt_points if p <= state.env_steps and p not in state.checkpoints_done]
         if crossed and state.env_steps < settings.env_steps:
             evaluate_due()  # a grid point under the checkpoint is evaluated before it is saved

@@ -314,7 +314,10 @@ class ChunkLearner:
     ) -> dict[str, float]:
         """`utd` updates, each on a fresh current minibatch and (1:1) a prior minibatch when a prior memory
         is in use by the method. `teacher` (and `fresh_ref` for distill_inputs fresh/both) are indexed like
-        the prior memory's rows. Returns the mean of each reported figure."""
+        the prior memory's rows. Returns the mean of each reported figure; {} (and no update at all)
+        while the current buffer holds fewer than `learning_starts` transitions."""
+        if len(buffer) < self.cfg.learning_starts:  # critic warm-up: wait for N transitions of B^k
+            return {}
         use_prior = prior is not None and len(prior) > 0 and self.uses_prior_memory
         sums: dict[str, torch.Tensor] = {}  # tensors until the end: one device sync per train_step
         counts: dict[str, int] = {}

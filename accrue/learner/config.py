@@ -57,7 +57,8 @@ class LearnerConfig:
     actor_lr: float = 1e-3  # CPU stages are short; the paper-scale config uses 3e-4
     critic_lr: float = 1e-3
     weight_decay: float = 0.1  # AdamW
-    max_grad_norm: float = 0.0  # 0 = no clipping
+    max_grad_norm: float = 0.0  # 0 = no clipping (FastTD3's default); both networks' gradients
+    learning_starts: int = 0  # no update (critic, actor, normaliser) while B^k holds fewer transitions
     obs_normalization: bool = True  # running mean/std of s, part of the saved state
     obs_norm_update: str = "first-stage"  # one of OBS_NORM_UPDATES ("every-stage" = before issue 10)
     obs_norm_min_std: float = 0.1  # std floor: a column constant so far (a task code) cannot blow up
@@ -169,7 +170,7 @@ class LearnerConfig:
                 raise bad(name, "must be a positive integer")
         if self.num_atoms < 2:
             raise bad("num_atoms", "needs at least 2 atoms")
-        for name in ("seed", "retain_interval"):
+        for name in ("seed", "retain_interval", "learning_starts"):
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 0:
                 raise bad(name, "must be a non-negative integer")
