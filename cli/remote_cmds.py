@@ -119,6 +119,38 @@ def remote_remove(
         typer.echo(f"removed remote {name} ({dropped} remote-tracking refs dropped)")
 
 
+@remote_app.command("repair")
+def remote_repair(
+    name: Annotated[Optional[str], typer.Argument(help="The remote (optional when there is one).")] = None,
+    full: Annotated[
+        bool, typer.Option("--full", help="Also download and re-hash every object, to find corrupt ones.")
+    ] = False,
+    jobs: JobsOpt = None,
+    store: StoreOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """Re-send every object the remote's refs reach that it lacks or holds damaged, from this store."""
+    from artifacts.remotes.repair import repair_remote
+
+    st, spec, _ = _pick(store, [name] if name else [])
+    report = repair_remote(st, spec.name, full=full, jobs=jobs, meter=_meter(as_json))
+    if as_json:
+        print_json(report.as_dict())
+    else:
+        typer.echo(
+            f"repair {spec.name}: {report.damaged} damaged or missing, re-sent {len(report.resent)} "
+            f"({human_size(report.bytes_sent)})"
+            + (f"; {len(report.unhealed)} not in this store either" if report.unhealed else "")
+        )
+    if report.unhealed:
+        from artifacts.errors import StoreError
+
+        raise StoreError(
+            f"remote {spec.name}: {len(report.unhealed)} damaged object(s) this store lacks too "
+            f"(first {report.unhealed[0][:12]}); run `accrue remote repair {spec.name}` from a store that has them"
+        )
+
+
 # ---------------------------------------------------------------------------- push / fetch / pull
 def push(
     words: WordsArg = None,

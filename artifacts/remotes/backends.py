@@ -52,8 +52,9 @@ class Backend:
     def head(self, key: str) -> int | None: ...
 
     # objects
-    def upload_object(self, oid: str, path: Path, size: int) -> None:
-        """Send a local object; refuse (StoreError) if its bytes do not hash to oid."""
+    def upload_object(self, oid: str, path: Path, size: int, replace: bool = False) -> None:
+        """Send a local object; refuse (StoreError) if its bytes do not hash to oid. With replace,
+        a (damaged) copy already at that key is overwritten."""
         ...
 
     def download_to(self, key: str, fd: int) -> tuple[str, int]:

@@ -22,6 +22,7 @@ class RemoteVerifyReport:
     reachable: int = 0
     bytes_hashed: int = 0
     problems: list[str] = field(default_factory=list)
+    damaged: list[str] = field(default_factory=list)  # ids missing, short or corrupt there (repair re-sends them)
 
     @property
     def ok(self) -> bool:
@@ -57,18 +58,22 @@ def verify_remote(
         sizes[oid] = size
         if oid not in held:
             report.problems.append(f"remote {spec.name} lacks object {oid[:12]} (named by {where})")
-            continue
-        if size is not None:
+            report.damaged.append(oid)
+            if size is not None or not store.has_object(oid):
+                continue  # a manifest this store has is still walked: what it names may be lost too
+        elif size is not None:
             if held[oid] != size:
                 report.problems.append(
                     f"remote object {oid[:12]} has size {held[oid]}, expected {size} (named by {where})"
                 )
+                report.damaged.append(oid)
             continue
         try:
             raw = store.read_bytes(oid, verify=True) if store.has_object(oid) else download_manifest(backend, oid)
             obj = json.loads(raw)
             kids = children(oid, obj)
         except (StoreError, ValueError) as exc:
+            report.damaged.append(oid)
             report.problems.append(
                 f"{exc} (named by {where})"
                 if isinstance(exc, StoreError)
@@ -100,5 +105,6 @@ def verify_remote(
         finally:
             meter.stop()
         report.problems += [p for p in found if p]
+        report.damaged += [o for o, p in zip(todo, found) if p and o not in report.damaged]
         report.bytes_hashed = sum(held[o] for o in todo)
     return report

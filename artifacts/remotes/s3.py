@@ -189,8 +189,8 @@ class S3Backend(Backend):
                     raise
                 return None
 
-    def upload_object(self, oid: str, path: Path, size: int) -> None:
-        import obstore
+    def upload_object(self, oid: str, path: Path, size: int, replace: bool = False) -> None:
+        import obstore  # a PUT replaces whatever the key held, so `replace` needs nothing more here
 
         key = object_key(oid)
         if size <= SINGLE_PUT_MAX:

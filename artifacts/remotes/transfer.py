@@ -57,8 +57,8 @@ def parallel(fn: Callable[[T], R], items: Iterable[T], jobs: int) -> list[R]:
 def _corrupt(backend: Backend, oid: str, why: str) -> StoreError:
     return StoreError(
         f"{backend.describe()}: object {oid[:12]} arrived {why} {ATTEMPTS} times; "
-        "refused, nothing of it was stored (the remote copy is damaged: re-push it from a "
-        "store that has it)"
+        "refused, nothing of it was stored (the remote copy is damaged: run "
+        f"`accrue remote repair {backend.spec.name} --full` from a store that has it)"
     )
 
 
@@ -119,7 +119,7 @@ def download_manifest(backend: Backend, oid: str) -> bytes:
         if data is None:
             raise MissingOnRemote(
                 f"{backend.describe()}: lacks object {oid[:12]} that its refs reach; "
-                "run `accrue verify --remote` and re-push from a complete store"
+                f"run `accrue remote repair {backend.spec.name}` from a store that has it"
             )
         if hash_bytes(data) == oid:
             return data
