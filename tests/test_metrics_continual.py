@@ -71,6 +71,18 @@ def test_seed_aggregation_and_bootstrap():
     assert bootstrap_ci([0.3]) == (0.3, 0.3)
 
 
+def test_bootstrap_ci_against_hand_computed_percentiles():
+    """Mutation bootstrap-ci-wrong (the test above compares bootstrap_ci with itself). For runs
+    [0, 0, 0, 1] a resampled mean is K/4 with K ~ Binomial(4, 1/4): P(K <= 0, 1, 2, 3) = 0.316, 0.738,
+    0.949, 0.996. So the 95% interval's ends are the 2.5% and 97.5% quantiles, 0 and 3/4; the 80%
+    interval's are 0 and 1/2 (each 4+ standard errors of 4000 resamples away from a mass boundary)."""
+    assert bootstrap_ci([0.0, 0.0, 0.0, 1.0]) == (0.0, 0.75)
+    assert bootstrap_ci([0.0, 0.0, 0.0, 1.0], confidence=0.8) == (0.0, 0.5)
+    # [0, 1]: the mean of two draws is 0, 1/2 or 1 with probability 1/4, 1/2, 1/4
+    assert bootstrap_ci([0.0, 1.0]) == (0.0, 1.0)
+    assert bootstrap_ci([0.0, 1.0], confidence=0.4) == (0.5, 0.5)
+
+
 def app() -> typer.Typer:
     a = typer.Typer()
 

@@ -72,6 +72,18 @@ def test_resolve_gives_a_full_id_or_one_short_store_error(store, text):
     assert is_full_id(oid) and store.has_object(oid)
 
 
+def test_resolve_finds_an_object_by_full_id_prefix_and_ref_resolve_always_raises(store):
+    """Mutation resolve-always-raises: the property above also holds for a resolve that refuses
+    everything, so the three forms a user types are checked to succeed here."""
+    oid = store.put_json({"type": "tree", "format": 1, "entries": [], "name": "resolve-probe"})
+    set_ref(store, "probe/resolve", oid)
+    assert resolve(store, oid) == oid
+    assert resolve(store, oid[:16]) == oid
+    assert resolve(store, "probe/resolve") == oid
+    with pytest.raises(StoreError):
+        resolve(store, "probe/none-such")
+
+
 @FAST
 @given(st.binary(max_size=500))
 def test_any_bytes_in_a_ref_file_read_as_an_id_or_a_short_error(store, raw):
