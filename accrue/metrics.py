@@ -10,6 +10,20 @@ Input: c[i][j][e] = success rate of task j evaluated at grid point e of stage i 
     FWT, AUC  averaged over all K stages; NBT over the first K−1
     ACC_final = 1/K Σ_k c_{K,k}            F_final = 1/(K−1) Σ_{k<K} (c_{k,k} − c_{K,k})
 With K = 1, NBT and F_final are undefined and reported as None.
+
+Transfer figures beside FWT (issue 18), each averaged over the K stages:
+    FWT_no0   = mean_{e ≥ 1} c[k][k][e]     FWT without the step-0 point (None with a 1-point grid)
+    jumpstart = c[k][k][0]                  success on the new task before any update of its stage
+    T_thr     = the env steps of the first grid point with c[k][k][e] ≥ threshold; a stage that never
+                gets there counts as its last grid point (its budget), so T_thr is then a lower bound
+                (None without the grids)
+
+Selection and report sets. With `report` curves (the same checkpoints scored on a disjoint set of
+episodes), e_i* is still chosen on `curves` (the selection set) but every number above is read from
+`report`, so the max over correlated checkpoints no longer scores itself. Without them both come from
+one set, as in runs made before the split ("disjoint_report": False).
+IQM (rliable's interquartile mean): the mean of the values left after dropping floor(n/4) from each end
+of the sorted runs, with its own percentile bootstrap CI (`summarize_iqm`).
 Confidence intervals: percentile bootstrap of the mean over runs (seeds, or orderings x seeds), 4000
 resamples, 95%, numpy seed 0 (the Continual World procedure, at 95% rather than 90%); identical values
 give a degenerate interval [v, v].
@@ -29,7 +43,9 @@ import numpy as np
 
 from accrue.errors import AccrueError
 
-METRICS = ("FWT", "NBT", "AUC", "ACC_final", "F_final")
+SEC_VA_METRICS = ("FWT", "NBT", "AUC", "ACC_final", "F_final")  # the paper's (a single run's report)
+METRICS = (*SEC_VA_METRICS, "FWT_no0", "jumpstart", "T_thr")
+THRESHOLD = 0.5  # T_thr's default success threshold
 BOOTSTRAP_RESAMPLES = 4000
 CONFIDENCE = 0.95
 
@@ -57,9 +73,11 @@ def _check_curves(curves) -> list[list[list[float]]]:
     return curves
 
 
-def success_matrix(curves) -> tuple[np.ndarray, list[int]]:
-    """c_{i,j} (K × K, NaN above the diagonal) and each stage's earliest maximising checkpoint e_i*."""
+def success_matrix(curves, report=None) -> tuple[np.ndarray, list[int]]:
+    """c_{i,j} (K × K, NaN above the diagonal) and each stage's earliest maximising checkpoint e_i*,
+    chosen on `curves`; the values are read from `report` when given (a disjoint episode set)."""
     curves = _check_curves(curves)
+    values = curves if report is None else _check_report(curves, report)
     k = len(curves)
     c = np.full((k, k), np.nan)
     best = []
@@ -68,24 +86,66 @@ def success_matrix(curves) -> tuple[np.ndarray, list[int]]:
         e_star = int(np.argmax(own))  # argmax returns the first maximum: the earliest checkpoint
         best.append(e_star)
         for j in range(i + 1):
-            c[i, j] = curves[i][j][e_star]
+            c[i, j] = values[i][j][e_star]
     return c, best
 
 
-def continual_metrics(curves) -> dict:
-    """FWT, NBT, AUC, ACC_final, F_final for one run (one seed), plus per-stage values and c_{i,j}."""
-    c, best = success_matrix(curves)
+def _check_report(curves, report):
+    report = _check_curves(report)
+    if len(report) != len(curves) or len(report[0][0]) != len(curves[0][0]):
+        raise AccrueError(
+            f"report curves: {len(report)} stages x {len(report[0][0])} points, but the selection curves "
+            f"have {len(curves)} x {len(curves[0][0])}: both sets score the same checkpoints"
+        )
+    return report
+
+
+def steps_to_threshold(curve, grid, threshold: float) -> tuple[float, bool]:
+    """(env steps of the first grid point with success ≥ threshold, reached); unreached: (grid[-1], False)."""
+    if len(grid) != len(curve):
+        raise AccrueError(f"grid has {len(grid)} points but the curve {len(curve)}")
+    for g, v in zip(grid, curve):
+        if v >= threshold:
+            return float(g), True
+    return float(grid[-1]), False
+
+
+def continual_metrics(curves, report=None, grids=None, threshold: float = THRESHOLD) -> dict:
+    """FWT, NBT, AUC, ACC_final, F_final, FWT_no0, jumpstart and T_thr for one run (one seed), plus
+    per-stage values and c_{i,j}. `report`: the same checkpoints on disjoint episodes (the values);
+    `grids`: each stage's grid in env steps (for T_thr)."""
+    c, best = success_matrix(curves, report)
+    values = curves if report is None else report
     k = len(curves)
-    fwt = [float(np.mean(curves[s][s])) for s in range(k)]
+    own = [np.asarray(values[s][s], dtype=float) for s in range(k)]
+    fwt = [float(np.mean(o)) for o in own]
     nbt = [float(np.mean([c[s, s] - c[m, s] for m in range(s + 1, k)])) for s in range(k - 1)]
     auc = [(fwt[s] + float(sum(c[m, s] for m in range(s + 1, k)))) / (k - s) for s in range(k)]
+    fwt_no0 = [float(np.mean(o[1:])) for o in own] if len(own[0]) > 1 else None
+    jumpstart = [float(o[0]) for o in own]
+    if grids is not None and len(grids) != k:
+        raise AccrueError(f"grids: {len(grids)} stage grids for {k} stages")
+    reach = [steps_to_threshold(own[s], grids[s], threshold) for s in range(k)] if grids is not None else None
     out = {
         "FWT": float(np.mean(fwt)),
         "NBT": float(np.mean(nbt)) if nbt else None,
         "AUC": float(np.mean(auc)),
         "ACC_final": float(np.mean(c[k - 1, :])),
         "F_final": float(np.mean([c[s, s] - c[k - 1, s] for s in range(k - 1)])) if k > 1 else None,
-        "per_stage": {"FWT": fwt, "NBT": nbt, "AUC": auc},
+        "FWT_no0": float(np.mean(fwt_no0)) if fwt_no0 is not None else None,
+        "jumpstart": float(np.mean(jumpstart)),
+        "T_thr": float(np.mean([r[0] for r in reach])) if reach is not None else None,
+        "per_stage": {
+            "FWT": fwt,
+            "NBT": nbt,
+            "AUC": auc,
+            "FWT_no0": fwt_no0,
+            "jumpstart": jumpstart,
+            "T_thr": [r[0] for r in reach] if reach is not None else None,
+            "T_thr_reached": [r[1] for r in reach] if reach is not None else None,
+        },
+        "threshold": threshold,
+        "disjoint_report": report is not None,
         "c": [[None if np.isnan(v) else float(v) for v in row] for row in c],
         "best_checkpoint": best,
     }
@@ -120,6 +180,35 @@ def summarize_values(values) -> dict:
     return {"mean": mean, "ci_low": lo, "ci_high": hi, "n": len(defined), "undefined": undefined}
 
 
+def iqm(values) -> float:
+    """Interquartile mean: the mean after dropping floor(n/4) values from each end of the sorted list
+    (scipy.stats.trim_mean(values, 0.25), which rliable uses)."""
+    v = np.sort(np.asarray(values, dtype=float))
+    if v.size == 0:
+        raise AccrueError("iqm: no values")
+    cut = v.size // 4
+    return float(np.mean(v[cut : v.size - cut]))
+
+
+def summarize_iqm(values, resamples: int = BOOTSTRAP_RESAMPLES, confidence: float = CONFIDENCE, seed: int = 0) -> dict:
+    """IQM of the defined values with a percentile bootstrap CI of the IQM (seeded), in summarize_values'
+    shape: {"mean" (the IQM), "ci_low", "ci_high", "n", "undefined"}."""
+    defined = [float(v) for v in values if v is not None]
+    undefined = len(values) - len(defined)
+    if not defined:
+        return {"mean": None, "ci_low": None, "ci_high": None, "n": 0, "undefined": undefined}
+    v = np.asarray(defined)
+    if np.all(v == v[0]):
+        return {"mean": defined[0], "ci_low": defined[0], "ci_high": defined[0], "n": v.size, "undefined": undefined}
+    rng = np.random.default_rng(seed)
+    samples = np.sort(v[rng.integers(0, v.size, size=(resamples, v.size))], axis=1)
+    cut = v.size // 4
+    stats = samples[:, cut : v.size - cut].mean(1)
+    tail = (1 - confidence) / 2
+    lo, hi = float(np.quantile(stats, tail)), float(np.quantile(stats, 1 - tail))
+    return {"mean": iqm(defined), "ci_low": lo, "ci_high": hi, "n": int(v.size), "undefined": undefined}
+
+
 def aggregate(runs: list) -> dict:
     """Metrics of each run (seed), and per metric the mean and the bootstrap CI over runs."""
     per_run = [continual_metrics(r) for r in runs]
@@ -132,10 +221,21 @@ def ordering_label(tasks: list[str]) -> str:
     return " → ".join(tasks)
 
 
-def run_record(curves, *, method: str, tasks: list[str], ordering: str | None = None, seed: int | None = None) -> dict:
+def run_record(
+    curves,
+    *,
+    method: str,
+    tasks: list[str],
+    ordering: str | None = None,
+    seed: int | None = None,
+    report=None,
+    grids=None,
+    threshold: float = THRESHOLD,
+) -> dict:
     """One labelled run: its method, ordering (a name, else the task sequence), seed, tasks, and the
-    Sec. V-A metrics of its curves ("metrics", plus "per_stage", "c", "best_checkpoint")."""
-    m = continual_metrics(curves)
+    Sec. V-A metrics of its curves ("metrics", plus "per_stage", "c", "best_checkpoint", and whether the
+    values came from a disjoint report set); `report`, `grids`, `threshold` as in continual_metrics."""
+    m = continual_metrics(curves, report, grids, threshold)
     if len(tasks) != len(m["c"]):
         raise AccrueError(f"run of {method}: {len(m['c'])} stages of curves but {len(tasks)} tasks")
     return {
@@ -147,6 +247,7 @@ def run_record(curves, *, method: str, tasks: list[str], ordering: str | None = 
         "per_stage": m["per_stage"],
         "c": m["c"],
         "best_checkpoint": m["best_checkpoint"],
+        "disjoint_report": m["disjoint_report"],
     }
 
 
@@ -154,12 +255,13 @@ def aggregate_runs(records: list[dict]) -> dict:
     """Group labelled runs (run_record's dicts, or any dict with method, ordering, seed, tasks and
     metrics) by method, then by ordering, keeping first-appearance order:
 
-        {"methods": [{"method", "runs", "metrics": {name: summarize_values(...)},
+        {"methods": [{"method", "runs", "metrics": {name: summarize_values(...)}, "iqm": {name: summarize_iqm(...)},
                       "orderings": [{"ordering", "tasks", "seeds", "runs", "metrics": {...}}]}],
          "confidence", "resamples", "bootstrap_seed"}
 
     A method's metrics are the mean and CI over all its runs (orderings x seeds, each run weighted
-    alike, as in the paper's tables); an ordering's are over that ordering's runs."""
+    alike, as in the paper's tables), and the IQM with its CI; an ordering's are over that ordering's runs.
+    A metric a record lacks (a run stored before it existed) is undefined for it."""
     methods: dict[str, dict[str, list[dict]]] = {}
     tasks_of: dict[str, list[str]] = {}
     for r in records:
@@ -177,14 +279,15 @@ def aggregate_runs(records: list[dict]) -> dict:
             {
                 "method": method,
                 "runs": len(runs),
-                "metrics": {name: summarize_values([r["metrics"][name] for r in runs]) for name in METRICS},
+                "metrics": {name: summarize_values([r["metrics"].get(name) for r in runs]) for name in METRICS},
+                "iqm": {name: summarize_iqm([r["metrics"].get(name) for r in runs]) for name in METRICS},
                 "orderings": [
                     {
                         "ordering": name,
                         "tasks": list(group[0]["tasks"]),
                         "seeds": [r["seed"] for r in group],
                         "runs": len(group),
-                        "metrics": {m: summarize_values([r["metrics"][m] for r in group]) for m in METRICS},
+                        "metrics": {m: summarize_values([r["metrics"].get(m) for r in group]) for m in METRICS},
                     }
                     for name, group in orderings.items()
                 ],
@@ -211,7 +314,7 @@ def paired_differences(records: list[dict], reference: str, methods: list[str] |
         for name in METRICS:
             diffs = [
                 None
-                if a["metrics"][name] is None or b["metrics"][name] is None
+                if a["metrics"].get(name) is None or b["metrics"].get(name) is None
                 else a["metrics"][name] - b["metrics"][name]
                 for a, b in pairs
             ]

@@ -10,7 +10,7 @@ stage m); NBT and F_final need m >= 2 and are None before that.
 
 from __future__ import annotations
 
-from accrue.metrics import METRICS, continual_metrics
+from accrue.metrics import SEC_VA_METRICS, continual_metrics
 from stages.errors import StageError
 from stages.report.data import RunData
 
@@ -85,7 +85,7 @@ def summarize(run: RunData) -> dict:
         "stages_reported": m,
         "complete": run.complete,
         "missing": [{"stage": x.stage, "step": x.step, "ref": x.ref} for x in run.missing],
-        "metrics": {name: result[name] for name in METRICS},
+        "metrics": {name: result[name] for name in SEC_VA_METRICS},
         "per_stage": result["per_stage"],
         "success_matrix": c,
         "best_checkpoint": [

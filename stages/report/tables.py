@@ -17,7 +17,18 @@ from accrue.metrics import METRICS
 
 # the paper's column order (Tables I, II, IV, V) and which way is better
 TABLE_METRICS = ("NBT", "FWT", "AUC", "ACC_final", "F_final")
-ARROWS = {"FWT": "↑", "NBT": "↓", "AUC": "↑", "ACC_final": "↑", "F_final": "↓"}
+ARROWS = {
+    "FWT": "↑",
+    "NBT": "↓",
+    "AUC": "↑",
+    "ACC_final": "↑",
+    "F_final": "↓",
+    "FWT_no0": "↑",
+    "jumpstart": "↑",
+    "T_thr": "↓",
+}
+# issue 18's transfer figures beside FWT (accrue.metrics): a table of their own
+TRANSFER_METRICS = ("FWT", "FWT_no0", "jumpstart", "T_thr")
 
 METHOD_HEADER = ["method", "runs", *(f"{m} {ARROWS[m]}" for m in TABLE_METRICS)]
 ORDERING_HEADER = ["method", "ordering", "seeds", *(f"{m} {ARROWS[m]}" for m in TABLE_METRICS)]
