@@ -154,7 +154,12 @@ def remote_repair(
 # ---------------------------------------------------------------------------- push / fetch / pull
 def push(
     words: WordsArg = None,
-    force: Annotated[bool, typer.Option("--force", help="Move remote refs even if someone else moved them.")] = False,
+    force: Annotated[
+        bool,
+        typer.Option(
+            "--force", help="Move remote refs even if someone else moved them (theirs kept as displaced/REF/ID)."
+        ),
+    ] = False,
     jobs: JobsOpt = None,
     store: StoreOpt = None,
     as_json: JsonOpt = False,
@@ -171,6 +176,8 @@ def push(
             typer.echo(f"  {name}: {old[:12] if old else '(new)'} -> {new[:12]}")
         for name in report.behind:
             typer.echo(f"  {name}: the remote has moved on; `accrue pull {spec.name} {name}` to get it")
+        for name, keep in report.displaced.items():
+            typer.echo(f"  {name}: the remote's previous id is kept there as ref {keep}")
         typer.echo(
             f"push -> {spec.name}: sent {report.objects_sent} objects ({human_size(report.bytes_sent)}), "
             f"moved {len(report.moved)} refs, {len(report.up_to_date)} up to date"
@@ -185,6 +192,10 @@ def _print_fetch(report, verb: str, as_json: bool) -> None:
         return
     for name, (old, new) in report.moved.items():
         typer.echo(f"  {name}: {old[:12] if old else '(new)'} -> {new[:12]}")
+    for name in report.ahead:
+        typer.echo(f"  {name}: only this store moved it; `accrue push {report.remote} {name}` shares it")
+    for name, keep in report.displaced.items():
+        typer.echo(f"  {name}: this store's previous id is kept as ref {keep}")
     tail = f"; {report.promised} objects left on the remote until needed" if report.promised else ""
     moved = f", moved {len(report.moved)} local refs" if verb == "pull" else ""
     typer.echo(
@@ -207,7 +218,12 @@ def fetch(
 def pull(
     words: WordsArg = None,
     only: OnlyOpt = None,
-    force: Annotated[bool, typer.Option("--force", help="Take the remote's refs even over local changes.")] = False,
+    force: Annotated[
+        bool,
+        typer.Option(
+            "--force", help="Take the remote's refs even over local changes (yours kept as displaced/REF/ID)."
+        ),
+    ] = False,
     jobs: JobsOpt = None,
     store: StoreOpt = None,
     as_json: JsonOpt = False,

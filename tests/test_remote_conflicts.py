@@ -103,8 +103,8 @@ def test_two_stores_pushing_one_ref_at_once_one_wins_the_other_gets_a_conflict(t
     # the CLI says it in one line naming the ref and both ids, and --force overwrites
     line = one_line_error(cli(stores[loser], "push", "team/handoff"))
     assert re.search(
-        rf"ref team/handoff: remote origin has {ids[winners[0]][:12]}, but this store last saw "
-        r"nothing there; pull first, or push --force",
+        rf"ref team/handoff: moved on both sides \(this store never saw it there\): this store has "
+        rf"{ids[loser][:12]}, remote origin has {ids[winners[0]][:12]}; `accrue pull --force origin team/handoff`",
         line,
     ), line
     assert cli(stores[loser], "push", "team/handoff", "--force").returncode == 0
@@ -131,9 +131,23 @@ def test_pull_refuses_to_move_a_local_ref_that_changed_since_it_was_last_seen(tm
     theirs = cli(a, "add", str(new), "--kind", "replay", "--ref", "team/replay").stdout.strip()
     cli(a, "push")
     line = one_line_error(cli(b, "pull"))
-    assert f"ref team/replay: this store has {mine[:12]}, remote origin has {theirs[:12]}" in line
+    assert f"this store has {mine[:12]}, remote origin has {theirs[:12]}" in line
+    assert "pull --force origin team/replay" in line and "push --force origin team/replay" in line
     assert user_refs(b)["team/replay"] == mine
+    assert one_line_error(cli(b, "push")).startswith("error: ref team/replay: moved on both sides")
+    # either way on keeps the other side's work under a displaced/ ref
     assert cli(b, "pull", "--force").returncode == 0 and user_refs(b)["team/replay"] == theirs
+    assert user_refs(b)[f"displaced/team/replay/{mine[:12]}"] == mine
+    mine2 = cli(b, "add", str(other), "--kind", "replay", "--ref", "team/replay").stdout.strip()
+    newer = tmp_path / "newer.bin"
+    newer.write_bytes(b"another remote change")
+    theirs2 = cli(a, "add", str(newer), "--kind", "replay", "--ref", "team/replay").stdout.strip()
+    assert mine2 == mine and cli(a, "push").returncode == 0
+    forced = json.loads(cli(b, "push", "--force", "--json").stdout)
+    assert forced["displaced"] == {"team/replay": f"displaced/team/replay/{theirs2[:12]}"}
+    assert cli(a, "pull").returncode == 0  # a has not moved since its push: it fast-forwards
+    assert user_refs(a)["team/replay"] == mine
+    assert user_refs(a)[f"displaced/team/replay/{theirs2[:12]}"] == theirs2  # a's work, still named
 
 
 def test_a_byte_flipped_in_a_remote_object_is_refused_on_pull(tmp_path, remote_url):

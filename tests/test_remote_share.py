@@ -67,3 +67,32 @@ def test_repair_from_a_store_that_lacks_the_object_says_so_in_one_line(tmp_path,
     assert "1 damaged object(s) this store lacks too" in line and replay[:12] in line
     assert cli(a, "remote", "repair").returncode == 0  # the robot has it
     assert cli(b, "verify", "--remote", "origin").returncode == 0
+
+
+def test_pull_and_push_fast_forward_when_only_one_side_moved(tmp_path, remote_url):
+    a, b = tmp_path / "robot", tmp_path / "workstation"
+    make_store(a)
+    with_remote(a, remote_url)
+    cli(a, "push")
+    cli(b, "init")
+    with_remote(b, remote_url)
+    cli(b, "pull")
+    extra = tmp_path / "x.bin"
+    extra.write_bytes(b"workstation's own work")
+    mine = cli(b, "add", str(extra), "--kind", "replay", "--ref", "team/replay").stdout.strip()
+    cli(b, "add", str(extra), "--kind", "replay", "--ref", "team/x")
+    # only b moved: pull leaves b's refs as they are and says so; no conflict, exit 0
+    pulled = cli(b, "pull")
+    assert pulled.returncode == 0 and "team/replay: only this store moved it" in pulled.stdout
+    assert user_refs(b)["team/replay"] == mine
+    assert cli(b, "push").returncode == 0
+    # only the remote moved for a: pull takes it, and a's push afterwards says nothing is behind
+    assert cli(a, "pull").returncode == 0 and user_refs(a)["team/replay"] == mine and user_refs(a)["team/x"] == mine
+    newer = tmp_path / "y.bin"
+    newer.write_bytes(b"robot's newer work")
+    theirs = cli(a, "add", str(newer), "--kind", "replay", "--ref", "team/replay").stdout.strip()
+    assert cli(a, "push").returncode == 0
+    behind = json.loads(cli(b, "push", "--json").stdout)  # only the remote moved: nothing sent back
+    assert behind["behind"] == ["team/replay"] and behind["conflicts"] == []
+    assert cli(b, "pull").returncode == 0 and user_refs(b)["team/replay"] == theirs
+    assert not [r for r in user_refs(b) if r.startswith("displaced/")]

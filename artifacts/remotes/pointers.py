@@ -45,6 +45,26 @@ def tracking_refs(store: Store, remote: str, space: str = TRACKING) -> dict[str,
     return {n[len(prefix) :]: i for n, i in list_refs(store, prefix).items()}
 
 
+def merge_bases(store: Store, remote: str) -> dict[str, str]:
+    """Per ref, the id this store and the remote last agreed on (after a push or pull, not a bare
+    fetch): which side moved since is what push and pull decide by. Stores from before this was
+    kept fall back to their remote-tracking refs."""
+    return {**tracking_refs(store, remote), **load_json(state_dir(store, remote) / "base.json")}
+
+
+def record_bases(store: Store, remote: str, agreed: dict[str, str]) -> None:
+    if not agreed:
+        return
+    path = state_dir(store, remote) / "base.json"
+    with store_lock(store.locks_dir, f"remote-{remote}"):
+        bases = load_json(path)
+        if all(bases.get(n) == i for n, i in agreed.items()):
+            return
+        bases.update(agreed)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        save_json(path, bases)
+
+
 def select_refs(names: dict[str, str], wanted: list[str], where: str) -> dict[str, str]:
     """Every ref when nothing is named; else each name picks that ref or the refs under it."""
     if not wanted:
@@ -63,6 +83,25 @@ def select_refs(names: dict[str, str], wanted: list[str], where: str) -> dict[st
 
 def short(oid: str | None) -> str:
     return oid[:12] if oid else "nothing"
+
+
+DISPLACED = "displaced"  # refs/displaced/<ref>/<id12>: what a --force took a ref away from
+
+
+def displaced_ref(name: str, oid: str) -> str:
+    return f"{DISPLACED}/{name}/{oid[:12]}"
+
+
+def both_moved(name: str, remote: str, mine: str, theirs: str | None, last: str | None) -> str:
+    """The one line for a ref that moved on both sides since this store last saw the remote:
+    both ids, and the two ways on, neither of which loses the other side's work."""
+    since = f"since {short(last)}" if last else "(this store never saw it there)"
+    return (
+        f"ref {name}: moved on both sides {since}: this store has {short(mine)}, remote {remote} has "
+        f"{short(theirs)}; `accrue pull --force {remote} {name}` takes the remote's (this store's kept as "
+        f"ref {displaced_ref(name, mine)}), `accrue push --force {remote} {name}` sends this store's (the "
+        f"remote's kept there as ref {displaced_ref(name, theirs or '')})"
+    )
 
 
 def check_remote_config(backend: Backend, create: bool) -> None:

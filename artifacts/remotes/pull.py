@@ -17,10 +17,13 @@ from artifacts.remotes.config import get_remote, set_promisor
 from artifacts.remotes.lazy import add_promised
 from artifacts.remotes.logsegment import KIND as LOG_KIND
 from artifacts.remotes.pointers import (
+    both_moved,
     check_remote_config,
+    displaced_ref,
+    merge_bases,
     read_pointers,
+    record_bases,
     select_refs,
-    short,
     tracking_refs,
 )
 from artifacts.remotes.transfer import Meter, default_jobs, download_manifest, download_object, flush_dirs, parallel
@@ -37,6 +40,8 @@ class FetchReport:
     promised: int = 0
     moved: dict[str, list] = field(default_factory=dict)  # pull: local ref -> [old, new]
     up_to_date: list[str] = field(default_factory=list)
+    ahead: list[str] = field(default_factory=list)  # pull: only this store moved (push shares it)
+    displaced: dict[str, str] = field(default_factory=dict)  # pull --force: ref keeping the local id
     conflicts: list[str] = field(default_factory=list)
 
     def as_dict(self) -> dict:
@@ -163,19 +168,24 @@ def pull(
     meter: Meter | None = None,
 ) -> FetchReport:
     spec = get_remote(store, remote)
-    before = tracking_refs(store, spec.name)
+    before = merge_bases(store, spec.name)
     report = fetch(store, spec.name, refs, only, jobs, meter)
     for name, oid in report.refs.items():
-        mine = read_ref(store, name)
+        mine, last = read_ref(store, name), before.get(name)
         if mine == oid:
             report.up_to_date.append(name)
-        elif mine is None or mine == before.get(name) or force:
+        elif mine is None or mine == last:  # only the remote moved: fast-forward
             set_ref(store, name, oid)
             report.moved[name] = [mine, oid]
+        elif oid == last:  # only this store moved: nothing to take
+            report.ahead.append(name)
+        elif force:  # both moved: take the remote's, keep this store's under displaced/
+            keep = displaced_ref(name, mine)
+            set_ref(store, keep, mine)
+            set_ref(store, name, oid)
+            report.moved[name] = [mine, oid]
+            report.displaced[name] = keep
         else:
-            report.conflicts.append(
-                f"ref {name}: this store has {short(mine)}, remote {spec.name} has "
-                f"{short(oid)} (last seen there: {short(before.get(name))}); "
-                "pull --force to take the remote's"
-            )
+            report.conflicts.append(both_moved(name, spec.name, mine, oid, last))
+    record_bases(store, spec.name, {n: report.refs[n] for n in report.up_to_date + list(report.moved)})
     return report

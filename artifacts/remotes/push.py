@@ -15,15 +15,18 @@ from artifacts.remotes.closure import bottom_up, children
 from artifacts.remotes.config import get_remote, store_id
 from artifacts.remotes.logsegment import next_segment
 from artifacts.remotes.pointers import (
+    both_moved,
     check_remote_config,
+    displaced_ref,
     load_json,
     local_refs,
+    merge_bases,
     present_on_remote,
     read_pointers,
+    record_bases,
     remember_version,
     save_json,
     select_refs,
-    short,
     state_dir,
     tracking_refs,
 )
@@ -38,6 +41,7 @@ class PushReport:
     up_to_date: list[str] = field(default_factory=list)
     behind: list[str] = field(default_factory=list)  # remote moved on; this store did not
     conflicts: list[str] = field(default_factory=list)
+    displaced: dict[str, str] = field(default_factory=dict)  # --force: remote ref keeping what it replaced
     objects_sent: int = 0
     bytes_sent: int = 0
     objects_checked: int = 0
@@ -93,21 +97,23 @@ def push(
     local = select_refs(local_refs(store), refs or [], "in this store")
     current = read_pointers(store, spec, backend, "refs")
     seen = tracking_refs(store, spec.name)
+    base = merge_bases(store, spec.name)
 
     to_move: dict[str, str] = {}
+    displace: dict[str, str] = {}  # push --force over a remote that moved: its id, kept there
     for name, oid in local.items():
         cur = current.get(name, (None, ""))[0]
         if cur == oid:
             report.up_to_date.append(name)
-        elif force or cur == seen.get(name) or cur is None:  # (a wiped remote gets it again)
+        elif cur == base.get(name) or cur is None:  # only this store moved (a wiped remote gets it again)
             to_move[name] = oid
-        elif oid == seen.get(name):
+        elif force:
+            to_move[name] = oid
+            displace[name] = cur
+        elif oid == base.get(name):  # only the remote moved: nothing to send
             report.behind.append(name)
         else:
-            report.conflicts.append(
-                f"ref {name}: remote {spec.name} has {short(cur)}, but this store "
-                f"last saw {short(seen.get(name))} there; pull first, or push --force"
-            )
+            report.conflicts.append(both_moved(name, spec.name, oid, cur, base.get(name)))
 
     # the audit-log segment written since the last push to this remote
     sid = store_id(store)
@@ -172,19 +178,21 @@ def push(
         save_json(log_state_path, {"manifest": segment.manifest_id, "end": segment.end})
         report.log_segment = segment.manifest_id
 
+    for name, theirs in displace.items():  # before the ref moves, so the remote's work stays reachable
+        backend.put_bytes(f"refs/{displaced_ref(name, theirs)}", (theirs + "\n").encode())
     for name, oid in to_move.items():
         old, version = current.get(name, (None, None))
         try:
             version = backend.swap(f"refs/{name}", (oid + "\n").encode(), version or None)
         except RefMoved:
             now = read_pointers(store, spec, backend, "refs").get(name, (None,))[0]
-            report.conflicts.append(
-                f"ref {name}: remote {spec.name} has {short(now)}, but this store "
-                f"last saw {short(seen.get(name))} there; pull first, or push --force"
-            )
+            report.conflicts.append(both_moved(name, spec.name, oid, now, base.get(name)))
             continue
         remember_version(store, spec.name, "refs", name, oid, version)
         report.moved[name] = [old, oid]
+        if name in displace:
+            report.displaced[name] = displaced_ref(name, displace[name])
+    record_bases(store, spec.name, {n: local[n] for n in report.up_to_date + list(report.moved)})
     tracked = {n: local[n] for n in report.up_to_date + list(report.moved) if seen.get(n) != local[n]}
     for name, oid in tracked.items():
         set_ref(store, f"{TRACKING}/{spec.name}/{name}", oid, log=False)
