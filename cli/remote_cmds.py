@@ -197,6 +197,8 @@ def _print_fetch(report, verb: str, as_json: bool) -> None:
     for name, keep in report.displaced.items():
         typer.echo(f"  {name}: this store's previous id is kept as ref {keep}")
     tail = f"; {report.promised} objects left on the remote until needed" if report.promised else ""
+    if report.steps_indexed:
+        tail += f"; {report.steps_indexed} step records now in the step cache"
     moved = f", moved {len(report.moved)} local refs" if verb == "pull" else ""
     typer.echo(
         f"{verb} <- {report.remote}: received {report.objects_received} objects "

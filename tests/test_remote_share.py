@@ -96,3 +96,32 @@ def test_pull_and_push_fast_forward_when_only_one_side_moved(tmp_path, remote_ur
     assert behind["behind"] == ["team/replay"] and behind["conflicts"] == []
     assert cli(b, "pull").returncode == 0 and user_refs(b)["team/replay"] == theirs
     assert not [r for r in user_refs(b) if r.startswith("displaced/")]
+
+
+def test_a_pulled_store_runs_the_same_plan_as_cache_hits(tmp_path, remote_url):
+    import os
+
+    from rich.console import Console
+    from test_runner_support import count_invocation
+
+    from artifacts.store import Store
+    from stages.runner import Runner
+    from stages.runner_types import StagePlan
+
+    a, b = tmp_path / "robot", tmp_path / "workstation"
+    make_store(a, seed=3)
+    with_remote(a, remote_url)
+    cli(a, "push")
+    cli(b, "init")
+    with_remote(b, remote_url)
+    pulled = json.loads(cli(b, "pull", "--json").stdout)
+    assert pulled["steps_indexed"] == 1
+    assert json.loads(cli(b, "pull", "--json").stdout)["steps_indexed"] == 0  # entered once only
+    store = Store.open(b)
+    handoff = user_refs(b)["team/handoff"]
+    plan = StagePlan("wf", 1, (count_invocation(3, seed=3, inputs={"seed": handoff}),))
+    [result] = Runner(store, console=Console(file=open(os.devnull, "w"))).run_plan(plan)
+    assert result.cached and result.record_id == user_refs(a)["workflow/wf/stage/1/train"]
+    assert cli(b, "verify").returncode == 0
+    again = json.loads(cli(b, "push", "--json").stdout)  # nothing recomputed: no ref of the remote moves
+    assert again["moved"] == {} and again["conflicts"] == []

@@ -26,6 +26,7 @@ from artifacts.remotes.pointers import (
     select_refs,
     tracking_refs,
 )
+from artifacts.remotes.stepindex import index_step_records
 from artifacts.remotes.transfer import Meter, default_jobs, download_manifest, download_object, flush_dirs, parallel
 from artifacts.store import Store
 
@@ -38,6 +39,7 @@ class FetchReport:
     objects_received: int = 0
     bytes_received: int = 0
     promised: int = 0
+    steps_indexed: int = 0  # step records entered in this store's step cache
     moved: dict[str, list] = field(default_factory=dict)  # pull: local ref -> [old, new]
     up_to_date: list[str] = field(default_factory=list)
     ahead: list[str] = field(default_factory=list)  # pull: only this store moved (push shares it)
@@ -155,6 +157,7 @@ def fetch(
     if tracked or logs:
         append_event(store, "fetched", remote=spec.name, refs=tracked, logs=logs)
     report.refs, report.logs = chosen, logs
+    report.steps_indexed = len(index_step_records(store, list(chosen.values()), f"remote {spec.name}"))
     return report
 
 
