@@ -31,12 +31,66 @@ def _sim():
     return demos._sim_api()
 
 
+def _noise(spec) -> dict | None:
+    """The task's per-episode and per-step noise settings in display units (None: the spec declares none)."""
+    r = getattr(spec, "randomisation", None)
+    if r is None:
+        return None
+    bias = getattr(spec, "estimate_bias", (0.0, 0.0, 0.0))
+    deg = 180.0 / 3.141592653589793
+    return {
+        "estimate_bias_mm_deg": [round(bias[0] * 1e3, 3), round(bias[1] * 1e3, 3), round(bias[2] * deg, 3)],
+        "estimate_xy_mm": round(r.estimate_xy * 1e3, 3),
+        "estimate_yaw_deg": round(r.estimate_yaw * deg, 3),
+        "in_hand_xy_mm": round(r.in_hand_xy * 1e3, 3),
+        "in_hand_yaw_deg": round(r.in_hand_yaw * deg, 3),
+        "obs_pos_mm": round(r.obs_pos * 1e3, 3),
+        "obs_force_n": round(r.obs_force, 3),
+        "friction": [round(float(f), 3) for f in r.friction],
+    }
+
+
+def _task_row(s) -> dict:
+    row = {
+        "family": s.family,
+        "task_id": s.task_id,
+        "instruction": s.instruction,
+        "clearance_mm": round(float(s.clearance) * 1e3, 3),
+        "max_steps": int(s.max_steps),
+        "control_hz": float(s.control_hz),
+    }
+    if hasattr(s, "role"):  # a real TaskSpec: its role in the benchmark, success depth and noise
+        row.update(
+            role=s.role,
+            depth_mm=round(float(s.depth) * 1e3, 3),
+            success_depth_mm=round(float(s.success_depth) * 1e3, 3),
+            chamfer_mm=round(float(s.chamfer) * 1e3, 3),
+            yaw_symmetry=int(s.yaw_symmetry),
+            noise=_noise(s),
+        )
+    return row
+
+
+def _noise_text(noise: dict | None) -> str:
+    if noise is None:
+        return ""
+    bx, by, byaw = noise["estimate_bias_mm_deg"]
+    bias = f"bias ({bx:+.1f}, {by:+.1f}) mm {byaw:+.1f}°" if any((bx, by, byaw)) else "no bias"
+    text = f"{bias}; est σ {noise['estimate_xy_mm']:.2f} mm {noise['estimate_yaw_deg']:.1f}°"
+    if noise["in_hand_xy_mm"] or noise["in_hand_yaw_deg"]:
+        text += f"; in-hand σ {noise['in_hand_xy_mm']:.2f} mm {noise['in_hand_yaw_deg']:.1f}°"
+    return text + f"; F σ {noise['obs_force_n']:.1f} N; μ {noise['friction'][0]:.2f}-{noise['friction'][1]:.2f}"
+
+
 @sim_app.command("tasks")
 def tasks_cmd(
     as_json: Annotated[bool, typer.Option("--json", help="Machine-readable output.")] = False,
-    family: Annotated[Optional[str], typer.Option("--family", help="Only this family (e.g. nist, plugs).")] = None,
+    family: Annotated[
+        Optional[str], typer.Option("--family", help="Only this family (e.g. contact, nist, plugs).")
+    ] = None,
 ) -> None:
-    """List the tasks: family, id, instruction, clearance, time limit."""
+    """List the tasks: family, role in the benchmark (shared-skill / negative-control), id, clearance,
+    success depth, time limit and noise settings (--json adds the instruction)."""
     from accrue.errors import AccrueError
 
     sim = _sim()
@@ -46,17 +100,7 @@ def tasks_cmd(
         if not specs:
             families = sorted({s.family for s in (sim.get_task(t) for t in sim.list_tasks())})
             raise AccrueError(f"no task family {family!r}; families: {', '.join(families)}")
-    rows = [
-        {
-            "family": s.family,
-            "task_id": s.task_id,
-            "instruction": s.instruction,
-            "clearance_mm": round(float(s.clearance) * 1e3, 3),
-            "max_steps": int(s.max_steps),
-            "control_hz": float(s.control_hz),
-        }
-        for s in specs
-    ]
+    rows = [_task_row(s) for s in specs]
     if as_json:
         typer.echo(json.dumps(rows, indent=2))
         return
@@ -65,19 +109,24 @@ def tasks_cmd(
     table = Table(title=f"{len(rows)} simulated tasks")
     for name, justify in (
         ("family", "left"),
+        ("role", "left"),
         ("task id", "left"),
-        ("instruction", "left"),
         ("clearance", "right"),
+        ("success depth", "right"),
         ("max steps", "right"),
+        ("noise", "left"),
     ):
         table.add_column(name, justify=justify)
     for r in rows:
+        depth = f"{r['success_depth_mm']:.1f}/{r['depth_mm']:.0f} mm" if "depth_mm" in r else ""
         table.add_row(
             r["family"],
+            r.get("role", ""),
             r["task_id"],
-            r["instruction"],
             f"{r['clearance_mm']:.2f} mm",
+            depth,
             f"{r['max_steps']} ({r['max_steps'] / r['control_hz']:.1f} s)",
+            _noise_text(r.get("noise")),
         )
     _console().print(table)
 

@@ -1,6 +1,6 @@
 """Author the built-in plug/socket/gripper parts as USD under accrue/sim/assets/<family>/<name>/.
 
-Run after changing accrue/sim/part_shapes.py or PART_TABLE in accrue/sim/tasks.py:
+Run after changing accrue/sim/part_shapes.py or PART_TABLE / CONTACT_PART_TABLE in accrue/sim/tasks.py:
     .venv/bin/python scripts/make_parts.py [--out DIR]
 """
 
@@ -10,13 +10,13 @@ import argparse
 from pathlib import Path
 
 from accrue.sim.part_shapes import gear_parts, insertion_parts
-from accrue.sim.tasks import ASSET_DIR, PART_TABLE
+from accrue.sim.tasks import ASSET_DIR, CONTACT_PART_TABLE, PART_TABLE
 from accrue.sim.usd_parts import write_part
 
 
 def build_all(out: Path) -> list[Path]:
     written = []
-    for name, (family, shape, clearance, depth, chamfer, length) in PART_TABLE.items():
+    for name, (family, shape, clearance, depth, chamfer, length) in [*PART_TABLE.items(), *CONTACT_PART_TABLE.items()]:
         if shape == "gear":
             parts = gear_parts(clearance, depth, chamfer, thickness=length)
         else:

@@ -2,7 +2,10 @@
 
 Align over the (bias-corrected) socket estimate, descend, and when the plug sits on the socket
 without sinking, follow the wrist force laterally and spiral outward with a small yaw wiggle
-until it drops in. `quality` < 1 adds a per-episode aim error and per-step action noise, so
+until it drops in. The wide search (default where a task declares per-episode aim errors beyond
+the narrow 1.3 mm / 4 degree reach: the contact family) reaches 2.5 sigma of those errors, sweeps yaw
+slowly enough to follow, twists a part jammed inside the hole (rotation under contact) and slides over the
+surface with a light touch (compliance: pressed hard, friction pins the plug). `quality` < 1 adds a per-episode aim error and per-step action noise, so
 demonstration sets of mixed quality can be drawn.
 
 `search=False` gives the demonstrator who aligns, descends and pushes but never searches: every action is
@@ -20,6 +23,8 @@ from accrue.sim.observation import decode_state, rotate_xy
 from accrue.sim.tasks import DEG, MM, TaskSpec, get_task
 
 CONTACT_FORCE = 1.5  # N of |Fz| above which the plug is taken to rest on something
+LIGHT_PRESS = 3.0  # N of |Fz| the wide search presses with while it slides over the surface
+NARROW_XY, NARROW_YAW = 1.3 * MM, 4 * DEG  # the narrow search's reach (the nist/plugs expert's)
 ENTERED = 1.2 * MM  # tip this far below the socket top: past the chamfer, inside the hole
 
 
@@ -36,6 +41,7 @@ class ScriptedExpert:
         correction=None,
         search: bool = True,
         bias_known: float = 1.0,
+        wide: bool | None = None,
     ):
         self.task, self.quality, self.search = task, float(np.clip(quality, 0.0, 1.0)), bool(search)
         bx, by, byaw = task.estimate_bias
@@ -44,6 +50,15 @@ class ScriptedExpert:
         self.correction = np.array(known if correction is None else correction, dtype=float)
         self.rng = np.random.default_rng(seed)
         self._n = 0
+        # the search's reach: 1.3 mm / 4 degrees, or in the wide search 2.5 sigma of the aim errors the task
+        # declares (estimate + in-hand offset); wide=None: wide where those exceed the narrow reach
+        r = task.randomisation
+        reach_xy = max(NARROW_XY, 2.5 * float(np.hypot(r.estimate_xy, r.in_hand_xy)))
+        reach_yaw = max(NARROW_YAW, 2.5 * float(np.hypot(r.estimate_yaw, r.in_hand_yaw)))
+        self.wide = bool((reach_xy > NARROW_XY or reach_yaw > NARROW_YAW) if wide is None else wide)
+        self.reach_xy, self.reach_yaw = (reach_xy, reach_yaw) if self.wide else (NARROW_XY, NARROW_YAW)
+        # a yaw sweep slow enough for the rotation rate limit to follow (narrow: 1.3 rad per step)
+        self.yaw_rate = min(1.3, 0.7 * task.max_delta_rot / self.reach_yaw) if self.wide else 1.3
 
     def _ensure(self, n: int) -> None:
         if self._n != n:
@@ -88,21 +103,29 @@ class ScriptedExpert:
         lateral = -force_r[:, :2] * 0.08 * MM
         self.shift = np.clip(self.shift + np.where(blocked[:, None] & ~inside[:, None], lateral, 0.0), -MM, MM)
         k = np.where(inside, 0, self.stuck)
-        radius = 0.1 * MM * (k % 14)  # spiral out to 1.3 mm, then start over
+        rings = int(round(self.reach_xy / (0.1 * MM))) + 1
+        radius = 0.1 * MM * (k % rings)  # spiral out to reach_xy (1.3 mm at least), then start over
         theta = 0.9 * k
         spiral = np.column_stack([radius * np.cos(theta), radius * np.sin(theta)])
         period = task.yaw_period
-        amplitude = np.minimum(0.8 * DEG + 0.25 * DEG * k, 4 * DEG)  # widen the yaw search as it drags on
-        wiggle = np.where(k > 0, amplitude * np.sin(1.3 * k), 0.0) if period > 0 else 0.0
+        # rotation under contact: the wide search also twists a part jammed inside the hole (a gear on its
+        # shaft, blocked by the neighbour's teeth); the narrow one only twists outside
+        ky = self.stuck if self.wide else k
+        # widen the yaw search as it drags on, reaching reach_yaw after 16 stuck steps (narrow: 0.25 deg/step)
+        amplitude = np.minimum(0.8 * DEG + self.reach_yaw / 16 * ky, self.reach_yaw)
+        wiggle = np.where(ky > 0, amplitude * np.sin(self.yaw_rate * ky), 0.0) if period > 0 else 0.0
         yaw_err = _wrap(goal_yaw + wiggle - yaw, period) if period > 0 else np.zeros(n)
 
         # outside: servo onto the (searched) goal; inside: comply with the walls, unjam by lifting
         xy_err = np.where(inside[:, None], lateral, goal_xy + spiral + self.shift - pos[:, :2])
         aligned = (np.hypot(*xy_err.T) < 0.4 * MM) & (np.abs(yaw_err) < 1.5 * DEG)
         high = z > 3 * MM
-        jammed = inside & (self.stuck > 0) & (self.stuck % 4 == 0)
+        every = 12 if self.wide else 4  # the wide search twists longer before a lift resets it
+        jammed = inside & (self.stuck > 0) & (self.stuck % every == 0)
         dz = np.where(high, np.where(aligned, -1.0, -0.4), np.where(aligned | inside | (k > 0), -0.6, 0.0))
         dz = np.where(jammed, 0.5, dz)
+        if self.wide:  # search with a light touch, or friction pins the plug where it landed (compliance)
+            dz = np.where(~inside & (k > 0), np.where(np.abs(force_r[:, 2]) > LIGHT_PRESS, 0.25, -0.25), dz)
         act = np.zeros((n, 6))
         act[:, :2] = xy_err / task.max_delta_pos
         act[:, 2] = dz
@@ -115,7 +138,7 @@ class ScriptedExpert:
 
 def expert_success_rate(task_id: str, episodes: int, seed: int = 0, quality: float = 1.0, **expert_kw) -> float:
     """Success of the scripted expert over `episodes` parallel episodes (one per env), acting every control
-    step; expert_kw go to make_expert (correction, search, bias_known)."""
+    step; expert_kw go to make_expert (correction, search, bias_known, wide)."""
     from accrue.sim.vec_env import make_vec_env
 
     env = make_vec_env(task_id, num_envs=episodes, seed=seed)
@@ -137,6 +160,9 @@ def make_expert(
     correction=None,
     search: bool = True,
     bias_known: float = 1.0,
+    wide: bool | None = None,
 ) -> ScriptedExpert:
     task = get_task(task_id) if isinstance(task_id, str) else task_id
-    return ScriptedExpert(task, quality=quality, seed=seed, correction=correction, search=search, bias_known=bias_known)
+    return ScriptedExpert(
+        task, quality=quality, seed=seed, correction=correction, search=search, bias_known=bias_known, wide=wide
+    )

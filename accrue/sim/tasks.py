@@ -3,6 +3,14 @@
 A task is geometry (plug/socket/gripper USD files) plus everything that makes episodes differ:
 clearance-dependent success tolerances, time limit, action scale, and FORGE's randomisation
 ranges, all sampled from the episode seed.
+
+Families and their role in the benchmark (FAMILY_ROLES):
+- contact/*: the shared-skill family. Every error is drawn anew each episode and is zero-mean (socket
+  pose estimate, in-hand offset of the held part, force noise), so no constant per-task correction
+  helps; what helps is the contact skill every task needs (search under contact, compliance, and for
+  gear_mesh rotation under contact). Success is a fraction of the insertion depth, as in FORGE.
+- nist/* and plugs/*: a fixed per-fixture socket-estimate bias (`estimate_bias`) on top of small
+  per-episode noise: what RL can add there is a constant per-task offset. The negative control.
 """
 
 from __future__ import annotations
@@ -38,6 +46,10 @@ class Randomisation:
     obs_pos: float = 0.1 * MM  # std of per-step noise on the end-effector position
     obs_rot: float = 0.1 * DEG  # per-step noise on orientation
     obs_force: float = 0.5  # N, per-step noise on wrist force
+    # the held part's offset in the gripper, drawn per episode (FORGE: up to ~3 mm); the robot's reading
+    # of the plug tip is off by it. 0 (the nist/plugs default) draws nothing, so their streams are unchanged
+    in_hand_xy: float = 0.0  # std per axis (m)
+    in_hand_yaw: float = 0.0  # std (rad)
 
 
 @dataclass(frozen=True)
@@ -57,6 +69,8 @@ class TaskSpec:
     max_delta_pos: float = 2.0 * MM  # per control step at |action| = 1
     max_delta_rot: float = 3.0 * DEG
     depth_tol: float = 1.0 * MM  # success: plug bottom within this of the full depth
+    # FORGE-like success: inserted to this fraction of the depth (None: depth - depth_tol, as before)
+    success_depth_frac: float | None = None
     xy_tol: float = 0.8 * MM  # success: lateral error below this
     yaw_tol: float = 3.0 * DEG  # success: yaw error (modulo symmetry) below this
     # systematic error of this fixture's socket estimate (calibration of its board position):
@@ -64,6 +78,18 @@ class TaskSpec:
     estimate_bias: tuple = (0.0, 0.0, 0.0)  # (x m, y m, yaw rad)
     plug_mass: float = 0.03
     randomisation: Randomisation = field(default_factory=Randomisation)
+    chamfer: float = 0.0  # chamfer width at the hole's mouth (m), informative (the USD carries the geometry)
+
+    @property
+    def success_depth(self) -> float:
+        """How deep (m below the socket top) the plug bottom must be for success."""
+        if self.success_depth_frac is not None:
+            return self.depth * self.success_depth_frac
+        return self.depth - self.depth_tol
+
+    @property
+    def role(self) -> str:
+        return FAMILY_ROLES.get(self.family, "user task")
 
     @property
     def substeps(self) -> int:
@@ -75,6 +101,12 @@ class TaskSpec:
 
 
 _REGISTRY: dict[str, TaskSpec] = {}
+
+FAMILY_ROLES = {
+    "contact": "shared-skill",  # per-episode zero-mean errors; a contact skill shared by the family fixes them
+    "nist": "negative-control",  # fixed per-fixture estimate bias: a constant per-task offset
+    "plugs": "negative-control",  # the same mechanism on AutoMate-like plugs
+}
 
 
 def _builtin(name: str, family: str, instruction: str, **kw) -> TaskSpec:
@@ -107,12 +139,49 @@ PART_TABLE = {
 }
 
 
+# The shared-skill family (same tuple layout; its own table because its names repeat nist's).
+CONTACT_PART_TABLE = {
+    "round_peg": ("contact", "round_peg", 0.20 * MM, 16 * MM, 0.5 * MM, 30 * MM),
+    "keyed_peg": ("contact", "keyed_round", 0.25 * MM, 14 * MM, 0.6 * MM, 30 * MM),
+    "gear_mesh": ("contact", "gear", 0.30 * MM, 10 * MM, 0.5 * MM, 8 * MM),
+}
+
+
+def _contact_randomisation(**kw) -> Randomisation:
+    """FORGE's sources of difficulty, all per episode and zero-mean: the fixed part's pose estimate
+    (~1 mm in FORGE; here per-axis std), the held part's offset in the gripper, force noise ~1 N."""
+    base = dict(estimate_xy=0.40 * MM, estimate_yaw=1.5 * DEG, in_hand_xy=0.30 * MM, in_hand_yaw=1.0 * DEG)
+    return Randomisation(obs_force=1.0, **{**base, **kw})
+
+
 def _builtin_specs() -> list[TaskSpec]:
     def spec(name, instruction, symmetry, bias, **kw):
-        family, _shape, clearance, depth, _chamfer, _length = PART_TABLE[name]
+        family, _shape, clearance, depth, chamfer, _length = PART_TABLE[name]
         b = (bias[0] * MM, bias[1] * MM, bias[2] * DEG)
         return _builtin(
-            name, family, instruction, depth=depth, clearance=clearance, yaw_symmetry=symmetry, estimate_bias=b, **kw
+            name,
+            family,
+            instruction,
+            depth=depth,
+            clearance=clearance,
+            yaw_symmetry=symmetry,
+            estimate_bias=b,
+            chamfer=chamfer,
+            **kw,
+        )
+
+    def contact(name, instruction, symmetry, frac, **kw):
+        family, _shape, clearance, depth, chamfer, _length = CONTACT_PART_TABLE[name]
+        return _builtin(
+            name,
+            family,
+            instruction,
+            depth=depth,
+            clearance=clearance,
+            yaw_symmetry=symmetry,
+            chamfer=chamfer,
+            success_depth_frac=frac,
+            **kw,
         )
 
     return [
@@ -129,6 +198,30 @@ def _builtin_specs() -> list[TaskSpec]:
         spec("l_shape", "insert the L-shaped plug into its socket", 1, (-0.5, -1.4, -2.0)),
         spec("keyed_round", "insert the keyed round plug into its socket", 1, (1.5, 1.0, -3.5)),
         spec("twin_pins", "insert the twin-pin plug into its socket", 2, (-1.3, 1.2, 1.5)),
+        contact(
+            "round_peg",
+            "insert the tight round peg into its hole",
+            0,
+            0.9,
+            randomisation=_contact_randomisation(friction=(0.3, 1.0)),
+        ),
+        contact(
+            "keyed_peg",
+            "insert the keyed peg into its keyed hole",
+            1,
+            0.9,
+            randomisation=_contact_randomisation(friction=(0.25, 1.25), estimate_yaw=2.0 * DEG),
+        ),
+        # the bore is keyed to the teeth (8-fold): the yaw estimate is off by more than the chamfer
+        # captures, so the gear has to be turned while it presses on the shaft
+        contact(
+            "gear_mesh",
+            "mesh the gear onto its shaft beside the neighbour gear",
+            8,
+            0.95,
+            max_steps=100,
+            randomisation=_contact_randomisation(friction=(0.4, 1.2), estimate_yaw=5.0 * DEG, in_hand_yaw=2.0 * DEG),
+        ),
     ]
 
 

@@ -2,7 +2,8 @@
 
 Physics runs in the socket frame (socket fixed at the origin). The policy sees and acts in a
 robot frame where the socket sits at a random pose (placement noise) known only through a noisy,
-per-task-biased estimate. Every random draw comes from a generator seeded by
+per-task-biased estimate, and (contact family) reads the held part's tip off by its in-hand offset.
+Every random draw comes from a generator seeded by
 (seed, env index, episode count), so trajectories do not depend on which other envs were reset.
 """
 
@@ -63,7 +64,7 @@ def yaw_error(yaw: np.ndarray, period: float) -> np.ndarray:
 
 def is_success(task: TaskSpec, qpos: np.ndarray) -> np.ndarray:
     """Inserted to depth, laterally centred, upright and yaw-aligned (socket frame joint values)."""
-    deep = qpos[:, 2] <= -task.depth + task.depth_tol
+    deep = qpos[:, 2] <= -task.success_depth
     centred = np.hypot(qpos[:, 0], qpos[:, 1]) <= task.xy_tol
     upright = np.maximum(np.abs(qpos[:, 3]), np.abs(qpos[:, 4])) <= MAX_TILT
     aligned = yaw_error(qpos[:, 5], task.yaw_period) <= task.yaw_tol
@@ -107,6 +108,7 @@ class VecAssemblyEnv:
         self.target = np.zeros((n, 6))
         self.socket_pose = np.zeros((n, 3))  # true socket (x, y, yaw) in the robot frame
         self.estimate = np.zeros((n, 4))  # estimated socket (x, y, z, yaw) in the robot frame
+        self.in_hand = np.zeros((n, 3))  # held part's (x, y, yaw) offset in the gripper: the tip reading is off by it
         self._rngs: list[np.random.Generator | None] = [None] * n
         self._renderer = None
         self._noise = np.zeros((n, 12))
@@ -153,6 +155,8 @@ class VecAssemblyEnv:
         self._gain[i, :, 0] = kp
         self._bias[i, :, 1] = -kp
         self._bias[i, :, 2] = [-kv_pos] * 3 + [-kv_rot] * 3
+        if r.in_hand_xy > 0 or r.in_hand_yaw > 0:  # drawn last and only when set: other tasks' streams unchanged
+            self.in_hand[i] = [*rng.normal(0, r.in_hand_xy, 2), rng.normal(0, r.in_hand_yaw)]
 
     # ---------------------------------------------------------------- step
     def step(self, actions: np.ndarray) -> StepResult:
@@ -225,12 +229,13 @@ class VecAssemblyEnv:
         qv = np.concatenate([q, v], axis=1)[:, _XY_PAIRS].reshape(n, 4, 2)  # pos, tilt, lin vel, ang vel
         rx, ry = c * qv[:, :, 0] - s * qv[:, :, 1], s * qv[:, :, 0] + c * qv[:, :, 1]
         st = self._state
-        st[:, 0] = (rx[:, 0] + self.socket_pose[:, 0] + noise[:, 0] * r.obs_pos) * POS_SCALE
-        st[:, 1] = (ry[:, 0] + self.socket_pose[:, 1] + noise[:, 1] * r.obs_pos) * POS_SCALE
+        hand = self.in_hand
+        st[:, 0] = (rx[:, 0] + self.socket_pose[:, 0] + noise[:, 0] * r.obs_pos - hand[:, 0]) * POS_SCALE
+        st[:, 1] = (ry[:, 0] + self.socket_pose[:, 1] + noise[:, 1] * r.obs_pos - hand[:, 1]) * POS_SCALE
         st[:, 2] = (q[:, 2] + noise[:, 2] * r.obs_pos) * POS_SCALE
         st[:, 3] = (rx[:, 1] + noise[:, 3] * r.obs_rot) * TILT_SCALE
         st[:, 4] = (ry[:, 1] + noise[:, 4] * r.obs_rot) * TILT_SCALE
-        yaw = q[:, 5] + self.socket_pose[:, 2] + noise[:, 5] * r.obs_rot
+        yaw = q[:, 5] + self.socket_pose[:, 2] + noise[:, 5] * r.obs_rot - hand[:, 2]
         st[:, 5], st[:, 6] = np.sin(yaw), np.cos(yaw)
         st[:, 7], st[:, 8], st[:, 9] = rx[:, 2] * VEL_SCALE, ry[:, 2] * VEL_SCALE, v[:, 2] * VEL_SCALE
         st[:, 10], st[:, 11], st[:, 12] = rx[:, 3], ry[:, 3], v[:, 5]
