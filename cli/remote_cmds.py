@@ -79,7 +79,8 @@ def remote_add(
     store: StoreOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
-    """Add a remote. S3 endpoint, region and credentials come from the usual AWS_* variables or profile."""
+    """Add a remote. S3 endpoint, region and credentials come from the usual AWS_* variables or profile,
+    or per remote from `accrue remote set NAME endpoint|profile|region VALUE`."""
     from artifacts.remotes.config import add_remote
 
     spec = add_remote(open_store(store), name, url)
@@ -96,10 +97,15 @@ def remote_list(store: StoreOpt = None, as_json: JsonOpt = False) -> None:
 
     remotes = list_remotes(open_store(store))
     if as_json:
-        print_json({n: {"url": s.url, "kind": s.kind, "promisor": s.promisor} for n, s in remotes.items()})
+        print_json(
+            {n: {"url": s.url, "kind": s.kind, "promisor": s.promisor, **s.settings} for n, s in remotes.items()}
+        )
         return
     for name, spec in remotes.items():
-        typer.echo(f"{name}\t{spec.url}" + ("\t(partial clone: fetches lazily from here)" if spec.promisor else ""))
+        extra = "".join(f"\t{k}={v}" for k, v in sorted(spec.settings.items()))
+        typer.echo(
+            f"{name}\t{spec.url}{extra}" + ("\t(partial clone: fetches lazily from here)" if spec.promisor else "")
+        )
 
 
 @remote_app.command("remove")
@@ -117,6 +123,40 @@ def remote_remove(
         print_json({"removed": name, "tracking_refs_dropped": dropped})
     else:
         typer.echo(f"removed remote {name} ({dropped} remote-tracking refs dropped)")
+
+
+@remote_app.command("set")
+def remote_set(
+    name: Annotated[str, typer.Argument(help="The remote.")],
+    key: Annotated[str, typer.Argument(help="endpoint, profile or region (S3 remotes).")],
+    value: Annotated[Optional[str], typer.Argument(help="The value; leave out with --unset.")] = None,
+    unset: Annotated[bool, typer.Option("--unset", help="Remove the setting (the AWS_* environment applies).")] = False,
+    store: StoreOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """Per-remote S3 settings, used over the AWS_* environment: endpoint, profile, region."""
+    from artifacts.errors import StoreError
+    from artifacts.remotes.config import set_setting
+
+    if (value is None) != unset:
+        raise StoreError("give a value, or --unset (not both)")
+    spec = set_setting(open_store(store), name, key, None if unset else value)
+    if as_json:
+        print_json({"name": spec.name, **spec.settings})
+    else:
+        typer.echo(f"remote {spec.name}: {key} {'unset' if unset else '= ' + str(value)}")
+
+
+@remote_app.command("rekey")
+def remote_rekey(store: StoreOpt = None, as_json: JsonOpt = False) -> None:
+    """Give this store a new id (after copying a store with cp -a): its audit log starts a new chain."""
+    from artifacts.remotes.config import rekey_store
+
+    old, new = rekey_store(open_store(store))
+    if as_json:
+        print_json({"old": old, "new": new})
+    else:
+        typer.echo(f"store id {old[:12] if old else '(none)'} -> {new[:12]}")
 
 
 @remote_app.command("repair")

@@ -125,3 +125,127 @@ def test_a_pulled_store_runs_the_same_plan_as_cache_hits(tmp_path, remote_url):
     assert cli(b, "verify").returncode == 0
     again = json.loads(cli(b, "push", "--json").stdout)  # nothing recomputed: no ref of the remote moves
     assert again["moved"] == {} and again["conflicts"] == []
+
+
+def test_bad_remote_urls_and_a_remote_inside_the_store_are_refused_in_one_line(tmp_path):
+    a = tmp_path / "a"
+    cli(a, "init")
+    for url, says in [
+        ("s3:/x", "is malformed (a scheme needs '//'"),
+        ("s3:bucket/x", "is malformed"),
+        ("file:/mnt/x", "is malformed"),
+        ("s3://Bad_Bucket/x", "is not a valid S3 bucket name"),
+        (str(a / "refs" / "nas"), "is inside this store"),
+        (str(a), "is inside this store"),
+    ]:
+        line = one_line_error(cli(a, "remote", "add", "nas", url))
+        assert says in line, (url, line)
+    assert json.loads(cli(a, "remote", "list", "--json").stdout) == {}
+    assert not (a / "refs" / "nas").exists()
+    assert cli(a, "remote", "add", "nas", str(tmp_path / "nas:2026")).returncode == 0  # a path, not a scheme
+
+
+def test_pull_only_an_unknown_kind_is_an_error_that_fetches_nothing(tmp_path, remote_url):
+    a, b = tmp_path / "a", tmp_path / "b"
+    make_store(a)
+    with_remote(a, remote_url)
+    cli(a, "push")
+    cli(b, "init")
+    with_remote(b, remote_url)
+    line = one_line_error(cli(b, "pull", "--only", "handof"))
+    assert "--only handof: no artifact of that kind on remote origin (kinds there: eval, handoff, replay)" in line
+    assert user_refs(b) == {} and not any((b / "objects").rglob("*/*"))
+
+
+def test_a_copied_store_is_refused_until_rekeyed_and_the_original_chain_is_kept(tmp_path, remote_url):
+    import shutil
+
+    a = tmp_path / "a"
+    make_store(a)
+    with_remote(a, remote_url)
+    assert cli(a, "push").returncode == 0
+    copy = tmp_path / "copy"
+    shutil.copytree(a, copy, symlinks=True)  # what cp -a does: the config (and its store id) comes along
+    (tmp_path / "new.bin").write_bytes(b"the copy's own work")
+    cli(copy, "add", str(tmp_path / "new.bin"), "--kind", "replay", "--ref", "copy/replay")
+    line = one_line_error(cli(copy, "push"))
+    assert "was made in another directory (a copy, e.g. cp -a?); run `accrue remote rekey`" in line
+    rekeyed = json.loads(cli(copy, "remote", "rekey", "--json").stdout)
+    assert rekeyed["old"] != rekeyed["new"]
+    assert cli(copy, "push").returncode == 0
+    assert cli(a, "push").returncode == 0  # the original's log chain was not touched
+    b = tmp_path / "b"
+    cli(b, "init")
+    with_remote(b, remote_url)
+    assert cli(b, "pull").returncode == 0
+    assert len(json.loads(cli(b, "refs", "remote-logs/", "--json").stdout)) == 2  # two stores, two chains
+
+
+def test_a_store_id_shared_without_the_marker_is_caught_at_the_remote(tmp_path, remote_url):
+    a = tmp_path / "a"
+    make_store(a)
+    with_remote(a, remote_url)
+    assert cli(a, "push").returncode == 0
+    cfg = json.loads((a / "config").read_bytes())
+    twin = tmp_path / "twin"
+    cli(twin, "init")
+    (tmp_path / "t.bin").write_bytes(b"the twin's work")
+    cli(twin, "add", str(tmp_path / "t.bin"), "--kind", "replay", "--ref", "twin/replay")
+    with_remote(twin, remote_url)
+    (twin / "config").write_text(json.dumps({**cfg, "store_home": twin.stat().st_ino}))  # same id, own marker
+    assert cli(twin, "push").returncode == 0  # first push of the twin: starts its chain over a's pointer
+    line = one_line_error(cli(a, "push"))  # a's pointer moved behind its back: refused, not overwritten
+    assert "another store pushed an audit log with this store's id" in line and "rekey" in line
+
+
+def test_an_endpoint_that_accepts_and_never_answers_ends_in_one_line(tmp_path, s3_env, monkeypatch):
+    import socket
+    import threading
+
+    silent = socket.socket()
+    silent.bind(("127.0.0.1", 0))
+    silent.listen(16)
+    held: list = []
+    stop = threading.Event()
+
+    def accept() -> None:
+        silent.settimeout(0.2)
+        while not stop.is_set():
+            try:
+                held.append(silent.accept()[0])  # accepted, never answered
+            except OSError:
+                pass
+
+    threading.Thread(target=accept, daemon=True).start()
+    try:
+        a = tmp_path / "a"
+        make_store(a, files=1)
+        with_remote(a, "s3://silent-bucket/x")
+        endpoint = f"http://127.0.0.1:{silent.getsockname()[1]}"
+        monkeypatch.setenv("ACCRUE_REMOTE_READ_TIMEOUT", "1")
+        assert cli(a, "remote", "set", "origin", "endpoint", endpoint).returncode == 0  # per-remote setting
+        line = one_line_error(cli(a, "push"))
+        assert f"cannot reach {endpoint} (no answer, or the connection failed)" in line
+    finally:
+        stop.set()
+        for c in held:
+            c.close()
+        silent.close()
+
+
+def test_per_remote_endpoint_replaces_the_environment(tmp_path, s3_env, monkeypatch):
+    from remote_support import s3_client
+
+    s3_client(s3_env).create_bucket(Bucket="per-remote")
+    monkeypatch.delenv("AWS_ENDPOINT_URL")
+    a = tmp_path / "a"
+    make_store(a, files=1)
+    with_remote(a, "s3://per-remote/x")
+    assert cli(a, "remote", "set", "origin", "endpoint", s3_env).returncode == 0
+    assert cli(a, "remote", "set", "origin", "region", "us-east-1").returncode == 0
+    assert json.loads(cli(a, "remote", "list", "--json").stdout)["origin"]["endpoint"] == s3_env
+    assert cli(a, "push").returncode == 0 and cli(a, "verify", "--remote", "origin").returncode == 0
+    assert "unknown remote setting 'colour'" in one_line_error(cli(a, "remote", "set", "origin", "colour", "x"))
+    assert "not an http(s) URL" in one_line_error(cli(a, "remote", "set", "origin", "endpoint", "minio:9000"))
+    assert cli(a, "remote", "set", "origin", "endpoint", "--unset").returncode == 0
+    assert "endpoint" not in json.loads(cli(a, "remote", "list", "--json").stdout)["origin"]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import re
 import uuid
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from artifacts.errors import StoreError
@@ -22,18 +22,37 @@ class RemoteSpec:
     prefix: str = ""  # s3 only: key prefix inside the bucket, no slashes at either end
     path: Path | None = None  # dir only: absolute directory
     promisor: bool = False
+    settings: dict = field(default_factory=dict, hash=False, compare=False)  # s3 only: endpoint, profile, region
 
 
-def parse_url(name: str, url: str, promisor: bool = False) -> RemoteSpec:
+# `s3:/x`, `s3:x`, `file:/x`: a scheme without its `//` is a typo, never a directory name
+_SCHEME_TYPO = re.compile(r"^[A-Za-z][A-Za-z0-9+.-]+:(?!//)")
+# S3's bucket naming rules (3-63 of a-z 0-9 . -, starting and ending with a letter or digit)
+_BUCKET = re.compile(r"^[a-z0-9][a-z0-9.-]{1,61}[a-z0-9]$")
+SETTINGS = ("endpoint", "profile", "region")  # per-remote S3 settings (`accrue remote set`)
+
+
+def parse_url(name: str, url: str, promisor: bool = False, settings: dict | None = None) -> RemoteSpec:
     """s3://bucket[/prefix] (any S3-compatible service), or a directory (path or file://path)."""
+    if not url.strip():
+        raise StoreError("remote URL is empty (use s3://BUCKET/PREFIX or a directory)")
     if url.startswith(("s3://", "s3a://")):
         rest = url.split("://", 1)[1]
         bucket, _, prefix = rest.partition("/")
         if not bucket:
             raise StoreError(f"remote URL {url!r} names no bucket (use s3://BUCKET/PREFIX)")
-        return RemoteSpec(name, url, "s3", bucket=bucket, prefix=prefix.strip("/"), promisor=promisor)
+        if not _BUCKET.match(bucket):
+            raise StoreError(f"remote URL {url!r}: {bucket!r} is not a valid S3 bucket name (3-63 of a-z 0-9 . -)")
+        return RemoteSpec(
+            name, url, "s3", bucket=bucket, prefix=prefix.strip("/"), promisor=promisor, settings=settings or {}
+        )
     if "://" in url and not url.startswith("file://"):
         raise StoreError(f"remote URL {url!r}: unsupported scheme (use s3://BUCKET/PREFIX or a directory)")
+    if _SCHEME_TYPO.match(url):
+        raise StoreError(
+            f"remote URL {url!r} is malformed (a scheme needs '//': s3://BUCKET/PREFIX or file:///PATH; "
+            "a directory whose name has ':' as ./NAME)"
+        )
     path = Path(url[len("file://") :] if url.startswith("file://") else url).expanduser()
     return RemoteSpec(name, url, "dir", path=path.absolute(), promisor=promisor)
 
@@ -46,7 +65,7 @@ def check_remote_name(name: str) -> str:
 
 def list_remotes(store: Store) -> dict[str, RemoteSpec]:
     return {
-        name: parse_url(name, r["url"], bool(r.get("promisor")))
+        name: parse_url(name, r["url"], bool(r.get("promisor")), {k: r[k] for k in SETTINGS if r.get(k)})
         for name, r in sorted(store.read_config().get("remotes", {}).items())
     }
 
@@ -61,6 +80,8 @@ def get_remote(store: Store, name: str) -> RemoteSpec:
 
 def add_remote(store: Store, name: str, url: str) -> RemoteSpec:
     spec = parse_url(check_remote_name(name), url)
+    if spec.kind == "dir":
+        _outside_store(store, spec)
     stored = str(spec.path) if spec.kind == "dir" else url  # a relative path means where it was added
 
     def change(cfg: dict) -> None:
@@ -71,6 +92,36 @@ def add_remote(store: Store, name: str, url: str) -> RemoteSpec:
 
     store.update_config(change)
     return parse_url(name, stored)
+
+
+def _outside_store(store: Store, spec: RemoteSpec) -> None:
+    """A directory remote inside the store would write its objects/ and refs/ among the store's."""
+    here, there = store.root.resolve(), spec.path.resolve()
+    if there == here or here in there.parents:
+        raise StoreError(
+            f"remote {spec.name}: {spec.path} is inside this store ({store.root}); use a directory outside it"
+        )
+
+
+def set_setting(store: Store, name: str, key: str, value: str | None) -> RemoteSpec:
+    """Per-remote S3 settings (over the AWS_* environment): endpoint, profile, region; None unsets."""
+    spec = get_remote(store, name)
+    if key not in SETTINGS:
+        raise StoreError(f"unknown remote setting {key!r} (settings: {', '.join(SETTINGS)})")
+    if spec.kind != "s3":
+        raise StoreError(f"remote {spec.name} is a directory; {key} applies to S3 remotes only")
+    if key == "endpoint" and value is not None and not re.match(r"^https?://[^/\s]+", value):
+        raise StoreError(f"endpoint {value!r} is not an http(s) URL (e.g. http://minio.lab:9000)")
+
+    def change(cfg: dict) -> None:
+        entry = cfg["remotes"][spec.name]
+        if value is None:
+            entry.pop(key, None)
+        else:
+            entry[key] = value
+
+    store.update_config(change)
+    return get_remote(store, spec.name)
 
 
 def set_promisor(store: Store, name: str) -> None:
@@ -102,13 +153,50 @@ def pick_remote(store: Store, words: list[str]) -> tuple[RemoteSpec, list[str]]:
     raise StoreError(f"which remote? this store has {', '.join(remotes)}; name one first")
 
 
-def store_id(store: Store) -> str:
-    """A stable random id for this store, made on first use: names its audit log on remotes."""
+def _home(store: Store) -> int:
+    """The store directory's inode: a copy (`cp -a`, rsync) carries the config, not the inode."""
+    return store.root.stat().st_ino
+
+
+def check_not_copied(store: Store) -> str | None:
+    """This store's id if it has one with its directory recorded; StoreError if that directory
+    is another (the store was copied). Reads only."""
     cfg = store.read_config()
-    if cfg.get("store_id"):
-        return cfg["store_id"]
+    sid, home = cfg.get("store_id"), cfg.get("store_home")
+    if sid and home is not None and home != _home(store):
+        raise StoreError(
+            f"this store's id {sid[:12]} was made in another directory (a copy, e.g. cp -a?); "
+            "run `accrue remote rekey` to give this copy its own id"
+        )
+    return sid if sid and home is not None else None
+
+
+def store_id(store: Store) -> str:
+    """A stable random id for this store, made on first use: names its audit log on remotes. A
+    copied store would share it and push over the original's log chain, so the directory the id
+    was made in is recorded and a copy is refused until it is re-keyed."""
+    sid = check_not_copied(store)
+    if sid:
+        return sid
 
     def change(c: dict) -> None:
         c.setdefault("store_id", uuid.uuid4().hex)
+        c.setdefault("store_home", _home(store))
 
     return store.update_config(change)["store_id"]
+
+
+def rekey_store(store: Store) -> tuple[str | None, str]:
+    """A new store id (after a copy): its audit log starts a new chain on every remote."""
+    old = store.read_config().get("store_id")
+
+    def change(c: dict) -> None:
+        c["store_id"], c["store_home"] = uuid.uuid4().hex, _home(store)
+
+    new = store.update_config(change)["store_id"]
+    base = store.root / "remotes"
+    for state in base.glob("*/log.json") if base.is_dir() else ():
+        state.unlink()  # the chain position on each remote was the old id's
+    for logs in base.glob("*/logs.json") if base.is_dir() else ():
+        logs.unlink()
+    return old, new

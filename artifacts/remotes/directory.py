@@ -71,6 +71,12 @@ class DirBackend(Backend):
             raise StoreError(f"{self.describe()}: cannot write {key}: {exc.strerror}") from None
 
     def swap(self, key: str, data: bytes, expect: str | None) -> str:
+        try:
+            return self._swap(key, data, expect)
+        except OSError as exc:  # e.g. a read-only mount: one line that names the remote
+            raise StoreError(f"{self.describe()}: cannot write {key}: {exc.strerror or exc}") from None
+
+    def _swap(self, key: str, data: bytes, expect: str | None) -> str:
         self._ensure_root()
         target = self._path(key)
         lock = self.root / "locks" / (key + ".lock")
@@ -136,7 +142,10 @@ class DirBackend(Backend):
         self._ensure_root()
         final = self._path(object_key(oid))
         tmp_dir = self.root / "tmp"
-        tmp_dir.mkdir(parents=True, exist_ok=True)
+        try:
+            tmp_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise StoreError(f"{self.describe()}: cannot write object {oid[:12]}: {exc.strerror}") from None
         tmp = temp_name(tmp_dir, "obj-")
         try:
             fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)

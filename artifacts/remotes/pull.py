@@ -9,6 +9,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from artifacts.auditlog import append_event
+from artifacts.errors import StoreError
+from artifacts.manifests import KNOWN_KINDS
 from artifacts.refs import read_ref, set_ref
 from artifacts.remotes import LOG_TRACKING, TRACKING
 from artifacts.remotes.backends import Backend, open_backend
@@ -56,6 +58,7 @@ class _RemotePlan:
     named: dict[str, list[str]] = field(default_factory=dict)
     data: dict[str, int] = field(default_factory=dict)  # to download
     skipped: dict[str, int] = field(default_factory=dict)  # left on the remote (--only)
+    kinds: set[str] = field(default_factory=set)  # artifact kinds met
 
 
 def _remote_closure(store: Store, backend: Backend, roots: list[str], only: set[str] | None, jobs: int) -> _RemotePlan:
@@ -87,6 +90,7 @@ def _remote_closure(store: Store, backend: Backend, roots: list[str], only: set[
             kids = children(oid, obj)
             plan.named[oid] = [k for k, _ in kids]
             if obj.get("type") == "artifact":
+                plan.kinds.add(str(obj.get("kind")))
                 leave = only is not None and obj.get("kind") not in only and obj.get("kind") != LOG_KIND
                 following.append((kids[0][0], kids[0][1], leave))  # its content
                 following += [(k, s, False) for k, s in kids[1:]]  # its inputs decide alone
@@ -120,6 +124,10 @@ def fetch(
     }
 
     plan = _remote_closure(store, backend, list(chosen.values()) + list(logs.values()), only, jobs)
+    unknown = sorted(k for k in only or () if k not in plan.kinds and k not in KNOWN_KINDS)
+    if unknown:  # a typo would otherwise leave every artifact's data behind, silently
+        there = ", ".join(sorted(plan.kinds - {LOG_KIND})) or "none"
+        raise StoreError(f"--only {unknown[0]}: no artifact of that kind on remote {spec.name} (kinds there: {there})")
     meter.start(f"pull ← {spec.name}", len(plan.data) + len(plan.manifests), sum(plan.data.values()))
 
     new_dirs: set[Path] = set()

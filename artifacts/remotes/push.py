@@ -12,7 +12,7 @@ from artifacts.refs import set_ref
 from artifacts.remotes import TRACKING
 from artifacts.remotes.backends import RefMoved, open_backend
 from artifacts.remotes.closure import bottom_up, children
-from artifacts.remotes.config import get_remote, store_id
+from artifacts.remotes.config import check_not_copied, get_remote, store_id
 from artifacts.remotes.logsegment import next_segment
 from artifacts.remotes.pointers import (
     both_moved,
@@ -81,6 +81,13 @@ def _local_closure(store: Store, roots: list[str], stop: set[str]) -> _Plan:
     return plan
 
 
+def _same_id(remote: str, sid: str) -> str:
+    return (
+        f"remote {remote}: another store pushed an audit log with this store's id {sid[:12]} (a copied "
+        "store?); nothing was sent; run `accrue remote rekey` in the copy, then push again"
+    )
+
+
 def push(
     store: Store,
     remote: str,
@@ -90,6 +97,7 @@ def push(
     meter: Meter | None = None,
 ) -> PushReport:
     spec = get_remote(store, remote)
+    check_not_copied(store)  # a copied store is refused before anything is sent
     backend = open_backend(spec)
     jobs, meter = jobs or default_jobs(), meter or Meter()
     report = PushReport(remote=spec.name)
@@ -121,6 +129,8 @@ def push(
     log_state = load_json(log_state_path)
     remote_log = read_pointers(store, spec, backend, "logs").get(sid)
     remote_log_id = remote_log[0] if remote_log else None
+    if remote_log_id and log_state.get("manifest") not in (None, remote_log_id):
+        raise StoreError(_same_id(spec.name, sid))  # another store pushed a log under this store's id
     chained = log_state.get("manifest") == remote_log_id and remote_log_id is not None
     segment = next_segment(store, sid, remote_log_id if chained else None, log_state.get("end", 0) if chained else 0)
 
@@ -169,10 +179,7 @@ def push(
                 f"logs/{sid}", (segment.manifest_id + "\n").encode(), remote_log[1] if remote_log else None
             )
         except RefMoved:
-            raise StoreError(
-                f"remote {spec.name}: another store pushed with this store's id {sid[:12]} "
-                "(a copied store?); its audit log was left as it is"
-            ) from None
+            raise StoreError(_same_id(spec.name, sid)) from None
         remember_version(store, spec.name, "logs", sid, segment.manifest_id, version)
         state_dir(store, spec.name).mkdir(parents=True, exist_ok=True)
         save_json(log_state_path, {"manifest": segment.manifest_id, "end": segment.end})

@@ -18,37 +18,72 @@ from artifacts.remotes.backends import SINGLE_PUT_MAX, Backend, MissingOnRemote,
 from artifacts.remotes.config import RemoteSpec
 
 
+def _seconds(name: str, default: str) -> float:
+    raw = os.environ.get(name, default)
+    try:
+        value = float(raw)
+    except ValueError:
+        value = -1.0
+    if not 0 < value < 1e6:
+        raise StoreError(f"${name}={raw!r}: not a number of seconds")
+    return value
+
+
+def endpoint_of(spec: RemoteSpec) -> str | None:
+    env = os.environ
+    return (
+        spec.settings.get("endpoint")
+        or env.get("AWS_ENDPOINT_URL_S3")
+        or env.get("AWS_ENDPOINT_URL")
+        or env.get("AWS_ENDPOINT")
+    )
+
+
 def _s3_store(spec: RemoteSpec):
     from obstore.store import S3Store
 
     env = os.environ
-    endpoint = env.get("AWS_ENDPOINT_URL_S3") or env.get("AWS_ENDPOINT_URL") or env.get("AWS_ENDPOINT")
+    endpoint = endpoint_of(spec)
+    # A server that accepts and never answers ends the command within ~30 s: a read that waits
+    # READ_TIMEOUT for bytes fails, and is retried only while the first try began < RETRY_WINDOW ago.
+    read_s = _seconds("ACCRUE_REMOTE_READ_TIMEOUT", "10")
     client = {
-        "connect_timeout": timedelta(seconds=float(env.get("ACCRUE_REMOTE_CONNECT_TIMEOUT", "5"))),
-        "timeout": timedelta(seconds=float(env.get("ACCRUE_REMOTE_TIMEOUT", "300"))),
+        "connect_timeout": timedelta(seconds=_seconds("ACCRUE_REMOTE_CONNECT_TIMEOUT", "5")),
+        "read_timeout": timedelta(seconds=read_s),
+        "timeout": timedelta(seconds=_seconds("ACCRUE_REMOTE_TIMEOUT", "3600")),  # a whole (big) request
     }
     if endpoint and endpoint.startswith("http://"):
         client["allow_http"] = True
     retries = int(env.get("ACCRUE_REMOTE_RETRIES", "3"))
     retry = {
         "max_retries": retries,
-        "retry_timeout": timedelta(seconds=30 if retries else 1),
+        "retry_timeout": timedelta(seconds=min(15.0, read_s * 1.5) if retries else 1),
         "backoff": {"init_backoff": timedelta(milliseconds=100), "max_backoff": timedelta(seconds=2), "base": 2},
     }
     kwargs: dict = {}
     if endpoint:
         kwargs["endpoint"] = endpoint
+    region = spec.settings.get("region")
+    if region:
+        kwargs["region"] = region
+    profile = spec.settings.get("profile") or env.get("AWS_PROFILE")
     provider = None
     has_keys = env.get("AWS_ACCESS_KEY_ID") and env.get("AWS_SECRET_ACCESS_KEY")
     aws_files = any((Path.home() / ".aws" / f).is_file() for f in ("credentials", "config"))
-    if not has_keys and (env.get("AWS_PROFILE") or aws_files):
+    if spec.settings.get("profile") or (not has_keys and (profile or aws_files)):
         # profiles (~/.aws/config, SSO, assume-role) are boto3's job; obstore takes it as a provider
         import boto3
+        from botocore.exceptions import ProfileNotFound
         from obstore.auth.boto3 import Boto3CredentialProvider
 
-        session = boto3.Session(profile_name=env.get("AWS_PROFILE"))
+        try:
+            session = boto3.Session(profile_name=profile)
+        except ProfileNotFound:
+            raise StoreError(f"remote {spec.name}: no AWS profile {profile!r} in ~/.aws/config") from None
         if session.get_credentials() is not None:
             provider = Boto3CredentialProvider(session)
+            if not region and session.region_name:
+                kwargs["region"] = session.region_name
     return S3Store(
         spec.bucket,
         prefix=spec.prefix or None,
@@ -62,7 +97,7 @@ def _s3_store(spec: RemoteSpec):
 _S3_CODE = re.compile(r"<Code>([A-Za-z]+)</Code>")
 
 
-def explain_s3_error(exc: BaseException, where: str) -> StoreError:
+def explain_s3_error(exc: BaseException, where: str, endpoint: str | None = None) -> StoreError:
     text = str(exc)
     code = (_S3_CODE.search(text) or [None, ""])[1]
     low = text.lower()
@@ -80,6 +115,11 @@ def explain_s3_error(exc: BaseException, where: str) -> StoreError:
             f"{where}: access denied ({code or type(exc).__name__}); check AWS_ACCESS_KEY_ID / "
             "AWS_SECRET_ACCESS_KEY or AWS_PROFILE"
         )
+    if "169.254.169.254" in text or "credential" in low and "error" in low:
+        return StoreError(
+            f"{where}: no AWS credentials found; set AWS_ACCESS_KEY_ID and AWS_SECRET_ACCESS_KEY, "
+            "or a profile (`accrue remote set NAME profile PROFILE`)"
+        )
     if any(
         s in low
         for s in (
@@ -91,11 +131,14 @@ def explain_s3_error(exc: BaseException, where: str) -> StoreError:
             "connect error",
             "failed to lookup",
             "connection reset",
+            "operation timed out",
+            "deadline has elapsed",
         )
     ):
-        endpoint = os.environ.get("AWS_ENDPOINT_URL_S3") or os.environ.get("AWS_ENDPOINT_URL") or "AWS S3"
+        endpoint = endpoint or "AWS S3"
         return StoreError(
-            f"{where}: cannot reach {endpoint} (connection failed); check the network and AWS_ENDPOINT_URL"
+            f"{where}: cannot reach {endpoint} (no answer, or the connection failed); check the network "
+            "and the endpoint (`accrue remote set NAME endpoint URL`, or AWS_ENDPOINT_URL)"
         )
     first = text.strip().splitlines()[0] if text.strip() else type(exc).__name__
     return StoreError(f"{where}: {code + ': ' if code else ''}{first[:200]}")
@@ -121,10 +164,10 @@ class S3Backend(Backend):
             raise
         except FileNotFoundError as exc:
             if "NoSuchBucket" in str(exc):
-                raise explain_s3_error(exc, self.describe()) from None
+                raise explain_s3_error(exc, self.describe(), endpoint_of(self.spec)) from None
             raise
         except (BaseError, OSError) as exc:
-            raise explain_s3_error(exc, self.describe()) from None
+            raise explain_s3_error(exc, self.describe(), endpoint_of(self.spec)) from None
 
     def get_bytes(self, key: str) -> bytes | None:
         got = self.read_versioned(key)
