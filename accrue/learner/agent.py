@@ -77,6 +77,7 @@ class ChunkLearner:
             obs_normalization=c.obs_normalization,
             obs_norm_min_std=c.obs_norm_min_std,
             obs_norm_clip=c.obs_norm_clip,
+            obs_norm_fixed_tail=c.obs_norm_fixed_tail,
         )
 
     def _make_actor(self) -> Actor:

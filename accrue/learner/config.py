@@ -63,6 +63,9 @@ class LearnerConfig:
     obs_norm_update: str = "first-stage"  # one of OBS_NORM_UPDATES ("every-stage" = before issue 10)
     obs_norm_min_std: float = 0.1  # std floor: a column constant so far (a task code) cannot blow up
     obs_norm_clip: float = 10.0  # |z| clip after normalising (0 = none)
+    # the last N columns of s have a fixed known scale (a task descriptor) and are never normalised (0 = none;
+    # the plan sets it from the workflow's task_descriptor)
+    obs_norm_fixed_tail: int = 0
 
     # exploration
     std_min: float = 0.001  # FastTD3: per-env noise std drawn in [std_min, std_max]
@@ -170,7 +173,7 @@ class LearnerConfig:
                 raise bad(name, "must be a positive integer")
         if self.num_atoms < 2:
             raise bad("num_atoms", "needs at least 2 atoms")
-        for name in ("seed", "retain_interval", "learning_starts"):
+        for name in ("seed", "retain_interval", "learning_starts", "obs_norm_fixed_tail"):
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 0:
                 raise bad(name, "must be a non-negative integer")

@@ -31,11 +31,22 @@ class RunningNorm(nn.Module):
     of ±hundreds of standard deviations; z is clipped to ±clip; and `freeze()` (at the handoff of the
     learner's first stage, by default) stops the statistics, so that the teacher of Eq. 3, the student,
     and EWC's and RETAIN's anchors all read s through the same map for the rest of the sequence.
+    The last `fixed_tail` columns (a task descriptor with a fixed known scale) are never normalised: they
+    pass through as they are, so a column constant so far cannot arrive as noise later.
     """
 
-    def __init__(self, dim: int, enabled: bool = True, eps: float = 1e-6, min_std: float = 0.0, clip: float = 0.0):
+    def __init__(
+        self,
+        dim: int,
+        enabled: bool = True,
+        eps: float = 1e-6,
+        min_std: float = 0.0,
+        clip: float = 0.0,
+        fixed_tail: int = 0,
+    ):
         super().__init__()
         self.enabled, self.eps, self.min_std, self.clip = enabled, eps, min_std, clip
+        self.fixed_tail = int(fixed_tail)  # a setting, not state: checkpoints keep their keys
         self.register_buffer("mean", torch.zeros(dim))
         self.register_buffer("var", torch.ones(dim))
         self.register_buffer("count", torch.zeros((), dtype=torch.float64))
@@ -66,7 +77,10 @@ class RunningNorm(nn.Module):
         if not self.enabled:
             return x
         z = (x - self.mean) / self.std()
-        return z.clamp(-self.clip, self.clip) if self.clip > 0 else z
+        z = z.clamp(-self.clip, self.clip) if self.clip > 0 else z
+        if self.fixed_tail > 0:
+            z = torch.cat([z[..., : -self.fixed_tail], x[..., -self.fixed_tail :]], dim=-1)
+        return z
 
 
 def mlp(sizes: list[int], layer_norm: bool) -> nn.Sequential:
@@ -105,11 +119,18 @@ class Actor(nn.Module):
         out_heads: int = 1,
         obs_norm_min_std: float = 0.0,
         obs_norm_clip: float = 0.0,
+        obs_norm_fixed_tail: int = 0,
     ):
         super().__init__()
         self.horizon, self.action_dim, self.residual = horizon, action_dim, residual
         chunk = horizon * action_dim
-        self.obs_norm = RunningNorm(state_dim, enabled=obs_normalization, min_std=obs_norm_min_std, clip=obs_norm_clip)
+        self.obs_norm = RunningNorm(
+            state_dim,
+            enabled=obs_normalization,
+            min_std=obs_norm_min_std,
+            clip=obs_norm_clip,
+            fixed_tail=obs_norm_fixed_tail,
+        )
         self.proj = projector(state_dim, projector_dim)
         self.trunk = mlp([projector_dim + chunk, *hidden], layer_norm)
         self.act_fn = nn.SiLU()
