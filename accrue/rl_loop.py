@@ -37,13 +37,18 @@ def subset(obs: dict, rows: np.ndarray) -> dict:
     return {k: v[rows] for k, v in obs.items()}
 
 
+EVAL_SETS = {"eval": 50_000, "report": 75_000}  # seed offsets; task indices stay below 25_000
+
+
 def env_seed(seed: int, stage: int, purpose: str, task_index: int = 0) -> int:
     """Distinct, reproducible env seeds per (workflow seed, stage, purpose) so that warmup, training and
     evaluation never replay each other's episodes; evaluation seeds depend on the task only, so every
-    grid point and every stage evaluates task i on the same M episodes."""
+    grid point and every stage evaluates task i on the same M episodes. Two evaluation sets: "eval"
+    (the selection set: the best checkpoint of a stage is chosen on it) and "report" (disjoint episodes
+    on which the chosen checkpoint's success is reported)."""
     offset = {"warmup": 1, "train": 2}.get(purpose)
-    if purpose == "eval":
-        return seed * 100_003 + 50_000 + task_index
+    if purpose in EVAL_SETS:
+        return seed * 100_003 + EVAL_SETS[purpose] + task_index
     if offset is None:
         raise ValueError(f"unknown env purpose {purpose!r}")
     return seed * 100_003 + stage * 10 + offset
@@ -135,7 +140,10 @@ def warmup(collector: ChunkCollector, episodes: int) -> ChunkStats:
 # ---------------------------------------------------------------------------------------- evaluation
 class Evaluator:
     """Success rate of π_base^k alone or of the actor refining π_base^k's chunks, on M fixed episodes per
-    task (the same episodes at every call: each env's episode counter is rewound first)."""
+    task (the same episodes at every call: each env's episode counter is rewound first).
+
+    `report`: an Evaluator of the same policies on a disjoint episode set; train_loop scores every grid
+    point on both, so the best checkpoint is chosen on this one and reported on that one."""
 
     def __init__(
         self,
@@ -146,9 +154,11 @@ class Evaluator:
         num_envs: int,
         horizon: int,
         gamma: float,
+        report: "Evaluator | None" = None,
     ):
         self.make_env, self.references, self.features = make_env, references, features
         self.episodes, self.num_envs, self.horizon, self.gamma = episodes, min(num_envs, episodes), horizon, gamma
+        self.report = report
         self._envs: dict[str, object] = {}
 
     def _env(self, task_id: str):
@@ -190,6 +200,8 @@ class Evaluator:
         for env in self._envs.values():
             env.close()
         self._envs.clear()
+        if self.report is not None:
+            self.report.close()
 
 
 def actor_act(learner) -> ActFn:
@@ -229,6 +241,7 @@ class LoopState:
     next_episode: int = 0
     env_episode_counts: list[int] = field(default_factory=list)
     curve: dict[str, list[float]] = field(default_factory=dict)
+    report_curve: dict[str, list[float]] = field(default_factory=dict)  # the same points on the report set
     grid_done: list[int] = field(default_factory=list)
     checkpoints_done: list[int] = field(default_factory=list)
 
@@ -272,10 +285,14 @@ def train_loop(
         deployed = actor_act(learner)
         acts = {t: (frozen_acts or {}).get(t, deployed) for t in settings.task_ids}
         rates = {t: evaluator.success_rate(t, acts[t]) for t in settings.task_ids}
+        report = evaluator.report
+        report_rates = {t: report.success_rate(t, acts[t]) for t in settings.task_ids} if report else {}
         for g in due:
             state.grid_done.append(g)
             for t, r in rates.items():
                 state.curve.setdefault(t, []).append(r)
+            for t, r in report_rates.items():
+                state.report_curve.setdefault(t, []).append(r)
         if on_progress:
             on_progress(state, {**info, "eval": rates, "elapsed": time.monotonic() - started})
 

@@ -158,6 +158,8 @@ def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
         {"base-policy": FromStep("finetune-base", "base-policy")},
     )
 
+    # the disjoint report set enters train's and evaluate-all's keys only when used (old runs keep theirs)
+    report = {"report_episodes": b.report_episodes} if b.report_episodes else {}
     train_inputs = {"base-policy": FromStep("finetune-base", "base-policy"), "replay": FromStep("warmup", "replay")}
     if previous_handoff is not None:
         train_inputs["handoff"] = previous_handoff
@@ -174,6 +176,7 @@ def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
             "eval_every": b.eval_every,
             "eval_episodes": b.eval_episodes,
             "checkpoint_every": b.checkpoint_every,
+            **report,
             **env,
         },
         train_inputs,
@@ -189,6 +192,7 @@ def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
             "gamma": gamma,
             "method": method,
             "record_episodes": b.log_episodes,
+            **report,
             **env,
         },
         {"base-policy": FromStep("finetune-base", "base-policy"), "checkpoint": FromStep("train", "checkpoint")},

@@ -35,6 +35,7 @@ class Claim:
     metric: str  # one of TABLE_METRICS
     reference_is: str  # one of DIRECTIONS
     than: tuple[str, ...]  # the methods it is compared with
+    reference: str | None = None  # the method it is about (None: the spec's reference)
 
 
 def verdict(reference_is: str, lo: float | None, hi: float | None) -> str:
@@ -80,6 +81,7 @@ def judge(claims: list[Claim], differences: list[dict]) -> list[dict]:
         out.append(
             {
                 "claim": c.text,
+                "reference": c.reference,
                 "metric": c.metric,
                 "reference_is": c.reference_is,
                 "verdict": combine([a["verdict"] for a in against]),
@@ -89,11 +91,26 @@ def judge(claims: list[Claim], differences: list[dict]) -> list[dict]:
     return out
 
 
-def claims_markdown(judged: list[dict], reference: str) -> str:
+def judge_against(claims: list[Claim], records: list[dict], reference: str | None, methods: list[str]) -> list[dict]:
+    """Judge claims that may name references of their own: each on the paired differences from its
+    reference (accrue.metrics.paired_differences over the runs' records), in the claims' order."""
+    from accrue.metrics import paired_differences
+
+    diffs: dict[str, list[dict]] = {}
+    out = []
+    for c in claims:
+        ref = c.reference or reference
+        if ref not in diffs:
+            diffs[ref] = paired_differences(records, ref, methods)
+        out.extend({**j, "reference": ref} for j in judge([c], diffs[ref]))
+    return out
+
+
+def claims_markdown(judged: list[dict], reference: str | None = None, what: str = "claim") -> str:
     rows = [
         [
             c["claim"] if i == 0 else "",
-            f"{reference} {c['reference_is']} on {c['metric']}" if i == 0 else "",
+            f"{c.get('reference') or reference} {c['reference_is']} on {c['metric']}" if i == 0 else "",
             a["method"],
             fmt_ci(a["difference"], signed=True),
             a["verdict"],
@@ -102,4 +119,6 @@ def claims_markdown(judged: list[dict], reference: str) -> str:
         for c in judged
         for i, a in enumerate(c["against"])
     ]
-    return markdown_table(["claim", "test", "vs", f"Δ (vs − {reference}) [CI]", "verdict", "claim verdict"], rows)
+    refs = {c.get("reference") or reference for c in judged}
+    delta = f"Δ (vs − {refs.pop()}) [CI]" if len(refs) == 1 else "Δ (vs − reference) [CI]"
+    return markdown_table([what, "test", "vs", delta, "verdict", f"{what} verdict"], rows)

@@ -1,6 +1,9 @@
 """A bench's report from the store: per method, the mean over orderings x seeds of FWT, NBT, AUC,
-ACC_final and F_final with 95% bootstrap CIs; the per-ordering breakdown; every cell that is not done
-(or cannot be read) listed as missing, with why.
+ACC_final and F_final with 95% bootstrap CIs; the per-ordering breakdown; the transfer figures (FWT
+without step 0, jumpstart, env steps to the success threshold) with means and IQMs; the spec's claims
+and its predictions, each judged; every cell that is not done (or cannot be read) listed as missing,
+with why. Runs with a disjoint report set are scored on it (best checkpoint chosen on the selection
+set); older runs, on the one set they have, and the report counts which is which.
 
     report = build_report(store, spec)                   # JSON-able dict
     files = write_report(report, out_dir)                # report.md, summary.csv, cells.csv, stage_curves.csv,
@@ -15,20 +18,22 @@ import io
 import json
 from pathlib import Path
 
-from accrue.metrics import aggregate_runs, paired_differences, run_record
+from accrue.metrics import METRICS, aggregate_runs, paired_differences, run_record
 from artifacts.errors import StoreError
 from artifacts.store import Store
-from stages.bench.claims import MIN_PAIRS, claims_markdown, judge
+from stages.bench.claims import MIN_PAIRS, claims_markdown, judge, judge_against
 from stages.bench.curves import mean_stage_curves, stage_curves_csv, stage_success_rows
 from stages.bench.spec import BenchSpec
 from stages.bench.state import cell_states
 from stages.errors import StageError
 from stages.report.data import load_run
-from stages.report.summary import curve_tensor
+from stages.report.summary import curve_tensor, report_tensor
 from stages.report.tables import (
+    ARROWS,
     METHOD_HEADER,
     ORDERING_HEADER,
     TABLE_METRICS,
+    TRANSFER_METRICS,
     fmt_ci,
     markdown_table,
     method_rows,
@@ -85,12 +90,20 @@ def build_report(store: Store, spec: BenchSpec) -> dict:
             try:
                 run = load_run(store, cell.workflow)
                 rec = run_record(
-                    curve_tensor(run), method=cell.method, tasks=cell.tasks, ordering=cell.ordering, seed=cell.seed
+                    curve_tensor(run),
+                    method=cell.method,
+                    tasks=cell.tasks,
+                    ordering=cell.ordering,
+                    seed=cell.seed,
+                    report=report_tensor(run),
+                    grids=[sc.grid for sc in run.curves],
+                    threshold=spec.success_threshold,
                 )
             except (StageError, StoreError) as exc:
                 row.update(state="unreadable", error=str(exc))
             else:
                 row["metrics"] = rec["metrics"]
+                row["disjoint_report"] = rec["disjoint_report"]
                 records.append(rec)
                 curves[cell.method].append(_stage_curves(run))
         if row["metrics"] is None:
@@ -99,6 +112,7 @@ def build_report(store: Store, spec: BenchSpec) -> dict:
     agg = aggregate_runs(records)
     present = {m["method"] for m in agg["methods"]}
     # a method without a single finished run still gets its row (all "—"), never dropped
+    nothing = {"mean": None, "ci_low": None, "ci_high": None, "n": 0, "undefined": 0}
     for method in spec.methods:
         if method not in present:
             agg["methods"].append(
@@ -106,10 +120,8 @@ def build_report(store: Store, spec: BenchSpec) -> dict:
                     "method": method,
                     "runs": 0,
                     "orderings": [],
-                    "metrics": {
-                        name: {"mean": None, "ci_low": None, "ci_high": None, "n": 0, "undefined": 0}
-                        for name in TABLE_METRICS
-                    },
+                    "metrics": {name: dict(nothing) for name in METRICS},
+                    "iqm": {name: dict(nothing) for name in METRICS},
                 }
             )
     agg["methods"].sort(key=lambda m: spec.methods.index(m["method"]))
@@ -132,6 +144,9 @@ def build_report(store: Store, spec: BenchSpec) -> dict:
         "aggregate": agg,
         "differences": differences,
         "claims": judge(spec.claims, differences),
+        "predictions": judge_against(spec.predictions, records, spec.reference, spec.methods),
+        "success_threshold": spec.success_threshold,
+        "runs_with_report_set": sum(1 for r in records if r["disjoint_report"]),
         "stage_curves": mean_stage_curves(curves),
     }
     return report
@@ -182,6 +197,7 @@ def markdown(report: dict, command: str | None = None, heading_level: int = 3) -
         "",
         markdown_table(ORDERING_HEADER, ordering_rows(agg, expected_o)),
     ]
+    lines += _transfer_lines(report)
     if report.get("differences"):
         ref = report["reference"]
         lines += [
@@ -206,6 +222,13 @@ def markdown(report: dict, command: str | None = None, heading_level: int = 3) -
             "",
             claims_markdown(report["claims"], report["reference"]),
         ]
+    if report.get("predictions"):
+        lines += [
+            "Predictions the spec declared before its runs (committed ahead of any result), judged the same "
+            "way; every verdict is shown, whichever way it goes:",
+            "",
+            claims_markdown(report["predictions"], report["reference"], what="prediction"),
+        ]
     if report.get("stage_curves"):
         header, rows = stage_success_rows(report["stage_curves"])
         lines += [
@@ -224,6 +247,43 @@ def markdown(report: dict, command: str | None = None, heading_level: int = 3) -
             )
         lines.append("")
     return "\n".join(lines)
+
+
+def _transfer_lines(report: dict) -> list[str]:
+    """The transfer figures per method, mean [CI] and IQM [CI], and which episode set the numbers are on."""
+    agg = report["aggregate"]
+    if "iqm" not in (agg["methods"][0] if agg["methods"] else {}):
+        return []
+    done, disjoint = report["cells_done"], report.get("runs_with_report_set", 0)
+    sets = (
+        "every run's numbers are on a disjoint report set (best checkpoint chosen on the selection set)"
+        if done and disjoint == done
+        else f"{disjoint} of {done} runs have a disjoint report set; the others' numbers are on the episodes "
+        "their best checkpoint was chosen on (runs from before the split)"
+    )
+    thr = report.get("success_threshold")
+    header = [
+        "method",
+        "runs",
+        *(f"{m} {ARROWS[m]}" for m in TRANSFER_METRICS),
+        *(f"IQM {m}" for m in TRANSFER_METRICS),
+    ]
+    rows = [
+        [
+            m["method"],
+            str(m["runs"]),
+            *(fmt_ci(m["metrics"][n]) if n != "T_thr" else fmt_ci(m["metrics"][n], digits=0) for n in TRANSFER_METRICS),
+            *(fmt_ci(m["iqm"][n]) if n != "T_thr" else fmt_ci(m["iqm"][n], digits=0) for n in TRANSFER_METRICS),
+        ]
+        for m in agg["methods"]
+    ]
+    return [
+        f"Transfer: FWT with and without the step-0 point, jumpstart (success on the new task at step 0) and "
+        f"T_thr (env steps until success ≥ {thr}; a stage that never gets there counts as its budget, so T_thr "
+        f"is then a lower bound), each averaged over stages; mean [CI] and IQM [CI] over runs; {sets}:",
+        "",
+        markdown_table(header, rows),
+    ]
 
 
 def write_report(report: dict, out_dir: Path, command: str | None = None) -> dict[str, str | None]:

@@ -20,6 +20,11 @@ Spec fields (YAML):
     resources    per cell: {num_cpus: 1, num_gpus: 0 (fractions allowed), custom: {name: amount}}
     retries      extra tries of a failed cell (default 1)
     reference    optional method name the report compares the others against (default: accrue if present)
+    claims       optional: the paper's claims about the reference, [{claim, metric, reference_is, than}]
+    predictions  optional: what the spec predicts, declared (committed) before any of its cells ran:
+                 [{prediction, metric, reference_is, than, reference (optional, default the spec's)}];
+                 judged like claims (holds / contradicted / not resolved), each shown whichever way it goes
+    success_threshold  optional: the success rate T_thr counts env steps to (default 0.5)
 
 A cell's workflow = base + overrides + method overrides, then tasks = the ordering, seed = the seed,
 name = "<spec>.<method>.<ordering>.s<seed>.<hash>" where <hash> is the first 8 hex digits of the
@@ -37,6 +42,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from accrue.metrics import THRESHOLD
 from stages.bench.claims import DIRECTIONS, Claim
 from stages.errors import StageError
 
@@ -54,8 +60,11 @@ SPEC_FIELDS = (
     "retries",
     "reference",
     "claims",
+    "predictions",
+    "success_threshold",
 )
 CLAIM_FIELDS = ("claim", "metric", "reference_is", "than")
+PREDICTION_FIELDS = ("prediction", "metric", "reference_is", "than")  # and optionally "reference"
 RESOURCE_FIELDS = ("num_cpus", "num_gpus", "custom")
 MAX_NAME = 64
 
@@ -104,6 +113,8 @@ class BenchSpec:
     reference: str | None
     cells: list[Cell]
     claims: list[Claim] = field(default_factory=list)
+    predictions: list[Claim] = field(default_factory=list)
+    success_threshold: float = THRESHOLD
 
     def cell(self, method: str, ordering: str, seed: int) -> Cell:
         for c in self.cells:
@@ -346,6 +357,10 @@ def load_spec(path: Path | str) -> BenchSpec:
             f"{src}: reference: {reference!r} is not one of the spec's methods ({', '.join(method_names)})"
         )
     claims = _claims(data.get("claims"), f"{src}: claims", method_names, reference)
+    predictions = _claims(data.get("predictions"), f"{src}: predictions", method_names, reference, "prediction")
+    threshold = data.get("success_threshold", THRESHOLD)
+    if isinstance(threshold, bool) or not isinstance(threshold, (int, float)) or not 0 < threshold <= 1:
+        raise StageError(f"{src}: success_threshold: must be a success rate in (0, 1] (got {threshold!r})")
     return BenchSpec(
         path=path,
         name=name,
@@ -358,33 +373,42 @@ def load_spec(path: Path | str) -> BenchSpec:
         reference=reference,
         cells=cells,
         claims=claims,
+        predictions=predictions,
+        success_threshold=float(threshold),
     )
 
 
-def _claims(value: Any, where: str, methods: list[str], reference: str | None) -> list[Claim]:
-    """claims: [{claim: words, metric: NBT, reference_is: lower, than: [sequential, er]}, ...]"""
-    from stages.report.tables import TABLE_METRICS
+def _claims(value: Any, where: str, methods: list[str], reference: str | None, kind: str = "claim") -> list[Claim]:
+    """claims: [{claim: words, metric: NBT, reference_is: lower, than: [sequential, er]}, ...];
+    predictions: the same with `prediction:` for the words and an optional `reference:` of their own."""
+    from accrue.metrics import METRICS
 
     if value is None:
         return []
     if not isinstance(value, list):
-        raise StageError(f"{where}: expected a list of claims (got {type(value).__name__})")
-    if value and reference is None:
-        raise StageError(f"{where}: a claim is about the spec's reference method, and this spec has none")
+        raise StageError(f"{where}: expected a list of {kind}s (got {type(value).__name__})")
+    fields = CLAIM_FIELDS if kind == "claim" else PREDICTION_FIELDS
     out = []
     for i, raw in enumerate(value):
         at = f"{where}[{i}]"
-        if not isinstance(raw, dict) or set(raw) != set(CLAIM_FIELDS):
-            raise StageError(f"{at}: expected exactly the fields {', '.join(CLAIM_FIELDS)}")
-        if raw["metric"] not in TABLE_METRICS:
-            raise StageError(f"{at}.metric: {raw['metric']!r} is not one of {', '.join(TABLE_METRICS)}")
+        optional = {"reference"} if kind == "prediction" else set()
+        if not isinstance(raw, dict) or not set(fields) <= set(raw) <= set(fields) | optional:
+            extra = f" (and optionally {', '.join(sorted(optional))})" if optional else ""
+            raise StageError(f"{at}: expected exactly the fields {', '.join(fields)}{extra}")
+        ref = raw.get("reference", reference)
+        if ref is None:
+            raise StageError(f"{at}: a {kind} is about a reference method, and this spec has none")
+        if ref not in methods:
+            raise StageError(f"{at}.reference: {ref!r} is not one of the spec's methods ({', '.join(methods)})")
+        if raw["metric"] not in METRICS:
+            raise StageError(f"{at}.metric: {raw['metric']!r} is not one of {', '.join(METRICS)}")
         if raw["reference_is"] not in DIRECTIONS:
             raise StageError(f"{at}.reference_is: {raw['reference_is']!r} is not one of {', '.join(DIRECTIONS)}")
         than = raw["than"] if isinstance(raw["than"], list) else [raw["than"]]
-        bad = [m for m in than if m not in methods or m == reference]
+        bad = [m for m in than if m not in methods or m == ref]
         if not than or bad:
-            raise StageError(f"{at}.than: {bad or than!r}: name the spec's methods other than {reference}")
-        out.append(Claim(str(raw["claim"]), raw["metric"], raw["reference_is"], tuple(than)))
+            raise StageError(f"{at}.than: {bad or than!r}: name the spec's methods other than {ref}")
+        out.append(Claim(str(raw[kind]), raw["metric"], raw["reference_is"], tuple(than), ref))
     return out
 
 

@@ -40,6 +40,9 @@ class StageCurves:
     episodes_per_point: int
     record: str  # the committed train step record
     artifact: str  # its `curve` output
+    # the same grid points on the disjoint report episodes (budgets.report_episodes; None before the split)
+    report: dict[str, list[float]] | None = None
+    report_episodes: int | None = None
 
 
 @dataclass(frozen=True)
@@ -170,18 +173,27 @@ def _rates_of(data: dict, key: str, tasks: list[str], where: str) -> dict:
 def parse_curves(data: dict, k: int, wf: Workflow, where: str, record: str, artifact: str) -> StageCurves:
     tasks = _check_header(data, k, wf, where)
     grid = _grid(data.get("grid"), f"{where}: grid")
-    rates = _rates_of(data, "success", tasks, where)
-    success = {}
+    success = _curves_of(data, "success", tasks, grid, where)
+    episodes = _count(data.get("episodes_per_point"), f"{where}: episodes_per_point")
+    if "report_success" not in data:  # a run from before the selection/report split
+        return StageCurves(k, tasks, grid, success, episodes, record, artifact)
+    report = _curves_of(data, "report_success", tasks, grid, where)
+    report_episodes = _count(data.get("report_episodes"), f"{where}: report_episodes")
+    return StageCurves(k, tasks, grid, success, episodes, record, artifact, report, report_episodes)
+
+
+def _curves_of(data: dict, key: str, tasks: list[str], grid: list[int], where: str) -> dict[str, list[float]]:
+    rates = _rates_of(data, key, tasks, where)
+    out = {}
     for t in tasks:
         curve = rates[t]
         if not isinstance(curve, list) or len(curve) != len(grid):
             raise StageError(
-                f"{where}: success[{t}]: expected {len(grid)} values, one per grid point "
+                f"{where}: {key}[{t}]: expected {len(grid)} values, one per grid point "
                 f"(got {len(curve) if isinstance(curve, list) else type(curve).__name__})"
             )
-        success[t] = [_rate(v, f"{where}: success[{t}][{e}]") for e, v in enumerate(curve)]
-    episodes = _count(data.get("episodes_per_point"), f"{where}: episodes_per_point")
-    return StageCurves(k, tasks, grid, success, episodes, record, artifact)
+        out[t] = [_rate(v, f"{where}: {key}[{t}][{e}]") for e, v in enumerate(curve)]
+    return out
 
 
 def parse_eval(data: dict, k: int, wf: Workflow, where: str, record: str, artifact: str) -> StageEval:

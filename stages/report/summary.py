@@ -55,6 +55,15 @@ def curve_tensor(run: RunData) -> list[list[list[float]]]:
     return [[sc.success[t] for t in sc.task_ids] for sc in run.curves]
 
 
+def report_tensor(run: RunData) -> list[list[list[float]]] | None:
+    """The same c[i][j][e] on the disjoint report episodes, or None when any stage has none (a run made
+    before the selection/report split: its numbers then come from the selection set alone)."""
+    if any(sc.report is None for sc in run.curves):
+        return None
+    curve_tensor(run)  # one grid length for all stages
+    return [[sc.report[t] for t in sc.task_ids] for sc in run.curves]
+
+
 def summarize(run: RunData) -> dict:
     wf = run.workflow
     m = run.stages_done

@@ -1,5 +1,7 @@
 """`evaluate-all`: row k of the success matrix, π_base^k + θ^k on tasks 1..k (M episodes each), the base
-policy alone on the same episodes (for the report), and MCAP logs of a few episodes per task."""
+policy alone on the same episodes (for the report), and MCAP logs of a few episodes per task. With
+budgets.report_episodes the episodes are the disjoint report set (never the selection set that train's
+curves choose checkpoints on)."""
 
 from __future__ import annotations
 
@@ -31,11 +33,12 @@ def run(ctx: StepContext) -> None:
         t: (load_learner(per_task / str(i), device="cpu") if (per_task / str(i)).is_dir() else current)
         for i, t in enumerate(tasks, 1)
     }
+    episode_set, episodes = ("report", c["report_episodes"]) if c.get("report_episodes") else ("eval", c["episodes"])
     evaluator = rl_loop.Evaluator(
-        lambda t, n: make_env(t, n, rl_loop.env_seed(seed, k, "eval", tasks.index(t)), c["obs_mode"]),
+        lambda t, n: make_env(t, n, rl_loop.env_seed(seed, k, episode_set, tasks.index(t)), c["obs_mode"]),
         references,
         features,
-        c["episodes"],
+        episodes,
         c["num_envs"],
         horizon,
         c["gamma"],
@@ -46,7 +49,7 @@ def run(ctx: StepContext) -> None:
         base_success[t] = evaluator.success_rate(t)
         ctx.console.print(
             f"evaluate-all: {t}: actor {success[t]:.2f}  base policy alone {base_success[t]:.2f} "
-            f"({c['episodes']} episodes)"
+            f"({episodes} {episode_set} episodes)"
         )
     evaluator.close()
     write_json(
@@ -56,7 +59,8 @@ def run(ctx: StepContext) -> None:
             "task_ids": tasks,
             "success": success,
             "base_success": base_success,
-            "episodes": c["episodes"],
+            "episodes": episodes,
+            **({"episode_set": episode_set} if episode_set == "report" else {}),
             "method": c["method"],
             "seed": seed,
             "per_task_checkpoint": sorted(t for t in tasks if learners[t] is not current),
@@ -67,7 +71,7 @@ def run(ctx: StepContext) -> None:
     for i, t in enumerate(tasks):
         if c["record_episodes"] < 1:
             break
-        env = make_env(t, c["record_episodes"], rl_loop.env_seed(seed, k, "eval", i), c["obs_mode"])
+        env = make_env(t, c["record_episodes"], rl_loop.env_seed(seed, k, episode_set, i), c["obs_mode"])
         recorder = EpisodeRecorder(
             logs / t.replace("/", "__"), control_hz=get_task(t).control_hz, state_names=list(STATE_NAMES)
         )

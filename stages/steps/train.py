@@ -82,15 +82,22 @@ def run(ctx: StepContext) -> None:
     collector = rl_loop.ChunkCollector(
         env, references[task], features[task], buffer, task_index=k - 1, gamma=cfg.gamma, next_episode=next_episode
     )
-    evaluator = rl_loop.Evaluator(
-        lambda t, n: make_env(t, n, rl_loop.env_seed(seed, k, "eval", tasks.index(t)), c["obs_mode"]),
-        references,
-        features,
-        c["eval_episodes"],
-        c["num_envs"],
-        horizon,
-        cfg.gamma,
-    )
+
+    def evaluator_on(episode_set: str, episodes: int, report=None) -> rl_loop.Evaluator:
+        return rl_loop.Evaluator(
+            lambda t, n: make_env(t, n, rl_loop.env_seed(seed, k, episode_set, tasks.index(t)), c["obs_mode"]),
+            references,
+            features,
+            episodes,
+            c["num_envs"],
+            horizon,
+            cfg.gamma,
+            report=report,
+        )
+
+    # the best checkpoint is chosen on the "eval" episodes and, with report_episodes, reported on disjoint ones
+    report_set = evaluator_on("report", c["report_episodes"]) if c.get("report_episodes") else None
+    evaluator = evaluator_on("eval", c["eval_episodes"], report_set)
     episode_span = c["num_envs"] * get_task(task).max_steps  # env steps for every env to run one episode
     loop = rl_loop.LoopSettings(
         tasks, c["env_steps"], c["eval_every"], c["checkpoint_every"], min_checkpoint_gap=2 * episode_span
@@ -158,6 +165,11 @@ def run(ctx: StepContext) -> None:
             "grid": sorted(state.grid_done),
             "success": {t: state.curve[t] for t in tasks},
             "episodes_per_point": c["eval_episodes"],
+            **(
+                {"report_success": {t: state.report_curve[t] for t in tasks}, "report_episodes": c["report_episodes"]}
+                if report_set is not None
+                else {}
+            ),
             "method": cfg.method,
             "ablation": cfg.ablation,
             "seed": seed,
