@@ -1,4 +1,4 @@
-"""Fine-tune a base policy on the demonstrations of tasks 1..k with lerobot's own training script."""
+"""Fine-tune a base policy on the demonstrations of tasks 1..k with lerobot's own training code, in-process."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import shutil
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Protocol
 
 from accrue.errors import AccrueError
 from accrue.policy.checkpoint import check_policy_type_known, input_shapes, read_checkpoint_config
@@ -17,6 +18,8 @@ from accrue.policy.training_set import TRAINING_REPO_ID, build_training_set
 
 FINETUNE_RECORD = "accrue_finetune.json"
 WORK_DIR = "_work"
+SUMMARY_FILE = "accrue_training_set.json"
+TRAINING_SET_FORMAT = 1  # bump when build_training_set or the frame table writes different bytes
 
 
 @dataclass(frozen=True)
@@ -30,8 +33,8 @@ class FinetuneSettings:
     embedding_dim: int = DEFAULT_EMBEDDING_DIM  # from-scratch only; a checkpoint keeps its own
     device: str = "cpu"
     torch_threads: int = 1  # small models train no slower on one thread, and a busy CPU stays usable
-    num_workers: int = 2  # lerobot-train loader processes: loading bounds a small policy's step
-    # (chunk MLP, 800 steps of 64 on 2 idle cores: 106 s with 0, 79 s with 2)
+    num_workers: int = 2  # DataLoader processes, for training sets with cameras (others use the frame table)
+    trainer: str = "in-process"  # or "lerobot-train": the subprocess, kept as the benchmark's reference
     keep_training_set: bool = False  # keep the merged dataset under out_dir/_work for inspection
 
     def check(self) -> None:
@@ -39,6 +42,8 @@ class FinetuneSettings:
             raise AccrueError("fine-tune steps, batch size and chunk size must be >= 1")
         if not self.lr > 0:
             raise AccrueError(f"fine-tune lr must be > 0, got {self.lr}")
+        if self.trainer not in ("in-process", "lerobot-train"):
+            raise AccrueError(f"fine-tune trainer must be in-process or lerobot-train, got {self.trainer!r}")
         if not 0.0 < self.retention <= 1.0:
             raise AccrueError(f"demo retention must be in (0, 1], got {self.retention}")
 
@@ -69,18 +74,99 @@ def _check_dataset_matches_checkpoint(init_dir: Path, training_root: Path) -> No
             )
 
 
+class TrainingSetCache(Protocol):
+    """Where merged training sets are kept between fine-tunes (the store, for the finetune-base step).
+
+    key: everything besides the demonstrations' identity that decides the set's bytes; the cache
+    adds the demonstrations' identity itself (it knows their content ids)."""
+
+    def find(self, key: dict) -> Path | None: ...
+
+    def keep(self, key: dict, root: Path) -> None: ...
+
+
+def _train_args(settings: FinetuneSettings, policy_flags: list[str], training_root: Path, train_dir: Path) -> list[str]:
+    return [
+        f"--dataset.repo_id={TRAINING_REPO_ID}",
+        f"--dataset.root={training_root}",
+        "--dataset.video_backend=pyav",
+        *policy_flags,
+        f"--policy.device={settings.device}",
+        "--policy.push_to_hub=false",
+        f"--policy.optimizer_lr={settings.lr}",
+        f"--output_dir={train_dir}",
+        "--job_name=accrue_finetune",
+        f"--steps={settings.steps}",
+        f"--batch_size={settings.batch_size}",
+        f"--seed={settings.seed}",
+        f"--num_workers={settings.num_workers}",
+        "--eval_freq=0",
+        f"--save_freq={settings.steps}",
+        f"--log_freq={max(1, settings.steps // 50)}",
+        "--wandb.enable=false",
+    ]
+
+
+def _scrub_paths(cfg) -> None:
+    """The saved train config keeps no path of this machine: the checkpoint's bytes are a function of
+    its inputs (which inputs, by content id, is in the step record)."""
+    cfg.dataset.root = None
+    cfg.output_dir = None
+    cfg.policy.pretrained_path = None
+
+
+def _training_set(
+    datasets: list[Path],
+    work: Path,
+    settings: FinetuneSettings,
+    embedding_dim: int,
+    use_images: bool,
+    cfg,
+    cache: TrainingSetCache | None,
+) -> tuple[Path, dict]:
+    """(root of the merged training set with its frame table, its summary), from the cache or built now."""
+    from accrue.policy.train_inprocess import delta_indices, ensure_frame_table
+
+    key = {
+        "format": TRAINING_SET_FORMAT,
+        "retention": settings.retention,
+        "seed": settings.seed,
+        "embedding_dim": embedding_dim,
+        "use_images": use_images,
+        "delta_indices": delta_indices(cfg.policy),
+    }
+    cached = cache.find(key) if cache is not None else None
+    if cached is not None:
+        return cached, json.loads((cached / SUMMARY_FILE).read_text(encoding="utf-8"))
+    root = work / "training_set"
+    summary = json.loads(
+        build_training_set(datasets, root, settings.retention, settings.seed, embedding_dim, use_images).to_json()
+    )
+    summary.pop("root")
+    (root / SUMMARY_FILE).write_text(json.dumps(summary, indent=2, sort_keys=True), encoding="utf-8")
+    summary = json.loads((root / SUMMARY_FILE).read_text(encoding="utf-8"))  # the same dict a cache hit reads
+    cfg.dataset.root = root
+    ensure_frame_table(cfg, root)
+    if cache is not None:
+        cache.keep(key, root)
+    return root, summary
+
+
 def finetune(
     init: Path | str,
     datasets: list[Path],
     out_dir: Path,
     settings: FinetuneSettings = FinetuneSettings(),
     progress: Callable[[int, int], None] | None = None,
+    training_sets: TrainingSetCache | None = None,
+    labels: tuple[str, list[str]] | None = None,
 ) -> Path:
     """Train on D^1..D^k (the last dataset is the current task) and return out_dir, a lerobot checkpoint.
 
     init: a checkpoint directory to continue from, or a from-scratch name ("embedded-mlp", "embedded-act", "act",
-    "diffusion"). out_dir must not exist or be empty. The log and work files stay in out_dir/_work
-    when training fails.
+    "diffusion"). out_dir must not exist or be empty. The work files stay in out_dir/_work when training
+    fails. training_sets: a cache of merged training sets; labels: (init, datasets) as the record names
+    them (default: their paths; the step passes content ids, so that the record is machine-independent).
     """
     settings.check()
     out_dir = Path(out_dir)
@@ -100,56 +186,79 @@ def finetune(
     if work.exists():
         shutil.rmtree(work)
     work.mkdir(parents=True)
-    training_root = work / "training_set"
-    summary = build_training_set(
-        [Path(p) for p in datasets], training_root, settings.retention, settings.seed, embedding_dim, use_images
-    )
-    if init_is_dir:
-        _check_dataset_matches_checkpoint(init_dir, training_root)
+    datasets = [Path(p) for p in datasets]
+    if settings.trainer == "lerobot-train":
+        final, summary, log_text = _finetune_subprocess(
+            datasets,
+            work,
+            settings,
+            policy_flags,
+            embedding_dim,
+            use_images,
+            progress,
+            init_dir if init_is_dir else None,
+        )
+    else:
+        from accrue.policy.train_inprocess import parse_train_config, train_in_process
 
+        cfg = parse_train_config(_train_args(settings, policy_flags, work / "training_set", work / "train"))
+        root, summary = _training_set(datasets, work, settings, embedding_dim, use_images, cfg, training_sets)
+        if init_is_dir:
+            _check_dataset_matches_checkpoint(init_dir, root)
+        cfg.dataset.root = root
+        log: list[str] = []
+        final = train_in_process(
+            cfg, work / "train", log, root, progress, threads=settings.torch_threads, scrub=_scrub_paths
+        )
+        log_text = "\n".join(log) + "\n"
+
+    for item in sorted(final.iterdir()):
+        shutil.copyfile(item, out_dir / item.name)
+    (out_dir / "finetune.log").write_text(log_text, encoding="utf-8")
+    init_label, dataset_labels = labels or (str(init), [str(p) for p in datasets])
+    record = {
+        "init": init_label,
+        "datasets": dataset_labels,
+        "settings": asdict(settings),
+        "training_set": summary,
+    }
+    (out_dir / FINETUNE_RECORD).write_text(json.dumps(record, indent=2), encoding="utf-8")
+    if not settings.keep_training_set:
+        shutil.rmtree(work)
+    return out_dir
+
+
+def _finetune_subprocess(
+    datasets: list[Path],
+    work: Path,
+    settings: FinetuneSettings,
+    policy_flags: list[str],
+    embedding_dim: int,
+    use_images: bool,
+    progress: Callable[[int, int], None] | None,
+    init_dir: Path | None,
+) -> tuple[Path, dict, str]:
+    """The former way, kept as the reference the benchmark compares with: `lerobot-train` in a process."""
+    training_root = work / "training_set"
+    summary = json.loads(
+        build_training_set(
+            datasets, training_root, settings.retention, settings.seed, embedding_dim, use_images
+        ).to_json()
+    )
+    summary.pop("root")
+    if init_dir is not None:
+        _check_dataset_matches_checkpoint(init_dir, training_root)
     train_dir = work / "train"
-    args = [
-        f"--dataset.repo_id={TRAINING_REPO_ID}",
-        f"--dataset.root={training_root}",
-        "--dataset.video_backend=pyav",
-        *policy_flags,
-        f"--policy.device={settings.device}",
-        "--policy.push_to_hub=false",
-        f"--policy.optimizer_lr={settings.lr}",
-        f"--output_dir={train_dir}",
-        "--job_name=accrue_finetune",
-        f"--steps={settings.steps}",
-        f"--batch_size={settings.batch_size}",
-        f"--seed={settings.seed}",
-        f"--num_workers={settings.num_workers}",
-        "--eval_freq=0",
-        f"--save_freq={settings.steps}",
-        f"--log_freq={max(1, settings.steps // 50)}",
-        "--wandb.enable=false",
-    ]
     log_path = work / "lerobot-train.log"
     run_lerobot_train(
-        args,
+        _train_args(settings, policy_flags, training_root, train_dir),
         log_path,
         settings.steps,
         progress,
         threads=settings.torch_threads,
         module="accrue.policy.lerobot_train_entry",
     )
-
     final = train_dir / "checkpoints" / "last" / "pretrained_model"
     if not final.is_dir():
         raise AccrueError(f"lerobot-train finished without a checkpoint at {final}; see the log at {log_path}")
-    for item in final.iterdir():
-        shutil.copy2(item, out_dir / item.name)
-    shutil.copy2(log_path, out_dir / "finetune.log")
-    record = {
-        "init": str(init),
-        "datasets": [str(p) for p in datasets],
-        "settings": asdict(settings),
-        "training_set": json.loads(summary.to_json()),
-    }
-    (out_dir / FINETUNE_RECORD).write_text(json.dumps(record, indent=2), encoding="utf-8")
-    if not settings.keep_training_set:
-        shutil.rmtree(work)
-    return out_dir
+    return final, summary, log_path.read_text(encoding="utf-8")

@@ -7,14 +7,57 @@ workflow's demo-retention fraction of their episodes (paper Table VI); the curre
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
+from pathlib import Path
 
+from artifacts.errors import StoreError
+from artifacts.manifests import materialize, publish_artifact
+from artifacts.refs import read_ref, set_ref
 from stages.errors import StageError
 from stages.runner_context import StepContext
 from stages.runner_types import StepDef
 from stages.steps.common import copy_tree, write_json
 
 SCRIPTED_FILE = "scripted_reference.json"
+TRAINING_SET_REFS = "cache/training-set"
+
+
+class StoreTrainingSets:
+    """Merged training sets as `training-set` artifacts, found by a ref named after what decides their
+    bytes: the demonstrations' content ids (in order) and the fine-tune's key (retention, seed, ...)."""
+
+    def __init__(self, ctx: StepContext, roles: tuple[str, ...]) -> None:
+        self.ctx = ctx
+        self.roles = roles
+
+    def _ref(self, key: dict) -> str:
+        demos = [self.ctx.input_manifest(role)["content"] for role in self.roles]
+        text = json.dumps({"demos": demos, **key}, sort_keys=True)
+        return f"{TRAINING_SET_REFS}/{hashlib.sha256(text.encode()).hexdigest()}"
+
+    def find(self, key: dict) -> Path | None:
+        oid = read_ref(self.ctx.store, self._ref(key))
+        if oid is None:
+            return None
+        try:
+            return materialize(self.ctx.store, oid, self.ctx.work_dir / "training-set", quarantine=True)
+        except StoreError as exc:  # damaged: build it again (and move the ref to the new copy)
+            self.ctx.console.print(f"[yellow]finetune-base: cached training set {oid[:12]} is damaged ({exc})[/]")
+            return None
+
+    def keep(self, key: dict, root: Path) -> None:
+        oid = publish_artifact(
+            self.ctx.store,
+            root,
+            "training-set",
+            producer={"step": self.ctx.step},
+            inputs={role: self.ctx.inputs[role] for role in self.roles},
+            config=key,
+            code_version=f"training-set-{key['format']}",
+        )
+        set_ref(self.ctx.store, self._ref(key), oid)
 
 
 def demo_roles(stage: int) -> tuple[str, ...]:
@@ -46,7 +89,8 @@ def run(ctx: StepContext) -> None:
         return
     import torch
 
-    datasets = [ctx.input_path(role) for role in demo_roles(c["stage"])]
+    roles = demo_roles(c["stage"])
+    datasets = [ctx.input_path(role) for role in roles]
     settings = FinetuneSettings(
         steps=c["steps"],
         batch_size=c["batch_size"],
@@ -63,16 +107,20 @@ def run(ctx: StepContext) -> None:
             last[0] = step
             ctx.console.print(f"finetune-base: step {step}/{total}")
 
-    # lerobot-train runs in a subprocess: one BLAS thread there unless the user chose otherwise (on two
-    # busy cores, oversubscribed threads made each step ~10x slower in our measurements)
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-    finetune(init, datasets, out, settings, progress=progress)
+    # the record names inputs by content id, not by this attempt's paths, so its bytes are the same on
+    # every machine (the paths are in the step record)
+    labels = (
+        ctx.input_manifest("init")["content"] if ctx.has_input("init") else str(init),
+        [ctx.input_manifest(role)["content"] for role in roles],
+    )
+    os.environ.setdefault("OMP_NUM_THREADS", "1")  # DataLoader workers, for training sets with cameras
+    finetune(init, datasets, out, settings, progress, StoreTrainingSets(ctx, roles), labels)
     write_json(out / "accrue_base.json", {"stage": c["stage"], "finetuned": True, "tasks": c["tasks"]})
 
 
 STEP = StepDef(
     name="finetune-base",
-    code_version="finetune-base-1",
+    code_version="finetune-base-2",
     run=run,
     optional_inputs=("init",),
     outputs={"base-policy": "base-policy"},
