@@ -144,11 +144,21 @@ def test_kill_actor_mid_episode_then_learner_mid_update(setup):
 
     old = set(learner_pids(store, 1))
     killed_learner = {}
+    failures: list[BaseException] = []  # an assertion in the killer thread fails the test (issue 23)
+    stage_over = threading.Event()  # the killer stops waiting once the stage has ended
 
     since = max([e["seq"] for e in robot_events(store)], default=0)
 
     def kill_learner_mid_update():
+        try:
+            kill_when_updating()
+        except BaseException as exc:  # noqa: BLE001 - re-raised in the test's thread after join
+            failures.append(exc)
+
+    def kill_when_updating():
         def updating():  # the restarted learner has sealed a checkpoint: it is training
+            if stage_over.is_set():
+                return "stage over"
             new = [p for p in learner_pids(store, 1) if p not in old]
             trained = [
                 e
@@ -158,6 +168,8 @@ def test_kill_actor_mid_episode_then_learner_mid_update(setup):
             return new[-1] if new and trained else None
 
         pid = wait_for(updating, 300, "the restarted learner to train")
+        if pid == "stage over":  # the stop rule ended the stage first: nothing to kill
+            return
         os.kill(pid, signal.SIGKILL)
         killed_learner.update(pid=pid, at=time.monotonic())
 
@@ -165,7 +177,11 @@ def test_kill_actor_mid_episode_then_learner_mid_update(setup):
     thread.start()
     result = run_stage(store, fast, 1, step="train", mode="continue")["train"]
     ended = time.monotonic()
+    stage_over.set()
     thread.join(timeout=5)
+    assert not thread.is_alive()
+    if failures:
+        raise failures[0]
     curve = check_resumed(store, 1, before, killed, result)
     assert curve["stopped"].startswith("stop rule")
     # the stage may end before the learner trained, or right after the kill (the stop rule does not wait

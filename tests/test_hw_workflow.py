@@ -103,6 +103,11 @@ def test_learner_and_actor_weights(hw):
     versions = [
         e["weights_version"] for e in robot_events(root / "store", "robot-episode-sealed") if e["phase"] == "train"
     ]
+    # both stages sealed train episodes, so the order check below runs over something (issue 23: it ran
+    # over an empty list when nothing was sealed)
+    sealed_stages = {e["stage"] for e in robot_events(root / "store", "robot-episode-sealed") if e["phase"] == "train"}
+    assert sealed_stages == {1, 2} and len(versions) >= 2
+    assert all(isinstance(v, int) for v in versions)
     assert versions == sorted(versions)  # the actor only ever moves to newer weights
     assert np.isfinite(versions).all()
 

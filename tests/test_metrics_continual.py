@@ -78,6 +78,7 @@ def test_bootstrap_ci_against_hand_computed_percentiles():
     interval's are 0 and 1/2 (each 4+ standard errors of 4000 resamples away from a mass boundary)."""
     assert bootstrap_ci([0.0, 0.0, 0.0, 1.0]) == (0.0, 0.75)
     assert bootstrap_ci([0.0, 0.0, 0.0, 1.0], confidence=0.8) == (0.0, 0.5)
+    assert bootstrap_ci([0.0, 0.0, 0.0, 1.0], confidence=0.6) == (0.0, 0.5)  # 20% and 80%, not 40% and 60%
     # [0, 1]: the mean of two draws is 0, 1/2 or 1 with probability 1/4, 1/2, 1/4
     assert bootstrap_ci([0.0, 1.0]) == (0.0, 1.0)
     assert bootstrap_ci([0.0, 1.0], confidence=0.4) == (0.5, 0.5)
