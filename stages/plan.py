@@ -83,6 +83,10 @@ def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
     tasks = wf.tasks[:k]
     gamma = _gamma(wf)
     learner = wf.learner_settings()
+    if wf.task_descriptor != "none":  # its columns have a fixed scale: the normaliser passes them through
+        from accrue.learner_inputs import descriptor_dim
+
+        learner.setdefault("obs_norm_fixed_tail", descriptor_dim(wf.task_descriptor))
     method, ablation = learner["method"], learner.get("ablation", "none")
     steps: list[StepInvocation] = []
 
@@ -152,6 +156,10 @@ def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
     env = {"horizon": wf.horizon, "obs_mode": wf.obs_mode, "encoder": wf.encoder, "num_envs": b.num_envs}
     if wf.task_features:  # in the cache key only when used, so workflows without it keep their keys
         env["task_features"] = wf.task_features
+    if wf.history:  # likewise the opt-in learner inputs
+        env["history"] = wf.history
+    if wf.task_descriptor != "none":
+        env["task_descriptor"] = wf.task_descriptor
     add(
         "warmup",
         {"stage": k, "task": task, "seed": wf.seed, "episodes": b.warmup_episodes, "gamma": gamma, **env},

@@ -133,6 +133,11 @@ class Workflow(_Strict):
     # size of a frozen embedding of the task's instruction appended to the learner's s (0 = none): in
     # state-only runs nothing else tells the actor which part is in the gripper (a camera would)
     task_features: int = Field(0, ge=0, le=256)
+    # opt-in learner inputs (accrue.learner_inputs): the last `history` control steps of wrist force/torque,
+    # relative socket pose and action in s (at most accrue.sim.observation.HISTORY_STEPS = 8), and a task
+    # descriptor with a fixed scale that lands in distribution for an unseen part ("geometry")
+    history: int = Field(0, ge=0, le=8)
+    task_descriptor: Literal["none", "geometry"] = "none"
     base_policy: BasePolicySpec = BasePolicySpec()
     learner: dict[str, Any] = {}  # LearnerConfig fields (accrue.learner.config)
     budgets: Budgets

@@ -34,7 +34,7 @@ class AssemblyEnv(gym.Env):
     def _unbatch(self, obs: dict):
         if self._env.obs_mode == "state":
             return obs["state"][0]
-        return {k: v[0] for k, v in obs.items()}
+        return {k: obs[k][0] for k in ("state", "image")}  # the spaces declared above (no history)
 
     def reset(self, *, seed: int | None = None, options=None):
         super().reset(seed=seed)

@@ -56,6 +56,24 @@ REL_POS_SCALE = 1000.0  # m -> mm
 
 IDX = {name: i for i, name in enumerate(STATE_NAMES)}
 
+# obs["history"]: the last HISTORY_STEPS control steps, newest first, each the wrist force/torque and the
+# socket estimate relative to the tip after that step, and the action that led there (zeros before the
+# episode's first step). A searching policy's memory (how long it has pushed without sinking) lives here.
+HISTORY_STEPS = 8
+HISTORY_NAMES = (
+    "wrist_fx",
+    "wrist_fy",
+    "wrist_fz",
+    "wrist_tx",
+    "wrist_ty",
+    "wrist_tz",
+    "socket_rel_x_mm",
+    "socket_rel_y_mm",
+    "socket_rel_z_mm",
+    *ACTION_NAMES,
+)
+HISTORY_DIM = len(HISTORY_NAMES)
+
 
 def rotate_xy(xy: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     """Rotate (N, 2) vectors by per-row yaw (N,)."""

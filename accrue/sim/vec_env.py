@@ -19,6 +19,8 @@ from accrue.sim.model import KP_POS, KP_ROT, build_model, damping_for, socket_ge
 from accrue.sim.observation import (
     ACTION_DIM,
     FORCE_SCALE,
+    HISTORY_DIM,
+    HISTORY_STEPS,
     POS_SCALE,
     REL_POS_SCALE,
     STATE_DIM,
@@ -113,6 +115,7 @@ class VecAssemblyEnv:
         self._renderer = None
         self._noise = np.zeros((n, 12))
         self._state = np.zeros((n, STATE_DIM))
+        self._history = np.zeros((n, HISTORY_STEPS, HISTORY_DIM))  # newest first (observation.HISTORY_NAMES)
 
     # ---------------------------------------------------------------- reset
     def reset(self, mask=None) -> dict:
@@ -131,6 +134,7 @@ class VecAssemblyEnv:
         rng = np.random.default_rng([self.seed, i, int(self.episode[i])])
         self._rngs[i] = rng
         self.t[i], self.done[i] = 0, False
+        self._history[i] = 0.0
         self.socket_pose[i] = [*rng.uniform(-r.socket_xy, r.socket_xy, 2), rng.uniform(-r.socket_yaw, r.socket_yaw)]
         err = [*rng.normal(0, r.estimate_xy, 2), rng.normal(0, r.estimate_xy / 2), rng.normal(0, r.estimate_yaw)]
         bias = np.array([task.estimate_bias[0], task.estimate_bias[1], 0.0, task.estimate_bias[2]])
@@ -177,11 +181,13 @@ class VecAssemblyEnv:
             ids = np.flatnonzero(active)
             if len(ids) == 0:
                 break
-            self._apply_action(ids, np.clip(actions[ids, h], -1.0, 1.0))
+            act = np.clip(actions[ids, h], -1.0, 1.0)
+            self._apply_action(ids, act)
             self.batch.step(ids, nstep=self.task.substeps)
             self.t[ids] += 1
             steps[ids] += 1
             self._draw_noise(ids)
+            self._record_history(ids, act)
             won = is_success(self.task, self._qpos[ids])
             late = ~won & (self.t[ids] >= self.task.max_steps)
             # the paper's rule: the final three steps of a successful episode carry reward 1
@@ -220,6 +226,20 @@ class VecAssemblyEnv:
         for i in ids:
             self._noise[i] = self._rngs[i].standard_normal(12)
 
+    def _record_history(self, ids: np.ndarray, act: np.ndarray) -> None:
+        """Push one control step (this step's noise draw, the same one the state would show) per env."""
+        r, noise, q = self.task.randomisation, self._noise[ids], self._qpos[ids]
+        yaw = self.socket_pose[ids, 2]
+        tip = rotate_xy(q[:, :2], yaw) + self.socket_pose[ids, :2] + noise[:, :2] * r.obs_pos - self.in_hand[ids, :2]
+        entry = np.empty((len(ids), HISTORY_DIM))
+        entry[:, 0:3] = (self._sensor[ids, 0:3] + noise[:, 6:9] * r.obs_force) * FORCE_SCALE
+        entry[:, 3:6] = (self._sensor[ids, 3:6] + noise[:, 9:12] * (r.obs_force * 0.02)) * TORQUE_SCALE
+        entry[:, 6:8] = (self.estimate[ids, :2] - tip) * REL_POS_SCALE
+        entry[:, 8] = (self.estimate[ids, 2] - q[:, 2] - noise[:, 2] * r.obs_pos) * REL_POS_SCALE
+        entry[:, 9:] = act
+        self._history[ids, 1:] = self._history[ids, :-1]
+        self._history[ids, 0] = entry
+
     def _observe(self) -> dict:
         """The scaled robot-frame state (layout: observation.STATE_NAMES), filled column by column:
         at small N the per-step cost is numpy call overhead, so this avoids temporaries."""
@@ -246,7 +266,7 @@ class VecAssemblyEnv:
         st[:, 24] = np.minimum(self.t / self.task.max_steps, 1.0)
         st[:, 25:28] = (st[:, 19:22] - st[:, 0:3]) * (REL_POS_SCALE / POS_SCALE)
         st[:, 28] = (np.mod(self.estimate[:, 3] - yaw + np.pi, 2 * np.pi) - np.pi) * TILT_SCALE
-        obs = {"state": st.astype(np.float32)}
+        obs = {"state": st.astype(np.float32), "history": self._history.reshape(n, -1).astype(np.float32)}
         if self.obs_mode == "state+image":
             obs["image"] = self.render()
         return obs

@@ -67,7 +67,13 @@ def per_task_features(config: dict, task_ids: list[str]) -> dict:
     """task id -> its learner state s(obs) (accrue.learner_inputs), from a step's config."""
     from accrue.learner_inputs import per_task_features as features
 
-    return features(config["encoder"], config.get("task_features", 0), task_ids)
+    return features(
+        config["encoder"],
+        config.get("task_features", 0),
+        task_ids,
+        history=config.get("history", 0),
+        descriptor=config.get("task_descriptor", "none"),
+    )
 
 
 def make_env(task_id: str, num_envs: int, seed: int, obs_mode: str):
