@@ -22,10 +22,10 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from artifacts.atomic import write_replace
+from artifacts.clock import now_iso
 from artifacts.errors import StoreError, os_error_text
 from artifacts.hashing import canonical_json, hash_bytes, is_full_id
 from artifacts.locks import store_lock
-from artifacts.manifests import now_iso
 from artifacts.store import Store
 
 GENESIS = "0" * 64

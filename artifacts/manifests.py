@@ -10,10 +10,10 @@ from __future__ import annotations
 import os
 import re
 import stat
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, Callable, Literal
 
+from artifacts.clock import now_iso  # (also imported from here by older callers)
 from artifacts.errors import StoreError, os_error_text, path_text, quote
 from artifacts.hashing import copy_hashing, hash_file
 from artifacts.store import Store
@@ -21,10 +21,6 @@ from artifacts.store import Store
 MANIFEST_FORMAT = 1
 KNOWN_KINDS = ("base-policy", "replay", "teacher-targets", "checkpoint", "eval", "handoff", "demos", "episodes")
 _KIND_RE = re.compile(r"^[a-z][a-z0-9-]{0,39}$")
-
-
-def now_iso() -> str:
-    return datetime.now(timezone.utc).isoformat(timespec="milliseconds")
 
 
 def check_kind(kind: str) -> str:

@@ -34,6 +34,17 @@ DEFAULT_DIRNAME = ".accrue"
 _SUBDIRS = ("objects", "refs", "records", "log", "locks", "tmp", "quarantine")
 
 
+# How objects a partial clone left on a remote come back: the remotes package installs its fetcher
+# (artifacts/__init__.py wires it), so this module never imports the remotes that import it.
+_MISSING_FETCHERS: list[Callable[["Store", list[str]], bool]] = []
+
+
+def add_missing_fetcher(fetch: Callable[["Store", list[str]], bool]) -> None:
+    """fetch(store, missing ids) brings what it can into the store; True when all arrived."""
+    if fetch not in _MISSING_FETCHERS:
+        _MISSING_FETCHERS.append(fetch)
+
+
 def default_store_path() -> Path:
     env = os.environ.get(ENV_VAR)
     return Path(env) if env else Path.cwd() / DEFAULT_DIRNAME
@@ -256,22 +267,24 @@ class Store:
 
     def fetch_missing(self, *oids: str) -> bool:
         """True when every object is here. A partial clone (`accrue pull --only`) left some objects
-        on its promisor remote: those are fetched and verified now; otherwise nothing happens."""
+        on its promisor remote: those are fetched and verified now (by the fetchers installed with
+        add_missing_fetcher: artifacts.remotes'); otherwise nothing happens."""
         missing = [o for o in oids if not self.has_object(o)]
         if not missing:
             return True
         if not any(r.get("promisor") for r in self.read_config().get("remotes", {}).values()):
             return False
-        from artifacts.remotes.lazy import fetch_promised
-
-        return fetch_promised(self, missing)
+        return any(fetch(self, missing) for fetch in _MISSING_FETCHERS)
 
     def is_promised(self, oid: str) -> bool:
-        """Whether a partial pull deliberately left this object on a remote (verify excuses it)."""
+        """Whether a partial pull deliberately left this object on a remote (verify excuses it):
+        its id is listed in remotes/<name>/promised."""
         if self._promised is None:
-            from artifacts.remotes.lazy import load_promised
-
-            self._promised = load_promised(self)
+            promised: set[str] = set()
+            base = self.root / "remotes"
+            for path in base.glob("*/promised") if base.is_dir() else ():
+                promised.update(line for line in path.read_text().split() if line)
+            self._promised = promised
         return oid in self._promised
 
     def quarantine(self, oid: str) -> Path:

@@ -27,12 +27,16 @@ import weakref
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Iterator
+from typing import Iterator, Protocol
 
 from artifacts.errors import StoreError
 
-if TYPE_CHECKING:
-    from artifacts.store import Store
+
+class Store(Protocol):
+    """What a writer lock needs of a store (the store module imports this one, not the reverse)."""
+
+    locks_dir: Path
+
 
 LOCK_NAME = "writers.lock"
 

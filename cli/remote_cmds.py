@@ -9,7 +9,7 @@ from typing import Annotated, List, Optional
 
 import typer
 
-from cli.store_cmds import JsonOpt, StoreOpt, console, human_size, open_store, print_json
+from cli.store_cmds import JsonOpt, StoreOpt, human_size, open_store, print_json, transfer_meter
 
 remote_app = typer.Typer(help="Remotes this store pushes to and pulls from (S3 or a directory).", no_args_is_help=True)
 
@@ -41,10 +41,7 @@ OnlyOpt = Annotated[
 
 
 def _meter(quiet: bool):
-    from artifacts.remotes.progress import RichMeter
-    from artifacts.remotes.transfer import Meter
-
-    return Meter() if quiet else RichMeter()
+    return transfer_meter(quiet)
 
 
 def _pick(store_path, words: Optional[List[str]]):
@@ -277,27 +274,6 @@ def pull(
     report = do_pull(st, spec.name, refs, only=_kinds(only), force=force, jobs=jobs, meter=_meter(as_json))
     _print_fetch(report, "pull", as_json)
     _fail_on(report.conflicts)
-
-
-def verify_remote_command(name: str, full: bool, store, as_json: bool) -> None:
-    """`accrue verify --remote NAME` (called from cli.store_cmds.verify)."""
-    from artifacts.remotes.check import verify_remote
-
-    report = verify_remote(open_store(store), name, full=full, meter=_meter(as_json))
-    if as_json:
-        print_json(report.as_dict())
-    else:
-        out = console()
-        for problem in report.problems:
-            out.print(f"[red]problem:[/] {problem}")
-        status = "[green]ok[/]" if report.ok else f"[red]{len(report.problems)} problem(s)[/]"
-        what = f", {human_size(report.bytes_hashed)} re-hashed" if full else ""
-        out.print(
-            f"verify --remote {name}{' --full' if full else ''}: {status} — {report.reachable} objects "
-            f"reachable from {report.refs} refs and logs are on the remote{what}"
-        )
-    if not report.ok:
-        raise SystemExit(1)
 
 
 def register(app: typer.Typer) -> None:

@@ -51,6 +51,14 @@ def human_size(n: int | None) -> str:
     return f"{n} B"
 
 
+def transfer_meter(quiet: bool):
+    """Progress of remote transfers: drawn with rich, or silent (with --json)."""
+    from artifacts.remotes.progress import RichMeter
+    from artifacts.remotes.transfer import Meter
+
+    return Meter() if quiet else RichMeter()
+
+
 def parse_duration(text: str, option: str = "--grace") -> float:
     m = re.fullmatch(r"\s*(\d{1,12}(?:\.\d{1,9})?)\s*([smhd]?)\s*", text)
     if not m:
@@ -331,9 +339,7 @@ def verify(
     from artifacts.verify import verify_store
 
     if remote is not None:
-        from cli.remote_cmds import verify_remote_command
-
-        return verify_remote_command(remote, full, store, as_json)
+        return _verify_remote(remote, full, store, as_json)
     st = open_store(store)
     if full and not as_json:
         total = sum(st.object_size(o) or 0 for o in st.iter_object_ids())
@@ -364,6 +370,27 @@ def verify(
     if not report.ok:
         # SystemExit, not typer.Exit: cli.main runs the app with standalone_mode=False, where click
         # turns typer.Exit into a return value that main() does not pass on.
+        raise SystemExit(1)
+
+
+def _verify_remote(name: str, full: bool, store, as_json: bool) -> None:
+    """`accrue verify --remote NAME`."""
+    from artifacts.remotes.check import verify_remote
+
+    report = verify_remote(open_store(store), name, full=full, meter=transfer_meter(as_json))
+    if as_json:
+        print_json(report.as_dict())
+    else:
+        out = console()
+        for problem in report.problems:
+            out.print(f"[red]problem:[/] {problem}")
+        status = "[green]ok[/]" if report.ok else f"[red]{len(report.problems)} problem(s)[/]"
+        what = f", {human_size(report.bytes_hashed)} re-hashed" if full else ""
+        out.print(
+            f"verify --remote {name}{' --full' if full else ''}: {status} — {report.reachable} objects "
+            f"reachable from {report.refs} refs and logs are on the remote{what}"
+        )
+    if not report.ok:
         raise SystemExit(1)
 
 

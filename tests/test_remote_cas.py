@@ -16,8 +16,9 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from remote_support import moto_endpoint, remote_url, s3_env  # noqa: E402,F401
 
-from artifacts.remotes.backends import RefMoved, open_backend  # noqa: E402
+from artifacts.remotes.backends import RefMoved  # noqa: E402
 from artifacts.remotes.config import parse_url  # noqa: E402
+from artifacts.remotes.connect import open_backend  # noqa: E402
 
 KEY = "refs/team/handoff"
 

@@ -77,13 +77,3 @@ def local_corrupt(oid: str) -> StoreError:
         f"object {oid[:12]} in this store is corrupt (its bytes no longer match its id); "
         "nothing corrupt is pushed — run `accrue verify --full`"
     )
-
-
-def open_backend(spec: RemoteSpec) -> Backend:
-    if spec.kind == "s3":
-        from artifacts.remotes.s3 import S3Backend
-
-        return S3Backend(spec)
-    from artifacts.remotes.directory import DirBackend
-
-    return DirBackend(spec)

@@ -6,9 +6,9 @@ import json
 from dataclasses import dataclass, field
 
 from artifacts.errors import StoreError
-from artifacts.remotes.backends import open_backend
 from artifacts.remotes.closure import children
 from artifacts.remotes.config import get_remote
+from artifacts.remotes.connect import open_backend
 from artifacts.remotes.pointers import check_remote_config, read_pointers
 from artifacts.remotes.transfer import Meter, default_jobs, download_manifest, parallel
 from artifacts.store import Store

@@ -1,6 +1,6 @@
 """Partial clones: `accrue pull --only KIND` leaves the data of other artifacts on the remote and
 notes their ids here (remotes/<name>/promised). When a step needs one, the store's hook
-(Store.fetch_missing) fetches it from a promisor remote, verified like any download."""
+(Store.fetch_missing, wired in artifacts/__init__.py) fetches it from a promisor remote, verified like any download."""
 
 from __future__ import annotations
 
@@ -10,14 +10,6 @@ from artifacts.store import Store
 
 def promised_path(store: Store, remote: str):
     return store.root / "remotes" / remote / "promised"
-
-
-def load_promised(store: Store) -> set[str]:
-    out: set[str] = set()
-    base = store.root / "remotes"
-    for path in base.glob("*/promised") if base.is_dir() else ():
-        out.update(line for line in path.read_text().split() if line)
-    return out
 
 
 def add_promised(store: Store, remote: str, oids: list[str]) -> None:
@@ -42,8 +34,8 @@ def add_promised(store: Store, remote: str, oids: list[str]) -> None:
 
 def fetch_promised(store: Store, missing: list[str]) -> bool:
     """Fetch missing objects from the promisor remotes (in config order). True if all arrived."""
-    from artifacts.remotes.backends import open_backend
     from artifacts.remotes.config import list_remotes
+    from artifacts.remotes.connect import open_backend
 
     todo = list(dict.fromkeys(missing))
     for spec in (s for s in list_remotes(store).values() if s.promisor):

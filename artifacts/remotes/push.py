@@ -10,9 +10,10 @@ from artifacts.auditlog import append_event
 from artifacts.errors import StoreError
 from artifacts.refs import set_ref
 from artifacts.remotes import TRACKING
-from artifacts.remotes.backends import RefMoved, open_backend
+from artifacts.remotes.backends import RefMoved
 from artifacts.remotes.closure import bottom_up, children
 from artifacts.remotes.config import check_not_copied, get_remote, store_id
+from artifacts.remotes.connect import open_backend
 from artifacts.remotes.logsegment import next_segment
 from artifacts.remotes.pointers import (
     both_moved,

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from stages.runner_context import StepContext
 from stages.runner_types import StepDef
+from stages.steps import checkpoint_layout
 from stages.steps.common import copy_tree, deterministic, read_json, write_json
 
 LEARNER_DIR, MEMORY_DIR, PER_TASK_DIR, INFO_FILE = "learner", "memory", "per_task", "handoff.json"
@@ -28,7 +29,6 @@ def run(ctx: StepContext) -> None:
     from accrue.learner import ReplayBuffer
     from accrue.methods import rules
     from accrue.stage_rl import hand_over
-    from stages.steps import train as train_step
 
     c = ctx.config
     deterministic(c["seed"])
@@ -37,15 +37,15 @@ def run(ctx: StepContext) -> None:
     previous = ReplayBuffer.load(ctx.input_path("handoff") / MEMORY_DIR) if ctx.has_input("handoff") else None
     memory, kept = hand_over(previous, current, c["retained_episodes"])
     out = ctx.new_output("handoff", "handoff")
-    copy_tree(checkpoint / train_step.LEARNER_DIR, out / LEARNER_DIR)
+    copy_tree(checkpoint / checkpoint_layout.LEARNER_DIR, out / LEARNER_DIR)
     memory.save_new_shards(out / MEMORY_DIR)
     per_task = []
     if rules(c["method"], c["ablation"]).checkpoint_per_task:
-        if (checkpoint / train_step.PER_TASK_DIR).is_dir():
-            copy_tree(checkpoint / train_step.PER_TASK_DIR, out / PER_TASK_DIR)
-        copy_tree(checkpoint / train_step.LEARNER_DIR, out / PER_TASK_DIR / str(c["stage"]))
+        if (checkpoint / checkpoint_layout.PER_TASK_DIR).is_dir():
+            copy_tree(checkpoint / checkpoint_layout.PER_TASK_DIR, out / PER_TASK_DIR)
+        copy_tree(checkpoint / checkpoint_layout.LEARNER_DIR, out / PER_TASK_DIR / str(c["stage"]))
         per_task = sorted(int(p.name) for p in (out / PER_TASK_DIR).iterdir())
-    info = read_json(checkpoint / train_step.CHECKPOINT_FILE)
+    info = read_json(checkpoint / checkpoint_layout.CHECKPOINT_FILE)
     tasks = sorted({int(t) for t in memory.column("task").tolist()})
     write_json(
         out / INFO_FILE,

@@ -15,6 +15,7 @@ from stages.runner_types import StepDef
 from stages.steps import handoff as handoff_step
 from stages.steps import warmup as warmup_step
 from stages.steps.cache_teacher import load_teacher
+from stages.steps.checkpoint_layout import CHECKPOINT_FILE, LEARNER_DIR, PER_TASK_DIR  # noqa: F401 - train_step.X
 from stages.steps.common import (
     copy_tree,
     deterministic,
@@ -27,8 +28,6 @@ from stages.steps.common import (
     write_json,
 )
 
-# the `checkpoint` output (and each intra-step checkpoint): learner/, per_task/<i>/ (Isolated), checkpoint.json
-LEARNER_DIR, PER_TASK_DIR, CHECKPOINT_FILE = "learner", "per_task", "checkpoint.json"
 REPLAY_DIR, LOOP_FILE = "replay", "loop.json"  # intra-step checkpoints only
 CURVE_FILE = "curve.json"  # the `curve` output
 
