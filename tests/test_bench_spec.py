@@ -3,6 +3,7 @@ methods, the shipped specs, and bad specs as one-line errors with exit code 2.""
 
 from __future__ import annotations
 
+import itertools
 import json
 import subprocess
 import sys
@@ -206,3 +207,49 @@ def test_a_part_of_the_grid_can_run_first(tmp_path):
         env={"ACCRUE_STORE": str(tmp_path / "nostore"), "PATH": "/usr/bin:/bin"},
     )
     assert res.returncode == 2 and res.stderr == "error: --seeds: expected comma-separated integers (got '0,x')\n"
+
+
+def grid_points(cell) -> int:
+    b = cell.workflow.budgets
+    return len(set(range(0, b.env_steps, b.eval_every)) | {b.env_steps})
+
+
+def test_issue_18_specs_declare_their_predictions_and_protocol():
+    """contact-headline / contact-ablations / bias-control: the protocol of issue 18 (>= 10 evaluation
+    points after step 0, >= 100 report episodes on a set disjoint from the selection set, one optimiser
+    for every method) and the predicted signs, loaded strictly against the tasks that exist."""
+    bench = ROOT / "workflows" / "bench"
+    specs = {n: load_spec(bench / f"{n}.yaml") for n in ("contact-headline", "contact-ablations", "bias-control")}
+    for name, spec in specs.items():
+        for c in spec.cells:
+            assert grid_points(c) >= 11, (name, c.method)
+            assert c.workflow.budgets.report_episodes >= 100
+            lr = c.workflow.learner
+            if c.method != "beta0-old-optimiser":
+                assert (lr["actor_lr"], lr["critic_lr"], lr["learning_starts"], lr["max_grad_norm"]) == (
+                    3e-4,
+                    3e-4,
+                    1280,
+                    1.0,
+                )
+    head = specs["contact-headline"]
+    assert set(head.methods) == {"accrue", "sequential", "er", "ewc", "retain", "single-task", "isolated"}
+    assert len(head.seeds) >= 4 and len(head.orderings) == 6
+    assert {tuple(o) for o in head.orderings.values()} == set(
+        itertools.permutations(["contact/round_peg", "contact/keyed_peg", "contact/gear_mesh"])
+    )
+    signs = {(p.metric, p.reference_is, p.than) for p in head.predictions}
+    assert ("FWT", "higher", ("single-task",)) in signs and ("FWT_no0", "higher", ("single-task",)) in signs
+    bias = specs["bias-control"]
+    assert all(t.startswith("nist/") for o in bias.orderings.values() for t in o) and len(bias.orderings) == 6
+    assert ("FWT", "not-higher", ("single-task",)) in {(p.metric, p.reference_is, p.than) for p in bias.predictions}
+    abl = specs["contact-ablations"]
+    assert len(abl.orderings) >= 2
+    betas = {
+        c.workflow.learner.get("beta") if c.workflow.learner.get("ablation") != "beta0" else 0.0 for c in abl.cells
+    }
+    assert betas >= {0.0, 0.1, 1.0}
+    ablations = {c.workflow.learner.get("ablation") for c in abl.cells}
+    assert ablations >= {"no-reference", "beta0", "reset-critic", "critic-all-replay"}
+    predicted = {m for p in abl.predictions for m in p.than}
+    assert predicted >= {"no-reference", "beta0", "reset-critic", "critic-all-replay", "beta0-old-optimiser"}
