@@ -117,7 +117,7 @@ def timed_interleaved(fns: dict, iters: int, warmup: int, rounds: int, device: s
     return {name: sorted(r)[len(r) // 2] for name, r in rates.items()}
 
 
-def main() -> None:
+def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--device", default="cpu")
     p.add_argument("--state-dim", type=int, default=64)
@@ -135,7 +135,16 @@ def main() -> None:
     p.add_argument("--amp", action="store_true", help="bf16 autocast (CUDA)")
     p.add_argument("--compile", action="store_true", help="torch.compile the loss functions")
     p.add_argument("--cudagraphs", action="store_true", help="compile mode reduce-overhead (CUDA graphs)")
-    args = p.parse_args()
+    return p
+
+
+REFERENCE = "reference FastTD3 update (critic+actor, B^k)"
+SEQUENTIAL = "accrue.learner sequential update (critic+actor, B^k)"
+ACCRUE = "accrue.learner ACCRUE update (critic+actor+distill, B^k + B^<k)"
+
+
+def measure(args: argparse.Namespace) -> dict[str, float]:
+    """Updates/s of the reference, Sequential and ACCRUE updates at args' sizes, in interleaved rounds."""
     if args.threads:
         torch.set_num_threads(args.threads)
 
@@ -199,23 +208,29 @@ def main() -> None:
         disc,
     )
 
-    results = timed_interleaved(
+    return timed_interleaved(
         {
-            "reference FastTD3 update (critic+actor, B^k)": lambda: ref_update(ref_batch),
-            "accrue.learner sequential update (critic+actor, B^k)": lambda: learner._update(cur, None),
-            "accrue.learner ACCRUE update (critic+actor+distill, B^k + B^<k)": lambda: learner._update(cur, prior),
+            REFERENCE: lambda: ref_update(ref_batch),
+            SEQUENTIAL: lambda: learner._update(cur, None),
+            ACCRUE: lambda: learner._update(cur, prior),
         },
         args.iters,
         args.warmup,
         args.rounds,
         args.device,
     )
+
+
+def main() -> None:
+    args = parser().parse_args()
+    results = measure(args)
+    d, h, a_dim, n = args.state_dim, args.horizon, args.action_dim, args.batch
     print(
         f"device={args.device} threads={torch.get_num_threads()} state_dim={d} H={h} d={a_dim} batch={n} "
         f"(+{n} prior rows for ACCRUE) hidden={args.hidden} atoms={args.atoms} amp={args.amp} "
         f"compile={args.compile} cudagraphs={args.cudagraphs} policy_frequency={args.policy_frequency}; median of {args.rounds} interleaved rounds"
     )
-    base = results["reference FastTD3 update (critic+actor, B^k)"]
+    base = results[REFERENCE]
     for name, ups in results.items():
         print(f"  {name:<66s} {ups:8.1f} updates/s   ({ups / base:4.2f}x reference)")
 

@@ -1,0 +1,283 @@
+"""The rows of issue 19's speed table, one command each, written to benchmarks/results/perf.json.
+
+    .venv/bin/python benchmarks/perf_report.py --row finetune   # finetune-base fixed cost
+    .venv/bin/python benchmarks/perf_report.py --row cell       # a quickstart-scale 3-stage cell, fine-tunes cached
+    .venv/bin/python benchmarks/perf_report.py --row update     # ACCRUE update vs the plain FastTD3 reference
+    .venv/bin/python benchmarks/perf_report.py --row eval       # evaluation episodes/s vs raw env stepping
+    .venv/bin/python benchmarks/perf_report.py --row all
+
+Each row is stored with the command that made it, the machine's core count and load average before and
+after (a shared machine only ever slows a figure down), and whether Python could cache bytecode (without
+it, every process compiles torch and lerobot again: ~10 s here).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+ACCRUE = [sys.executable, "-m", "cli.main"]
+QUICKSTART = ROOT / "workflows" / "quickstart.yaml"
+OUT = ROOT / "benchmarks" / "results" / "perf.json"
+
+
+def machine() -> dict:
+    return {
+        "cores": os.cpu_count(),
+        "load_avg_1min": round(os.getloadavg()[0], 2),
+        "bytecode_cached": not os.environ.get("PYTHONDONTWRITEBYTECODE"),
+    }
+
+
+def accrue(store: Path, *args: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "ACCRUE_STORE": str(store), "HF_HUB_OFFLINE": "1", "MUJOCO_GL": "egl", "RERUN": "off"}
+    return subprocess.run([*ACCRUE, *args], cwd=ROOT, env=env, capture_output=True, text=True, check=True)
+
+
+# --------------------------------------------------------------------------- finetune
+class DirCache:
+    """A training-set cache in a directory (the step's is the store; the figure is the same)."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+
+    def _path(self, key: dict) -> Path:
+        import hashlib
+
+        return self.root / hashlib.sha256(json.dumps(key, sort_keys=True).encode()).hexdigest()
+
+    def find(self, key: dict) -> Path | None:
+        return self._path(key) if self._path(key).is_dir() else None
+
+    def keep(self, key: dict, root: Path) -> None:
+        shutil.copytree(root, self._path(key))
+
+
+def bare_loop_seconds(checkpoint: Path, steps: int, batch: int, lr: float, threads: int) -> float:
+    """The same gradient steps in a plain torch loop: the checkpoint's MLP widths, AdamW, L1, random rows."""
+    import torch
+    from torch import nn
+
+    config = json.loads((checkpoint / "config.json").read_text())
+    widths = [sum(f["shape"][0] for f in config["input_features"].values()), *config["hidden_dims"]]
+    out = config["chunk_size"] * config["output_features"]["action"]["shape"][0]
+    saved = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        layers: list[nn.Module] = []
+        for a, b in zip(widths, widths[1:]):
+            layers += [nn.Linear(a, b), nn.ReLU()]
+        net = nn.Sequential(*layers, nn.Linear(widths[-1], out))
+        opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=config.get("optimizer_weight_decay", 0.0))
+        g = torch.Generator().manual_seed(0)
+        xs, ys = torch.rand(16, batch, widths[0], generator=g), torch.rand(16, batch, out, generator=g)
+        start = time.perf_counter()
+        for i in range(steps):
+            loss = (net(xs[i % 16]) - ys[i % 16]).abs().mean()
+            loss.backward()
+            nn.utils.clip_grad_norm_(net.parameters(), 10.0)
+            opt.step()
+            opt.zero_grad()
+        return time.perf_counter() - start
+    finally:
+        torch.set_num_threads(saved)
+
+
+def quickstart_demos(work: Path) -> Path:
+    """Stage 1's recorded demonstrations of the quickstart (record-demos in a fresh store)."""
+    from artifacts.manifests import materialize
+    from artifacts.resolve import resolve
+    from artifacts.store import Store
+
+    store = work / "store"
+    accrue(store, "init")
+    accrue(store, "stage", "run", str(QUICKSTART), "--stage", "1", "--step", "record-demos")
+    st = Store.open(store)
+    record = st.read_json(resolve(st, "workflow/quickstart/stage/1/record-demos"))
+    return materialize(st, record["outputs"]["demos"], work / "demos")
+
+
+def row_finetune(args) -> dict:
+    with tempfile.TemporaryDirectory(prefix="perf-ft-") as tmp:
+        work = Path(tmp)
+        demos = quickstart_demos(work)
+        started = time.perf_counter()
+        import lerobot.scripts.lerobot_train  # noqa: F401 - the imports a process pays once
+
+        import accrue.policy.train_inprocess  # noqa: F401
+        from accrue.policy import FinetuneSettings, finetune
+
+        imports_s = time.perf_counter() - started
+        settings = FinetuneSettings(steps=args.steps, batch_size=64, lr=1e-3, seed=0, chunk_size=4)
+        cache = DirCache(work / "cache")
+        times = {}
+        for name, kw in (
+            ("in_process_training_set_built_s", {"training_sets": cache}),
+            ("in_process_training_set_cached_s", {"training_sets": cache}),
+            (
+                "lerobot_train_subprocess_s",
+                {"settings": FinetuneSettings(**{**settings.__dict__, "trainer": "lerobot-train"})},
+            ),
+        ):
+            t = time.perf_counter()
+            finetune("embedded-mlp", [demos], work / name, **{"settings": settings, **kw})
+            times[name] = round(time.perf_counter() - t, 2)
+        bare = round(bare_loop_seconds(work / "in_process_training_set_cached_s", args.steps, 64, 1e-3, 1), 2)
+    return {
+        "what": f"finetune-base of embedded-mlp on the quickstart's stage-1 demos, {args.steps} steps of 64, "
+        "1 torch thread; fixed cost = time minus the same steps in a bare torch loop",
+        "imports_once_per_process_s": round(imports_s, 2),
+        **times,
+        "bare_torch_loop_s": bare,
+        "fixed_cost_cached_s": round(times["in_process_training_set_cached_s"] - bare, 2),
+        "fixed_cost_built_s": round(times["in_process_training_set_built_s"] - bare, 2),
+        "fixed_cost_subprocess_s": round(times["lerobot_train_subprocess_s"] - bare, 2),
+        "goal_fixed_cost_s": 5.0,
+    }
+
+
+# --------------------------------------------------------------------------- cell
+def row_cell(args) -> dict:
+    """Two cells that share fine-tunes: accrue fills the store, sequential then finds every fine-tune cached."""
+    with tempfile.TemporaryDirectory(prefix="perf-cell-") as tmp:
+        store = Path(tmp) / "store"
+        accrue(store, "init")
+        budget = ["--budget", str(args.budget)] if args.budget != 1.0 else []
+        t = time.perf_counter()
+        accrue(store, "run", str(QUICKSTART), *budget)
+        first = time.perf_counter() - t
+        other = Path(tmp) / "quickstart-sequential.yaml"
+        other.write_text(QUICKSTART.read_text().replace("method: accrue", "method: sequential", 1))
+        t = time.perf_counter()
+        summary = json.loads(accrue(store, "run", str(other), *budget, "--json").stdout)
+        second = time.perf_counter() - t
+    cached = sorted({f"{r['stage']}/{r['step']}" for r in summary if r["cached"]})
+    return {
+        "what": "quickstart (3 stages) with accrue, then the same cell with method sequential in the same store "
+        f"(its record-demos and finetune-base cached), budget {args.budget}",
+        "first_cell_s": round(first, 1),
+        "cell_with_finetunes_cached_s": round(second, 1),
+        "cached_steps_of_second_cell": cached,
+        "goal_cell_s": 60.0,
+    }
+
+
+# --------------------------------------------------------------------------- update
+def row_update(args) -> dict:
+    cmd = [sys.executable, str(ROOT / "benchmarks" / "bench_learner.py"), "--threads", "1"]
+    out = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=True).stdout
+    ratios = {}
+    for line in out.splitlines():
+        if "updates/s" in line:
+            name = line.split("(critic")[0].strip()
+            ratios[name] = float(line.rsplit("(", 1)[1].split("x")[0])
+    return {
+        "what": "benchmarks/bench_learner.py --threads 1 (CPU defaults: batch 256, hidden 256x256, 101 atoms)",
+        "output": out.strip().splitlines(),
+        "accrue_vs_reference": ratios.get("accrue.learner ACCRUE update"),
+        "sequential_vs_reference": ratios.get("accrue.learner sequential update"),
+        "goal_ratio": 1.0,
+    }
+
+
+# --------------------------------------------------------------------------- eval
+def row_eval(args) -> dict:
+    """Evaluator.success_rate vs a raw loop stepping the same env the same number of chunks, same policy."""
+    import numpy as np
+
+    from accrue import rl_loop
+    from accrue.scripted_reference import ScriptedReference
+    from stages.steps.common import make_env, reference_fn
+
+    task, episodes, num_envs, horizon = "nist/rect_peg", args.episodes, 8, 4
+    policy = ScriptedReference(0.5)
+    reference = reference_fn(policy, task, horizon)
+    features = lambda obs: obs["state"]  # noqa: E731
+    calls = []
+
+    def counted_env(t, n):
+        env = make_env(t, n, 0, "state")
+        step = env.step_chunk
+
+        def step_chunk(a, gamma):
+            calls.append(1)
+            return step(a, gamma)
+
+        env.step_chunk = step_chunk
+        return env
+
+    evaluator = rl_loop.Evaluator(counted_env, {task: reference}, features, episodes, num_envs, horizon, 0.99)
+    env = make_env(task, num_envs, 0, "state")
+    evaluator.success_rate(task)  # warm: env built, first episodes
+    eval_s, raw_s = [], []
+    for _ in range(3):  # interleaved, best of 3: a shared machine only ever slows a run down
+        calls.clear()
+        t = time.perf_counter()
+        evaluator.success_rate(task)
+        eval_s.append(time.perf_counter() - t)
+        chunks = len(calls)
+        obs = env.reset()
+        t = time.perf_counter()
+        for _ in range(chunks):
+            a = rl_loop.execute_reference(features(obs), reference(obs), np.ones(num_envs, bool))
+            res = env.step_chunk(np.asarray(a, np.float32), 0.99)
+            done = res.terminated | res.truncated
+            obs = env.reset(done) if done.any() else res.obs
+        raw_s.append(time.perf_counter() - t)
+    evaluator.close()
+    env.close()
+    eval_s, raw_s = min(eval_s), min(raw_s)
+    return {
+        "what": f"{episodes} evaluation episodes of {task} with the scripted reference (bias 0.5) on {num_envs} "
+        "envs, against the same number of step_chunk calls on the same env in a bare loop with the same policy",
+        "episodes_per_s": round(episodes / eval_s, 2),
+        "raw_equivalent_episodes_per_s": round(episodes / raw_s, 2),
+        "ratio": round(raw_s / eval_s, 3),
+        "chunks_stepped": chunks,
+        "goal_ratio": 0.8,
+    }
+
+
+ROWS = {"finetune": row_finetune, "cell": row_cell, "update": row_update, "eval": row_eval}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--row", choices=[*ROWS, "all"], required=True)
+    ap.add_argument("--steps", type=int, default=800, help="finetune: gradient steps (quickstart: 800)")
+    ap.add_argument("--budget", type=float, default=1.0, help="cell: the workflows' --budget (1.0 = the quickstart)")
+    ap.add_argument("--episodes", type=int, default=64, help="eval: episodes per measurement")
+    ap.add_argument("--note", default="", help="stored with the row (e.g. 'machine shared with 4 other jobs')")
+    ap.add_argument("--out", type=Path, default=OUT)
+    args = ap.parse_args()
+    results = json.loads(args.out.read_text()) if args.out.is_file() else {}
+    for name in ROWS if args.row == "all" else [args.row]:
+        before = machine()
+        t = time.perf_counter()
+        row = ROWS[name](args)
+        row.update(
+            command=shlex.join(["python", "benchmarks/perf_report.py", *sys.argv[1:]]),
+            machine_before=before,
+            machine_after=machine(),
+            wall_s=round(time.perf_counter() - t, 1),
+            note=args.note,
+            date=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        )
+        results[name] = row
+        print(json.dumps({name: row}, indent=2), flush=True)
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(results, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
