@@ -15,7 +15,7 @@ import pytest
 from rich.console import Console
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from test_runner_support import COUNT, count_invocation  # noqa: E402
+from test_runner_support import COUNT, HANG_AT, KILL_AT, PAUSE_AT, RELEASE_FILE, count_invocation  # noqa: E402
 
 from artifacts.auditlog import iter_events
 from artifacts.errors import StoreError
@@ -197,10 +197,11 @@ def test_interrupted_step_needs_continue_or_rerun(store):
 
 def test_dead_running_attempt_is_abandoned_on_next_look(store):
     r, _ = runner(store)
-    proc = subprocess.Popen(
-        [sys.executable, str(SUPPORT), "count", str(store.root), "normal", "200", "0.05"],
+    proc = subprocess.Popen(  # hangs after its first checkpoint, holding the step's lock, until killed
+        [sys.executable, str(SUPPORT), "count", str(store.root), "normal", "200", "0"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
+        env={**os.environ, HANG_AT: "1"},
     )
     _wait_for_checkpoints(store, 1)
     key = list_attempts(store)[0]["cache_key"]
@@ -225,18 +226,18 @@ def _wait_for_checkpoints(store: Store, n: int, timeout: float = 60) -> None:
 def test_continue_after_kill_matches_an_uninterrupted_run(tmp_path):
     clean_store = Store.init(tmp_path / "clean")[0]
     clean = runner(clean_store)[0].run(count_invocation(40, every=2, sleep=0.0))
-    # the subprocess uses every=2 and sleep 0.02 s per iteration: the same config as below
+    # the subprocess uses every=2 and sleep 0.02 s per iteration: the same config as below; it kills
+    # itself (SIGKILL) right after its 3rd checkpoint, so the crash point is exact on a busy machine
     store = Store.init(tmp_path / "crash")[0]
-    proc = subprocess.Popen(
+    proc = subprocess.run(
         [sys.executable, str(SUPPORT), "count", str(store.root), "normal", "40", "0.02"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
+        capture_output=True,
+        env={**os.environ, KILL_AT: "3"},
+        timeout=300,
     )
-    _wait_for_checkpoints(store, 3)
-    os.kill(proc.pid, signal.SIGKILL)
-    proc.wait()
+    assert proc.returncode == -signal.SIGKILL, proc.stderr.decode()[-2000:]
     saved = list_attempts(store)[0]["checkpoints"]
-    assert 3 <= len(saved) < 19
+    assert [c["progress"] for c in saved] == [{"i": 2}, {"i": 4}, {"i": 6}]
     r, console = runner(store)
     with pytest.raises(StageError, match="interrupted"):
         r.run(count_invocation(40, every=2, sleep=0.02))
@@ -279,31 +280,45 @@ def test_rerun_ignores_checkpoints(store):
     assert seen == [None, None]
 
 
-def test_second_process_refuses_naming_the_holder_or_waits(store):
+def test_second_process_refuses_naming_the_holder_or_waits(store, tmp_path):
+    # the holder pauses after its first checkpoint (holding the step's lock) until the test releases it,
+    # so the second and third processes meet it running however slow the machine is
+    release = tmp_path / "release"
     holder = subprocess.Popen(
-        [sys.executable, str(SUPPORT), "count", str(store.root), "normal", "30", "0.05"],
+        [sys.executable, str(SUPPORT), "count", str(store.root), "normal", "30", "0"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        env={**os.environ, PAUSE_AT: "1", RELEASE_FILE: str(release)},
     )
-    _wait_for_checkpoints(store, 1)
-    refused = subprocess.run(
-        [sys.executable, str(SUPPORT), "count", str(store.root), "normal", "30", "0.05"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-    assert refused.returncode == 2
-    assert f"already running (pid {holder.pid}" in refused.stderr and "--wait" in refused.stderr
-    waiter = subprocess.run(
-        [sys.executable, str(SUPPORT), "count", str(store.root), "normal", "30", "0.05", "--wait"],
-        capture_output=True,
-        text=True,
-        timeout=120,
-    )
+    try:
+        _wait_for_checkpoints(store, 1)
+        refused = subprocess.run(
+            [sys.executable, str(SUPPORT), "count", str(store.root), "normal", "30", "0"],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert refused.returncode == 2
+        assert f"already running (pid {holder.pid}" in refused.stderr and "--wait" in refused.stderr
+        waiter = subprocess.Popen(
+            [sys.executable, str(SUPPORT), "count", str(store.root), "normal", "30", "0", "--wait"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        seen = []
+        for line in waiter.stderr:  # it says it waits before the holder is let go
+            seen.append(line)
+            if "waiting for" in line:
+                break
+        assert any(f"waiting for pid {holder.pid}" in line for line in seen), seen
+    finally:
+        release.touch()
+    waiter_out, waiter_err = waiter.communicate(timeout=120)
     out, _ = holder.communicate(timeout=60)
-    assert holder.returncode == 0 and waiter.returncode == 0, waiter.stderr
-    first, second = json.loads(out), json.loads(waiter.stdout)
+    assert holder.returncode == 0 and waiter.returncode == 0, waiter_err
+    first, second = json.loads(out), json.loads(waiter_out)
     assert not first["cached"] and second["cached"] and second["record"] == first["record"]
     assert [a["state"] for a in list_attempts(store)] == ["committed"]
 

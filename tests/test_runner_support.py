@@ -32,7 +32,7 @@ def _count_body(ctx) -> None:
         saved = json.loads((path / "state.json").read_text())
         i, state = saved["i"], saved["state"]
         assert progress["i"] == i
-    scratch = ctx.scratch_dir("ckpt")
+    scratch, saved = ctx.scratch_dir("ckpt"), 0
     (scratch / "shard-000.bin").write_bytes(b"sealed shard" * 1000)
     while i < n:
         state = hash_bytes(f"{state} {i} {ctx.config['seed']}".encode())
@@ -42,10 +42,33 @@ def _count_body(ctx) -> None:
         if i % every == 0 and i < n:
             (scratch / "state.json").write_text(json.dumps({"i": i, "state": state}))
             ctx.save_checkpoint(scratch, {"i": i})
+            saved += 1
+            _fault_after_checkpoint(saved)
     out = ctx.new_output("result", "eval")
     (out / "final.json").write_text(json.dumps({"n": n, "state": state}))
     (out / "sub").mkdir()
     (out / "sub" / "copy-of-shard.bin").write_bytes(b"sealed shard" * 1000)
+
+
+# Deterministic faults for the kill tests (environment, so the step's config and cache key are those
+# of the uninterrupted run): after this process's N-th committed checkpoint, SIGKILL itself, or hang
+# (holding the step's lock) until the test kills it.
+# PAUSE_AT + RELEASE_FILE: wait there until the test creates that file.
+KILL_AT, HANG_AT = "ACCRUE_TEST_KILL_AT_CHECKPOINT", "ACCRUE_TEST_HANG_AT_CHECKPOINT"
+PAUSE_AT, RELEASE_FILE = "ACCRUE_TEST_PAUSE_AT_CHECKPOINT", "ACCRUE_TEST_RELEASE_FILE"
+
+
+def _fault_after_checkpoint(saved: int) -> None:
+    import signal
+
+    if os.environ.get(KILL_AT) == str(saved):
+        os.kill(os.getpid(), signal.SIGKILL)
+    if os.environ.get(HANG_AT) == str(saved):
+        time.sleep(3600)
+    if os.environ.get(PAUSE_AT) == str(saved):
+        release, deadline = Path(os.environ[RELEASE_FILE]), time.monotonic() + 300
+        while not release.exists() and time.monotonic() < deadline:
+            time.sleep(0.02)
 
 
 COUNT = StepDef(
@@ -102,11 +125,14 @@ def _quiet_console():
 
 
 def _count_main(args: list[str]) -> None:
+    from rich.console import Console
+
     from artifacts.store import Store
     from stages.runner import Runner
 
     store_path, mode, n, sleep = Path(args[0]), args[1], int(args[2]), float(args[3])
-    runner = Runner(Store.open(store_path), console=_quiet_console(), wait="--wait" in args)
+    # the runner's own lines (e.g. "waiting for pid …") go to stderr, where the tests read them
+    runner = Runner(Store.open(store_path), console=Console(stderr=True, width=200), wait="--wait" in args)
     result = runner.run(count_invocation(n=n, every=2, sleep=sleep), mode=mode)
     print(json.dumps({"cached": result.cached, "record": result.record_id, "outputs": result.outputs}))
 
