@@ -86,6 +86,33 @@ def _move(store: Store, name: str, path: Path, oid: str, log: bool) -> str | Non
     return old
 
 
+def delete_ref(store: Store, name: str, log: bool = True) -> str | None:
+    """Remove a ref (what it named stays until gc finds nothing else reaches it). Returns its id."""
+    from artifacts.auditlog import append_event, ensure_appendable
+
+    path = _ref_path(store, name)
+    with store_lock(store.locks_dir, "refs"):
+        old = read_ref(store, name)
+        if old is None:
+            return None
+        if log:
+            ensure_appendable(store)
+        try:
+            path.unlink()
+        except OSError as exc:
+            raise store_os_error(exc, f"cannot remove ref {name}") from None
+        for parent in path.parents:  # drop directories the ref leaves empty
+            if parent == store.refs_dir:
+                break
+            try:
+                parent.rmdir()
+            except OSError:
+                break
+        if log:
+            append_event(store, "ref-deleted", ref=name, old=old)
+    return old
+
+
 def list_refs(store: Store, prefix: str = "", problems: list[str] | None = None) -> dict[str, str]:
     """All refs (name -> id) whose name starts with prefix. A damaged or foreign file under refs/
     raises StoreError, or, when a `problems` list is given, is reported there and skipped."""

@@ -10,6 +10,7 @@ from typing import Annotated, List, Optional
 import typer
 
 from cli.store_cmds import JsonOpt, StoreOpt, human_size, open_store, print_json, transfer_meter
+from cli.sync_cmds import parse_kinds
 
 remote_app = typer.Typer(help="Remotes this store pushes to and pulls from (S3 or a directory).", no_args_is_help=True)
 
@@ -50,14 +51,6 @@ def _pick(store_path, words: Optional[List[str]]):
     st = open_store(store_path)
     spec, refs = pick_remote(st, list(words or []))
     return st, spec, refs
-
-
-def _kinds(only: Optional[List[str]]) -> Optional[set]:
-    if not only:
-        return None
-    from artifacts.manifests import check_kind
-
-    return {check_kind(k.strip()) for item in only for k in item.split(",") if k.strip()}
 
 
 def _fail_on(conflicts: list[str]) -> None:
@@ -197,6 +190,10 @@ def push(
             "--force", help="Move remote refs even if someone else moved them (theirs kept as displaced/REF/ID)."
         ),
     ] = False,
+    delete: Annotated[
+        bool,
+        typer.Option("--delete", help="Remove the named refs from the remote instead (if still where last seen)."),
+    ] = False,
     jobs: JobsOpt = None,
     store: StoreOpt = None,
     as_json: JsonOpt = False,
@@ -205,6 +202,8 @@ def push(
     from artifacts.remotes.push import push as do_push
 
     st, spec, refs = _pick(store, words)
+    if delete:
+        return _delete(st, spec.name, refs, as_json)
     report = do_push(st, spec.name, refs, force=force, jobs=jobs, meter=_meter(as_json))
     if as_json:
         print_json(report.as_dict())
@@ -220,6 +219,19 @@ def push(
             f"moved {len(report.moved)} refs, {len(report.up_to_date)} up to date"
             + (f", {len(report.conflicts)} refused" if report.conflicts else "")
         )
+    _fail_on(report.conflicts)
+
+
+def _delete(st, remote: str, refs: list[str], as_json: bool) -> None:
+    from artifacts.remotes.unshare import delete_remote_refs
+
+    report = delete_remote_refs(st, remote, refs)
+    if as_json:
+        print_json(report.as_dict())
+    else:
+        for name, oid in report.deleted.items():
+            typer.echo(f"  {name}: deleted on {remote} (was {oid[:12]})")
+        typer.echo(f"push --delete -> {remote}: {len(report.deleted)} refs deleted")
     _fail_on(report.conflicts)
 
 
@@ -250,7 +262,7 @@ def fetch(
     from artifacts.remotes.pull import fetch as do_fetch
 
     st, spec, refs = _pick(store, words)
-    report = do_fetch(st, spec.name, refs, only=_kinds(only), jobs=jobs, meter=_meter(as_json))
+    report = do_fetch(st, spec.name, refs, only=parse_kinds(only), jobs=jobs, meter=_meter(as_json))
     _print_fetch(report, "fetch", as_json)
 
 
@@ -271,12 +283,15 @@ def pull(
     from artifacts.remotes.pull import pull as do_pull
 
     st, spec, refs = _pick(store, words)
-    report = do_pull(st, spec.name, refs, only=_kinds(only), force=force, jobs=jobs, meter=_meter(as_json))
+    report = do_pull(st, spec.name, refs, only=parse_kinds(only), force=force, jobs=jobs, meter=_meter(as_json))
     _print_fetch(report, "pull", as_json)
     _fail_on(report.conflicts)
 
 
 def register(app: typer.Typer) -> None:
+    from cli import sync_cmds
+
     app.add_typer(remote_app, name="remote")
     for fn in (push, fetch, pull):
         app.command(name=fn.__name__)(fn)
+    sync_cmds.register(app)  # clone, status

@@ -42,6 +42,18 @@ class Backend:
         """Write data if the key is still at version expect (None: absent); else RefMoved."""
         ...
 
+    def delete(self, key: str, expect: str) -> None:
+        """Remove a ref if it is still at version expect; else RefMoved."""
+        ...
+
+    def remove(self, key: str) -> None:
+        """Remove a key unconditionally (prune: objects nothing reaches); absent is fine."""
+        ...
+
+    def list_aged(self, prefix: str) -> dict[str, tuple[int, float]]:
+        """Every key under prefix: (size, last modified as a Unix time)."""
+        ...
+
     def probe(self, create: bool) -> None:
         """Reach the remote (and make its root if create); raise one clear line if that fails."""
         self.list_sizes("refs")

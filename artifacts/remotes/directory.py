@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 from pathlib import Path
@@ -75,6 +76,59 @@ class DirBackend(Backend):
             return self._swap(key, data, expect)
         except OSError as exc:  # e.g. a read-only mount: one line that names the remote
             raise StoreError(f"{self.describe()}: cannot write {key}: {exc.strerror or exc}") from None
+
+    def delete(self, key: str, expect: str) -> None:
+        try:
+            with self._locked(key):
+                current = self.read_versioned(key)
+                if current is None or current[1] != expect:
+                    raise RefMoved(key)
+                self._path(key).unlink()
+                fsync_dir(self._path(key).parent)
+        except OSError as exc:
+            raise StoreError(f"{self.describe()}: cannot remove {key}: {exc.strerror or exc}") from None
+
+    def remove(self, key: str) -> None:
+        try:
+            self._path(key).unlink()
+        except FileNotFoundError:
+            pass
+        except OSError as exc:
+            raise StoreError(f"{self.describe()}: cannot remove {key}: {exc.strerror or exc}") from None
+
+    def list_aged(self, prefix: str) -> dict[str, tuple[int, float]]:
+        if not self.root.is_dir():
+            raise StoreError(f"{self.describe()}: the directory does not exist (is the disk mounted?)")
+        out = {}
+        for key, path in self._walk(prefix):
+            try:
+                st = path.stat()
+            except FileNotFoundError:
+                continue
+            out[key] = (st.st_size, st.st_mtime)
+        return out
+
+    @contextlib.contextmanager
+    def _locked(self, key: str) -> Iterator[None]:
+        """The O_EXCL lock file swap uses, held while a ref is removed (its content is irrelevant)."""
+        lock = self.root / "locks" / (key + ".lock")
+        lock.parent.mkdir(parents=True, exist_ok=True)
+        deadline = time.monotonic() + self.LOCK_WAIT_S
+        while True:
+            try:
+                os.close(os.open(lock, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644))
+                break
+            except FileExistsError:
+                if time.monotonic() > deadline:
+                    raise StoreError(
+                        f"{self.describe()}: {key} is locked by another push ({lock}); "
+                        "remove that file if no push is running"
+                    ) from None
+                time.sleep(0.05)
+        try:
+            yield
+        finally:
+            lock.unlink(missing_ok=True)
 
     def _swap(self, key: str, data: bytes, expect: str | None) -> str:
         self._ensure_root()

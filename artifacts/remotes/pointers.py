@@ -65,6 +65,14 @@ def record_bases(store: Store, remote: str, agreed: dict[str, str]) -> None:
         save_json(path, bases)
 
 
+def forget_bases(store: Store, remote: str, names: list[str]) -> None:
+    path = state_dir(store, remote) / "base.json"
+    with store_lock(store.locks_dir, f"remote-{remote}"):
+        bases = load_json(path)
+        if any(n in bases for n in names):
+            save_json(path, {n: i for n, i in bases.items() if n not in names})
+
+
 def select_refs(names: dict[str, str], wanted: list[str], where: str) -> dict[str, str]:
     """Every ref when nothing is named; else each name picks that ref or the refs under it."""
     if not wanted:

@@ -208,6 +208,27 @@ class S3Backend(Backend):
                 raise RefMoved(key) from None
         return result["e_tag"] or ""
 
+    def delete(self, key: str, expect: str) -> None:
+        # S3 has no conditional DELETE that every compatible service honours: compare, then
+        # delete; a push landing between the two is lost from the ref (its objects stay).
+        current = self.read_versioned(key)
+        if current is None or current[1] != expect:
+            raise RefMoved(key)
+        self.remove(key)
+
+    def remove(self, key: str) -> None:
+        import obstore
+
+        with self._errors():
+            try:
+                obstore.delete(self.store, key)
+            except FileNotFoundError as exc:
+                if "NoSuchBucket" in str(exc):
+                    raise
+
+    def list_aged(self, prefix: str) -> dict[str, tuple[int, float]]:
+        return {m["path"]: (m["size"], m["last_modified"].timestamp()) for m in self._list(prefix)}
+
     def _list(self, prefix: str) -> Iterator[dict]:
         import obstore
 

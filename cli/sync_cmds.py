@@ -1,0 +1,101 @@
+"""`accrue clone URL DIR` and `accrue status`: a new store from a remote, and where each ref stands
+against each remote. Only typer at module level; the store code is imported inside each command."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, List, Optional
+
+import typer
+
+from cli.store_cmds import JsonOpt, StoreOpt, human_size, open_store, print_json, transfer_meter
+
+
+def parse_kinds(only: Optional[List[str]]) -> Optional[set]:
+    """--only a,b --only c -> {a, b, c} (each a well-formed kind), or None for everything."""
+    if not only:
+        return None
+    from artifacts.manifests import check_kind
+
+    return {check_kind(k.strip()) for item in only for k in item.split(",") if k.strip()}
+
+
+def clone(
+    url: Annotated[str, typer.Argument(help="s3://BUCKET/PREFIX, or a directory remote.")],
+    directory: Annotated[Path, typer.Argument(metavar="DIR", help="The new store's directory (must not be a store).")],
+    name: Annotated[str, typer.Option("--name", help="What to call the remote here.")] = "origin",
+    only: Annotated[
+        Optional[List[str]],
+        typer.Option("--only", metavar="KIND", help="Partial clone: the data of these kinds only (see pull --only)."),
+    ] = None,
+    jobs: Annotated[Optional[int], typer.Option("--jobs", "-j", min=1, show_default=False)] = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """Make a store in DIR with the remote as `origin`, and pull everything (or --only some kinds)."""
+    import shutil
+
+    from artifacts.errors import StoreError
+    from artifacts.remotes.config import add_remote, parse_url
+    from artifacts.remotes.pull import pull
+    from artifacts.store import Store
+
+    parse_url(name, url)  # a bad URL is refused before anything is made
+    if (directory / "config").exists():
+        raise StoreError(f"{directory} is a store already; use `accrue remote add` and `accrue pull` there")
+    made = not directory.exists()
+    if directory.exists() and any(directory.iterdir()):
+        raise StoreError(f"{directory} exists and is not empty; clone into a new directory")
+    store, _ = Store.init(directory)
+    try:
+        add_remote(store, name, url)
+        report = pull(store, name, only=parse_kinds(only), jobs=jobs, meter=transfer_meter(as_json))
+    except BaseException:
+        # a clone that did not happen leaves nothing behind (nothing of the user's was in it)
+        shutil.rmtree(directory, ignore_errors=True) if made else None
+        raise
+    if as_json:
+        print_json({"store": str(store.root), **report.as_dict()})
+    else:
+        typer.echo(
+            f"cloned {url} into {store.root}: {len(report.moved)} refs, {report.objects_received} objects "
+            f"({human_size(report.bytes_received)}), {report.steps_indexed} step records in the step cache"
+            + (f"; {report.promised} objects left on the remote until needed" if report.promised else "")
+        )
+
+
+def status(
+    remotes: Annotated[
+        Optional[List[str]], typer.Argument(metavar="[REMOTE]...", help="Default: every remote.", show_default=False)
+    ] = None,
+    offline: Annotated[bool, typer.Option("--offline", help="Against what the last fetch saw (no network).")] = False,
+    show_all: Annotated[bool, typer.Option("--all", help="Also list refs that are up to date.")] = False,
+    store: StoreOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """Per ref and remote: up to date, ahead (only here moved), behind (only there), diverged, or on one side only."""
+    from artifacts.errors import StoreError
+    from artifacts.remotes.config import list_remotes
+    from artifacts.remotes.status import STATES, ref_status
+
+    st = open_store(store)
+    known = list_remotes(st)
+    names = list(remotes or known)
+    if not names:
+        raise StoreError("this store has no remotes; add one with `accrue remote add NAME URL`")
+    result = {n: ref_status(st, n, offline=offline) for n in names}
+    if as_json:
+        print_json({n: [r.__dict__ for r in rows] for n, rows in result.items()})
+        return
+    for name, rows in result.items():
+        counts = {s: sum(r.state == s for r in rows) for s in STATES}
+        summary = ", ".join(f"{c} {s}" for s, c in counts.items() if c) or "no refs"
+        typer.echo(f"{name} ({known[name].url}{', as last fetched' if offline else ''}): {summary}")
+        for r in rows:
+            if r.state != "up-to-date" or show_all:
+                ids = f"{r.local[:12] if r.local else '-':12}  {r.remote[:12] if r.remote else '-':12}"
+                typer.echo(f"  {r.state:11}  {ids}  {r.ref}")
+
+
+def register(app: typer.Typer) -> None:
+    for fn in (clone, status):
+        app.command(name=fn.__name__)(fn)

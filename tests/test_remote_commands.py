@@ -1,0 +1,91 @@
+"""The git/restic/DVC-like commands around remotes (issue 22), against a directory remote and
+moto's S3: clone, status, push --delete, remote prune, log --remote, diff."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from remote_support import (  # noqa: E402,F401
+    accrue,
+    cli,
+    make_store,
+    moto_endpoint,
+    remote_file_keys,
+    remote_url,
+    s3_env,
+    user_refs,
+    with_remote,
+)
+from test_cli_store import one_line_error  # noqa: E402
+
+
+def _status(store: Path, *args: str) -> dict[str, str]:
+    rows = json.loads(cli(store, "status", "--json", *args).stdout)["origin"]
+    return {r["ref"]: r["state"] for r in rows}
+
+
+def test_clone_makes_a_store_with_origin_and_its_step_cache(tmp_path, remote_url):
+    a = tmp_path / "robot"
+    make_store(a)
+    with_remote(a, remote_url)
+    cli(a, "push")
+    b = tmp_path / "workstation"
+    out = json.loads(accrue("clone", remote_url, str(b), "--json").stdout)
+    assert out["steps_indexed"] == 1 and user_refs(b) == user_refs(a)
+    assert json.loads(cli(b, "remote", "list", "--json").stdout)["origin"]["url"]
+    assert cli(b, "verify", "--full").returncode == 0
+    # a second clone into a store, or into a non-empty directory, is refused; a bad URL makes nothing
+    assert "is a store already" in one_line_error(accrue("clone", remote_url, str(b)))
+    assert "is malformed" in one_line_error(accrue("clone", "s3:/x", str(tmp_path / "c")))
+    assert not (tmp_path / "c").exists()
+    assert "does not exist" in one_line_error(accrue("clone", str(tmp_path / "nothing"), str(tmp_path / "d")))
+    assert not (tmp_path / "d").exists()
+
+
+def test_status_names_which_side_moved_per_ref(tmp_path, remote_url):
+    a, b = tmp_path / "a", tmp_path / "b"
+    make_store(a)
+    with_remote(a, remote_url)
+    cli(a, "push")
+    accrue("clone", remote_url, str(b))
+    assert set(_status(b).values()) == {"up-to-date"}
+    (tmp_path / "x.bin").write_bytes(b"b's work")
+    (tmp_path / "y.bin").write_bytes(b"a's work")
+    (tmp_path / "z.bin").write_bytes(b"both")
+    cli(b, "add", str(tmp_path / "x.bin"), "--kind", "replay", "--ref", "team/replay")
+    cli(b, "add", str(tmp_path / "x.bin"), "--kind", "replay", "--ref", "b/new")
+    cli(a, "add", str(tmp_path / "y.bin"), "--kind", "replay", "--ref", "team/handoff")
+    cli(a, "add", str(tmp_path / "y.bin"), "--kind", "replay", "--ref", "a/new")
+    cli(a, "push")
+    states = _status(b)
+    assert states["team/replay"] == "ahead" and states["b/new"] == "local-only"
+    assert states["team/handoff"] == "behind" and states["a/new"] == "remote-only"
+    assert _status(b, "--offline")["team/handoff"] == "up-to-date"  # b has not fetched a's push
+    cli(b, "add", str(tmp_path / "z.bin"), "--kind", "replay", "--ref", "team/handoff")
+    assert _status(b)["team/handoff"] == "diverged"
+    text = cli(b, "status").stdout
+    assert "ahead" in text and "team/replay" in text and "diverged" in text
+
+
+def test_push_delete_removes_a_remote_ref_only_where_it_was_last_seen(tmp_path, remote_url):
+    a, b = tmp_path / "a", tmp_path / "b"
+    make_store(a)
+    with_remote(a, remote_url)
+    cli(a, "push")
+    accrue("clone", remote_url, str(b))
+    deleted = json.loads(cli(a, "push", "--delete", "team/replay", "--json").stdout)
+    assert list(deleted["deleted"]) == ["team/replay"]
+    assert "refs/team/replay" not in remote_file_keys(remote_url, "refs")
+    assert "team/replay" in user_refs(a)  # the local ref stays, as in git
+    assert _status(a)["team/replay"] == "local-only"
+    # b saw team/handoff at one id; a moves it; b's delete is refused, a's work stays
+    (tmp_path / "n.bin").write_bytes(b"new handoff")
+    cli(a, "add", str(tmp_path / "n.bin"), "--kind", "replay", "--ref", "team/handoff")
+    cli(a, "push")
+    line = one_line_error(cli(b, "push", "--delete", "team/handoff"))
+    assert "fetch origin` first" in line and "refs/team/handoff" in remote_file_keys(remote_url, "refs")
+    assert "no ref 'nope' on remote origin" in one_line_error(cli(a, "push", "--delete", "nope"))
+    assert "name the ref(s)" in one_line_error(cli(a, "push", "--delete"))
