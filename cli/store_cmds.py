@@ -246,6 +246,15 @@ def log(
     n: Annotated[int, typer.Option("-n", "--lines", help="Show the last N events.", min=1)] = 20,
     show_all: Annotated[bool, typer.Option("--all", help="Show every event.")] = False,
     event: Annotated[Optional[str], typer.Option("--event", help="Only events of this type.")] = None,
+    remote: Annotated[
+        Optional[str],
+        typer.Option(
+            "--remote",
+            metavar="NAME",
+            help="Other stores' logs, as the last fetch/pull from remote NAME brought them, each "
+            "checked as one hash chain across its segments (exit 1 if one is broken).",
+        ),
+    ] = None,
     store: StoreOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
@@ -257,26 +266,70 @@ def log(
     from artifacts.auditlog import iter_events
 
     st = open_store(store)
-    events = (e for e in iter_events(st) if event is None or e.get("event") == event)
+    chains = None
+    if remote is not None:
+        from artifacts.remotes.logchain import remote_log_chains
+
+        chains = remote_log_chains(st, remote)
+        source = [{**e, "store": c.store_id[:12]} for c in chains for e in c.events]
+        source.sort(key=lambda e: str(e.get("ts", "")))
+    else:
+        source = iter_events(st)
+    events = (e for e in source if event is None or e.get("event") == event)
     rows = list(events) if show_all else list(deque(events, maxlen=min(n, 1 << 40)))  # deque caps maxlen
+    broken = [c for c in chains or () if not c.ok]
     if as_json:
-        for e in rows:
-            typer.echo(json.dumps(e, sort_keys=True))
+        if chains is not None:
+            print_json({"stores": [c.summary() for c in chains], "events": rows})
+        else:
+            for e in rows:
+                typer.echo(json.dumps(e, sort_keys=True))
+        if broken:
+            raise SystemExit(1)
         return
+    out = console()
+    for c in chains or ():
+        status = "[green]chain ok[/]" if c.ok else f"[red]{len(c.problems)} problem(s)[/]"
+        out.print(f"store {c.store_id[:12]} ({c.host}): {c.segments} segments, {len(c.events)} events, {status}")
+        for problem in c.problems:
+            out.print(f"  [red]problem:[/] {problem}")
+    if chains == []:
+        out.print(f"no other store's log came from remote {remote} yet (`accrue fetch {remote}` brings them)")
     table = Table(title=f"audit log ({len(rows)} event{'s' if len(rows) != 1 else ''} shown)", title_justify="left")
-    for col in ("seq", "time", "event", "step", "detail"):
+    columns = (
+        ("store", "seq", "time", "event", "step", "detail")
+        if chains is not None
+        else ("seq", "time", "event", "step", "detail")
+    )
+    for col in columns:
         table.add_column(col, overflow="fold")
-    skip = {"seq", "ts", "event", "step", "prev", "pid", "host", "cache_key", "inputs", "outputs", "log_format"}
+    skip = {
+        "seq",
+        "ts",
+        "event",
+        "step",
+        "prev",
+        "pid",
+        "host",
+        "cache_key",
+        "inputs",
+        "outputs",
+        "log_format",
+        "store",
+    }
     for e in rows:
         detail = " ".join(f"{k}={_short(v)}" for k, v in e.items() if k not in skip and v is not None)
-        table.add_row(
+        cells = [
             str(e.get("seq")),
             str(e.get("ts", ""))[:19].replace("T", " "),
             e.get("event", ""),
             e.get("step") or "",
             detail,
-        )
-    console().print(table)
+        ]
+        table.add_row(*([e["store"]] if chains is not None else []), *cells)
+    out.print(table)
+    if broken:
+        raise SystemExit(1)
 
 
 def _short(value: Any) -> str:

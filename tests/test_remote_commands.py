@@ -89,3 +89,40 @@ def test_push_delete_removes_a_remote_ref_only_where_it_was_last_seen(tmp_path, 
     assert "fetch origin` first" in line and "refs/team/handoff" in remote_file_keys(remote_url, "refs")
     assert "no ref 'nope' on remote origin" in one_line_error(cli(a, "push", "--delete", "nope"))
     assert "name the ref(s)" in one_line_error(cli(a, "push", "--delete"))
+
+
+def test_log_remote_shows_other_stores_logs_and_checks_each_as_one_chain(tmp_path, remote_url):
+    from artifacts.hashing import canonical_json, hash_bytes
+    from artifacts.refs import set_ref
+    from artifacts.store import Store
+
+    a, b = tmp_path / "robot", tmp_path / "workstation"
+    make_store(a)
+    with_remote(a, remote_url)
+    cli(a, "push")
+    (tmp_path / "x.bin").write_bytes(b"more")
+    cli(a, "add", str(tmp_path / "x.bin"), "--kind", "replay", "--ref", "team/more")
+    cli(a, "push")  # a second segment, chained to the first
+    accrue("clone", remote_url, str(b))
+    shown = json.loads(cli(b, "log", "--remote", "origin", "--all", "--json").stdout)
+    [summary] = shown["stores"]
+    assert summary["ok"] and summary["segments"] == 2
+    a_lines = (a / "log" / "events.jsonl").read_bytes().splitlines()
+    assert [e["seq"] for e in shown["events"]] == list(range(summary["events"]))
+    assert summary["events"] == len(a_lines) - 1  # all but a's last `pushed` line (it rides the next push)
+    assert "chain ok" in cli(b, "log", "--remote", "origin").stdout
+    # a segment whose first line does not follow the one before it: the chain check finds it
+    store = Store.open(b)
+    [(ref, seg_id)] = json.loads(cli(b, "refs", "remote-logs/", "--json").stdout).items()
+    seg = store.read_json(seg_id)
+    lines = store.read_bytes(seg["content"]).splitlines()
+    first = json.loads(lines[0])
+    first["prev"] = "f" * 64
+    data = b"\n".join([canonical_json(first)] + lines[1:]) + b"\n"
+    forged = {**seg, "content": store.put_bytes(data), "size": len(data)}
+    set_ref(store, ref, store.put_json(forged), log=False)
+    assert hash_bytes(canonical_json(forged)) != seg_id
+    broken = cli(b, "log", "--remote", "origin", "--json")
+    assert broken.returncode == 1
+    assert any("hash chain broken" in p for p in json.loads(broken.stdout)["stores"][0]["problems"])
+    assert "no remote named 'nope'" in one_line_error(cli(b, "log", "--remote", "nope"))
