@@ -132,6 +132,7 @@ def commit_cell(store: Store, cell, selection: dict, report: dict | None) -> Non
         runner.run_plan(StagePlan(workflow=cell.name, stage=k, steps=steps))
 
 
+PREDICTION = {"prediction": "transfers more", "metric": "FWT_no0", "reference_is": "higher", "than": ["single-task"]}
 # stage 1 picks e* = 1 on the selection set (0.9), where the report set says 0.4 (its own max, 0.8, is at e = 2)
 SELECTION = {1: [[0.1, 0.9, 0.5]], 2: [[0.6, 0.2, 0.2], [0.0, 0.3, 0.7]]}  # stage 2: e* = 2
 REPORT = {1: [[0.0, 0.4, 0.8]], 2: [[0.5, 0.5, 0.1], [0.2, 0.2, 0.6]]}
@@ -142,7 +143,13 @@ def test_bench_report_reads_the_report_set_and_says_which_runs_have_one(tmp_path
     spec_file = tmp_path / "p.yaml"
     spec_file.write_text(
         yaml.safe_dump(
-            {"base": "base.yaml", "methods": {"accrue": {}}, "orderings": {"S1": BASE["tasks"]}, "seeds": [0, 1]}
+            {
+                "base": "base.yaml",
+                "methods": {"accrue": {}, "single-task": {}},
+                "orderings": {"S1": BASE["tasks"]},
+                "seeds": [0, 1],
+                "predictions": [PREDICTION],
+            }
         )
     )
     spec = load_spec(spec_file)
@@ -150,7 +157,7 @@ def test_bench_report_reads_the_report_set_and_says_which_runs_have_one(tmp_path
     commit_cell(store, spec.cell("accrue", "S1", 0), SELECTION, REPORT)
     commit_cell(store, spec.cell("accrue", "S1", 1), SELECTION, None)  # a run from before the split
     report = build_report(store, spec)
-    by_seed = {c["seed"]: c for c in report["cells"]}
+    by_seed = {c["seed"]: c for c in report["cells"] if c["method"] == "accrue"}
     new, old = by_seed[0], by_seed[1]
     assert new["disjoint_report"] is True and old["disjoint_report"] is False
     # with the report set: c_{1,1} = 0.4, c_{2,1} = 0.1, c_{2,2} = 0.6 (report values at e* = 1, 2)
@@ -164,4 +171,10 @@ def test_bench_report_reads_the_report_set_and_says_which_runs_have_one(tmp_path
     assert old["metrics"]["ACC_final"] == pytest.approx((0.2 + 0.7) / 2)
     assert old["metrics"]["F_final"] == pytest.approx(0.9 - 0.2)
     assert report["runs_with_report_set"] == 1
-    assert "1 of 2 runs have a disjoint report set" in markdown(report)
+    text = markdown(report)
+    assert "1 of 2 runs have a disjoint report set" in text
+    # the declared prediction is judged and shown: single-task has no run, so it is not resolved
+    [judged] = report["predictions"]
+    assert judged["verdict"] == "not resolved" and judged["against"][0]["verdict"] == "no runs"
+    assert "Predictions the spec declared before its runs" in text
+    assert "| transfers more | accrue higher on FWT_no0 | single-task | — | no runs | **not resolved** |" in text

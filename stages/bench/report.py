@@ -85,6 +85,7 @@ def build_report(store: Store, spec: BenchSpec) -> dict:
             "stages_done": st.stages_done,
             "error": st.error,
             "metrics": None,
+            "disjoint_report": None,  # True / False once the run is read
         }
         if st.state == "done":
             try:
