@@ -9,7 +9,7 @@ from typing import Annotated, List, Optional
 
 import typer
 
-from cli.store_cmds import JsonOpt, StoreOpt, human_size, open_store, print_json, transfer_meter
+from cli.store_cmds import JsonOpt, StoreOpt, human_size, open_store, parse_duration, print_json, transfer_meter
 from cli.sync_cmds import parse_kinds
 
 remote_app = typer.Typer(help="Remotes this store pushes to and pulls from (S3 or a directory).", no_args_is_help=True)
@@ -147,6 +147,34 @@ def remote_rekey(store: StoreOpt = None, as_json: JsonOpt = False) -> None:
         print_json({"old": old, "new": new})
     else:
         typer.echo(f"store id {old[:12] if old else '(none)'} -> {new[:12]}")
+
+
+@remote_app.command("prune")
+def remote_prune(
+    name: Annotated[Optional[str], typer.Argument(help="The remote (optional when there is one).")] = None,
+    yes: Annotated[bool, typer.Option("--yes", help="Really delete (default is a dry run).")] = False,
+    grace: Annotated[
+        str, typer.Option("--grace", help="Keep unreachable objects and unfinished uploads younger than this.")
+    ] = "24h",
+    jobs: JobsOpt = None,
+    store: StoreOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """Delete objects nothing on the remote reaches, and uploads killed pushes left (dry run unless --yes)."""
+    from artifacts.remotes.prune import prune_remote
+
+    st, spec, _ = _pick(store, [name] if name else [])
+    report = prune_remote(st, spec.name, dry_run=not yes, grace_s=parse_duration(grace, "--grace"), jobs=jobs)
+    if as_json:
+        print_json(report.as_dict())
+        return
+    verb = "would remove" if report.dry_run else "removed"
+    typer.echo(
+        f"prune {spec.name}: {verb} {len(report.removed)} unreachable objects ({human_size(report.bytes)}) and "
+        f"{len(report.uploads)} unfinished uploads; kept {report.reachable} reachable and {report.young} "
+        f"younger than {grace}"
+        + ("; pass --yes to delete" if report.dry_run and (report.removed or report.uploads) else "")
+    )
 
 
 @remote_app.command("repair")

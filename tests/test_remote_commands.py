@@ -126,3 +126,47 @@ def test_log_remote_shows_other_stores_logs_and_checks_each_as_one_chain(tmp_pat
     assert broken.returncode == 1
     assert any("hash chain broken" in p for p in json.loads(broken.stdout)["stores"][0]["problems"])
     assert "no remote named 'nope'" in one_line_error(cli(b, "log", "--remote", "nope"))
+
+
+def test_remote_prune_dry_run_first_then_deletes_only_the_unreachable_and_waits_for_pushes(tmp_path, remote_url):
+    import os
+
+    from remote_support import delete_remote_key, overwrite_remote_key, s3_client
+
+    a = tmp_path / "a"
+    make_store(a)
+    with_remote(a, remote_url)
+    cli(a, "push")
+    replay = json.loads(cli(a, "show", "team/replay", "--json").stdout)
+    gone = {replay["content"], user_refs(a)["team/replay"]}
+    assert cli(a, "push", "--delete", "team/replay", "ingested/replay").returncode == 0
+    # a killed push's unfinished upload
+    if remote_url.startswith("s3://"):
+        bucket, _, prefix = remote_url[5:].partition("/")
+        s3_client(os.environ["AWS_ENDPOINT_URL"]).create_multipart_upload(Bucket=bucket, Key=f"{prefix}/objects/x")
+    else:
+        (Path(remote_url) / "tmp").mkdir(exist_ok=True)
+        (Path(remote_url) / "tmp" / "obj-dead").write_bytes(b"half an object")
+    kept = json.loads(cli(a, "remote", "prune", "--json").stdout)  # 24 h grace: all of it is young
+    assert kept["removed"] == [] and kept["young"] >= 2 and kept["dry_run"]
+    dry = json.loads(cli(a, "remote", "prune", "--grace", "0", "--json").stdout)
+    assert gone <= set(dry["removed"]) and len(dry["uploads"]) == 1
+    assert all(f"objects/blake3/{o[:2]}/{o[2:]}" in remote_file_keys(remote_url, "objects") for o in gone)
+    # a push in progress (its lease): nothing is deleted
+    if remote_url.startswith("s3://"):
+        overwrite_remote_key(remote_url, "pushes/other-store-1-abc", b"{}")
+    else:
+        (Path(remote_url) / "pushes").mkdir(exist_ok=True)
+        (Path(remote_url) / "pushes" / "other-store-1-abc").write_bytes(b"{}")
+    line = one_line_error(cli(a, "remote", "prune", "--yes", "--grace", "0"))
+    assert "a push is running (pushes/other-store-1-abc); nothing was deleted" in line
+    delete_remote_key(remote_url, "pushes/other-store-1-abc")
+    done = json.loads(cli(a, "remote", "prune", "--yes", "--grace", "0", "--json").stdout)
+    assert set(done["removed"]) == set(dry["removed"])
+    held = remote_file_keys(remote_url, "objects")
+    assert not any(f"objects/blake3/{o[:2]}/{o[2:]}" in held for o in gone)
+    assert json.loads(cli(a, "remote", "prune", "--grace", "0", "--json").stdout)["uploads"] == []
+    assert cli(a, "verify", "--remote", "origin", "--full").returncode == 0
+    b = tmp_path / "b"
+    assert accrue("clone", remote_url, str(b)).returncode == 0 and cli(b, "verify", "--full").returncode == 0
+    assert "team/handoff" in user_refs(b) and "team/replay" not in user_refs(b)

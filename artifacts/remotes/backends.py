@@ -54,6 +54,14 @@ class Backend:
         """Every key under prefix: (size, last modified as a Unix time)."""
         ...
 
+    def unfinished_uploads(self) -> list[tuple[str, float, object]]:
+        """Uploads a killed push left behind: (what, started as Unix time, handle for drop_upload).
+        A directory's are its tmp/ files; S3 overrides this with its multipart uploads."""
+        return [(key, mtime, key) for key, (_size, mtime) in self.list_aged("tmp").items()]
+
+    def drop_upload(self, handle: object) -> None:
+        self.remove(str(handle))
+
     def probe(self, create: bool) -> None:
         """Reach the remote (and make its root if create); raise one clear line if that fails."""
         self.list_sizes("refs")

@@ -23,13 +23,15 @@ class RemoteVerifyReport:
     bytes_hashed: int = 0
     problems: list[str] = field(default_factory=list)
     damaged: list[str] = field(default_factory=list)  # ids missing, short or corrupt there (repair re-sends them)
+    reached: set[str] = field(default_factory=set, repr=False)  # every id the walk met (prune keeps them)
+    pointers: dict[str, str] = field(default_factory=dict, repr=False)  # "ref NAME" / "log SID" -> id
 
     @property
     def ok(self) -> bool:
         return not self.problems
 
     def as_dict(self) -> dict:
-        return {"ok": self.ok, **self.__dict__}
+        return {"ok": self.ok, **{k: v for k, v in self.__dict__.items() if k not in ("reached", "pointers")}}
 
 
 def verify_remote(
@@ -82,7 +84,7 @@ def verify_remote(
             continue
         here = f"{obj.get('type')} {oid[:12]}"
         stack += [(k, here, s) for k, s in kids]
-    report.reachable = len(sizes)
+    report.reachable, report.reached, report.pointers = len(sizes), set(sizes), {w: o for w, o in pointers}
     if full:
         import os
 

@@ -4,10 +4,14 @@ store last saw it (its remote-tracking ref)."""
 
 from __future__ import annotations
 
+import os
+import socket
+import uuid
 from dataclasses import dataclass, field
 
 from artifacts.auditlog import append_event
 from artifacts.errors import StoreError
+from artifacts.hashing import canonical_json
 from artifacts.refs import set_ref
 from artifacts.remotes import TRACKING
 from artifacts.remotes.backends import RefMoved
@@ -33,6 +37,8 @@ from artifacts.remotes.pointers import (
 )
 from artifacts.remotes.transfer import Meter, default_jobs, parallel
 from artifacts.store import Store
+
+PUSH_LEASES = "pushes"  # pushes/<store id>-<pid>-<nonce>: one per push in progress
 
 
 @dataclass
@@ -100,10 +106,24 @@ def push(
     spec = get_remote(store, remote)
     check_not_copied(store)  # a copied store is refused before anything is sent
     backend = open_backend(spec)
-    jobs, meter = jobs or default_jobs(), meter or Meter()
-    report = PushReport(remote=spec.name)
-    check_remote_config(backend, create=True)
     local = select_refs(local_refs(store), refs or [], "in this store")
+    check_remote_config(backend, create=True)
+    sid = store_id(store)
+    # a lease that `remote prune` honours: it deletes nothing while a push may be relying on an
+    # object it found present (restic's lock files, for the same race)
+    lease = f"{PUSH_LEASES}/{sid}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+    backend.put_bytes(lease, canonical_json({"host": socket.gethostname(), "pid": os.getpid()}) + b"\n")
+    try:
+        return _push(store, spec, backend, sid, local, force, jobs or default_jobs(), meter or Meter())
+    finally:
+        try:
+            backend.remove(lease)
+        except StoreError:
+            pass  # a stale lease only makes prune wait until it expires
+
+
+def _push(store: Store, spec, backend, sid: str, local: dict, force: bool, jobs: int, meter: Meter) -> PushReport:
+    report = PushReport(remote=spec.name)
     current = read_pointers(store, spec, backend, "refs")
     seen = tracking_refs(store, spec.name)
     base = merge_bases(store, spec.name)
@@ -125,7 +145,6 @@ def push(
             report.conflicts.append(both_moved(name, spec.name, oid, cur, base.get(name)))
 
     # the audit-log segment written since the last push to this remote
-    sid = store_id(store)
     log_state_path = state_dir(store, spec.name) / "log.json"
     log_state = load_json(log_state_path)
     remote_log = read_pointers(store, spec, backend, "logs").get(sid)

@@ -229,6 +229,39 @@ class S3Backend(Backend):
     def list_aged(self, prefix: str) -> dict[str, tuple[int, float]]:
         return {m["path"]: (m["size"], m["last_modified"].timestamp()) for m in self._list(prefix)}
 
+    def _boto3(self):
+        import boto3
+
+        session = boto3.Session(profile_name=self.spec.settings.get("profile") or None)
+        region = self.spec.settings.get("region") or session.region_name or os.environ.get("AWS_REGION")
+        return session.client("s3", endpoint_url=endpoint_of(self.spec), region_name=region or "us-east-1")
+
+    def unfinished_uploads(self) -> list[tuple[str, float, object]]:
+        """Unfinished multipart uploads under this remote (obstore cannot list them; boto3 can)."""
+        from botocore.exceptions import BotoCoreError, ClientError
+
+        base = f"{self.spec.prefix}/" if self.spec.prefix else ""
+        out = []
+        try:
+            pages = self._boto3().get_paginator("list_multipart_uploads").paginate(Bucket=self.spec.bucket, Prefix=base)
+            for page in pages:
+                for u in page.get("Uploads", []):
+                    key = u["Key"][len(base) :]
+                    out.append((f"{key} (multipart upload)", u["Initiated"].timestamp(), (key, u["UploadId"])))
+        except (BotoCoreError, ClientError) as exc:
+            raise explain_s3_error(exc, self.describe(), endpoint_of(self.spec)) from None
+        return out
+
+    def drop_upload(self, handle: object) -> None:
+        from botocore.exceptions import BotoCoreError, ClientError
+
+        key, upload_id = handle  # type: ignore[misc]
+        base = f"{self.spec.prefix}/" if self.spec.prefix else ""
+        try:
+            self._boto3().abort_multipart_upload(Bucket=self.spec.bucket, Key=base + key, UploadId=upload_id)
+        except (BotoCoreError, ClientError) as exc:
+            raise explain_s3_error(exc, self.describe(), endpoint_of(self.spec)) from None
+
     def _list(self, prefix: str) -> Iterator[dict]:
         import obstore
 
