@@ -18,7 +18,8 @@ from artifacts.store import Store
 from stages.bench.report import build_report, markdown
 from stages.bench.spec import load_spec
 from stages.plan import plan_stage
-from stages.report.data import EVALUATE, SOURCES, TRAIN
+from stages.report.data import EVALUATE, SOURCES, TRAIN, load_run
+from stages.report.summary import summarize
 from stages.runner import Runner
 from stages.runner_types import STEP_NAMES, StagePlan, StepDef, StepInvocation
 from stages.workflow import parse_workflow
@@ -178,3 +179,7 @@ def test_bench_report_reads_the_report_set_and_says_which_runs_have_one(tmp_path
     assert judged["verdict"] == "not resolved" and judged["against"][0]["verdict"] == "no runs"
     assert "Predictions the spec declared before its runs" in text
     assert "| transfers more | accrue higher on FWT_no0 | single-task | — | no runs | **not resolved** |" in text
+    # a single run's report (`accrue report`) reads the same set
+    single = summarize(load_run(store, spec.cell("accrue", "S1", 0).workflow))
+    assert single["disjoint_report"] is True and single["success_matrix"][0][0] == 0.4
+    assert summarize(load_run(store, spec.cell("accrue", "S1", 1).workflow))["success_matrix"][0][0] == 0.9

@@ -67,7 +67,8 @@ def report_tensor(run: RunData) -> list[list[list[float]]] | None:
 def summarize(run: RunData) -> dict:
     wf = run.workflow
     m = run.stages_done
-    result = continual_metrics(curve_tensor(run))
+    # chosen on the selection episodes, read from the disjoint report set when the run has one
+    result = continual_metrics(curve_tensor(run), report_tensor(run))
     c = result["c"]
     latest = run.latest_eval()
     per_task = []  # a list, in workflow order (JSON objects get sorted)
@@ -97,6 +98,7 @@ def summarize(run: RunData) -> dict:
         "metrics": {name: result[name] for name in SEC_VA_METRICS},
         "per_stage": result["per_stage"],
         "success_matrix": c,
+        "disjoint_report": result["disjoint_report"],
         "best_checkpoint": [
             {"index": e, "env_steps": run.curves[i].grid[e]} for i, e in enumerate(result["best_checkpoint"])
         ],
