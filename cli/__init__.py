@@ -18,6 +18,8 @@ _COMMAND_MODULES = [
     "cli.report_cmds",  # report WORKFLOW
     "cli.bench_cmds",  # bench SPEC / bench status / bench report
     "cli.remote_cmds",  # remote add/list/remove, push, fetch, pull
+    "cli.sync_cmds",  # clone, status
+    "cli.diff_cmds",  # diff A B
     "cli.robot_cmds",  # robot learner (the learner of a hardware stage on a second host)
 ]
 

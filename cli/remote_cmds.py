@@ -317,9 +317,6 @@ def pull(
 
 
 def register(app: typer.Typer) -> None:
-    from cli import sync_cmds
-
     app.add_typer(remote_app, name="remote")
     for fn in (push, fetch, pull):
         app.command(name=fn.__name__)(fn)
-    sync_cmds.register(app)  # clone, status

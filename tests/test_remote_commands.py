@@ -170,3 +170,35 @@ def test_remote_prune_dry_run_first_then_deletes_only_the_unreachable_and_waits_
     b = tmp_path / "b"
     assert accrue("clone", remote_url, str(b)).returncode == 0 and cli(b, "verify", "--full").returncode == 0
     assert "team/handoff" in user_refs(b) and "team/replay" not in user_refs(b)
+
+
+def test_diff_step_records_runs_and_artifacts_with_metrics_side_by_side(tmp_path):
+    import os
+
+    from rich.console import Console
+    from test_runner_support import count_invocation
+
+    from artifacts.store import Store
+    from stages.runner import Runner
+    from stages.runner_types import StagePlan
+
+    a = tmp_path / "a"
+    store = make_store(a, seed=3)
+    handoff = user_refs(a)["team/handoff"]
+    Runner(store, console=Console(file=open(os.devnull, "w"))).run_plan(
+        StagePlan("wf2", 1, (count_invocation(5, seed=3, inputs={"seed": handoff}),))
+    )
+    one = json.loads(cli(a, "diff", "workflow/wf/stage/1/train", "workflow/wf2/stage/1/train", "--json").stdout)
+    assert one["fields"]["config.n"] == [3, 5] and "config.seed" not in one["fields"]
+    assert "input.seed" not in one["fields"] and "code_version" not in one["fields"]
+    assert one["metrics"]["result/final.json:n"] == [3, 5]
+    runs = json.loads(cli(a, "diff", "workflow/wf", "workflow/wf2", "--json").stdout)
+    assert runs["fields"]["stage/1/train config.n"] == [3, 5] and runs["only_a"] == runs["only_b"] == []
+    arts = json.loads(cli(a, "diff", "team/handoff", "team/replay", "--json").stdout)
+    assert arts["fields"]["kind"] == ["handoff", "replay"]
+    text = cli(a, "diff", "workflow/wf/stage/1/train", "workflow/wf2/stage/1/train").stdout
+    assert "config.n" in text and "+2" in text
+    assert "compare like with like" in one_line_error(cli(a, "diff", "workflow/wf", "team/handoff"))
+    replay_data = json.loads(cli(a, "show", "team/replay", "--json").stdout)["content"]
+    assert "is not a JSON manifest" in one_line_error(cli(a, "diff", replay_data, "team/replay"))
+    assert Store.open(a).has_object(replay_data)
