@@ -1,7 +1,7 @@
 """The audit log travels as segments: each push sends the lines written since the last push to
 that remote, as an `audit-log` artifact whose input `previous` is the segment before it. The first
 line of a segment carries the hash of the last line of the previous one, so the chain can be
-checked across segments exactly as within the local file."""
+checked across segments exactly as within the local file (artifacts/remotes/logchain.py does)."""
 
 from __future__ import annotations
 
