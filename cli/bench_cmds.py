@@ -1,4 +1,5 @@
-"""`accrue bench SPEC.yaml` (run every cell), `accrue bench status SPEC`, `accrue bench report SPEC`.
+"""`accrue bench SPEC.yaml` (run every cell), `accrue bench status SPEC`, `accrue bench report SPEC`,
+`accrue bench budget SPEC` (issue 18's Single-task budget rule).
 
 A spec (workflows/bench/*.yaml) names a base workflow and a grid of methods x task orderings x seeds;
 each cell is an ordinary workflow run in the store, so finished cells and shared steps are never
@@ -226,6 +227,40 @@ def report(
         return
     typer.echo(markdown(rep, command=f"accrue bench report {spec}"))
     typer.echo("wrote: " + ", ".join(p for p in files.values() if p))
+
+
+@bench_app.command("budget")
+def budget(
+    spec: SpecArg,
+    tolerance: Annotated[
+        float, typer.Option("--tolerance", help="Plateau: within this much of the next budget's success.")
+    ] = 0.03,
+    store: StoreOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """Issue 18's budget rule on a Single-task-only spec (workflows/bench/contact-budget.yaml): per ordering,
+    the smallest per-stage budget whose stage-end success is within --tolerance of the next larger one's."""
+    from stages.bench.budget import choose_budgets
+    from stages.bench.spec import load_spec
+    from stages.errors import StageError
+
+    if not 0 <= tolerance < 1:
+        raise StageError(f"--tolerance: must be in [0, 1) (got {tolerance})")
+    rows = choose_budgets(open_store(store), load_spec(spec), tolerance)
+    if as_json:
+        print_json(rows)
+        return
+    for r in rows:
+        points = ", ".join(
+            f"{p['env_steps']}: {'—' if p['end_success'] is None else format(p['end_success'], '.3f')}"
+            f" ({p['runs']} of {p['cells']} runs)"
+            for p in r["points"]
+        )
+        if not r["complete"]:
+            verdict = "not chosen: cells missing"
+        else:
+            verdict = f"chosen {r['chosen']}" + ("" if r["flattened"] else " (the largest: not flattened)")
+        typer.echo(f"{r['ordering']}: stage-end success by budget {points} -> {verdict}")
 
 
 def register(app: typer.Typer) -> None:
