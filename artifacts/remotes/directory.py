@@ -108,16 +108,14 @@ class DirBackend(Backend):
             out[key] = (st.st_size, st.st_mtime)
         return out
 
-    @contextlib.contextmanager
-    def _locked(self, key: str) -> Iterator[None]:
-        """The O_EXCL lock file swap uses, held while a ref is removed (its content is irrelevant)."""
+    def _take_lock(self, key: str) -> tuple[Path, int]:
+        """Create the key's O_EXCL lock file (waiting up to LOCK_WAIT_S): its path and an fd on it."""
         lock = self.root / "locks" / (key + ".lock")
         lock.parent.mkdir(parents=True, exist_ok=True)
         deadline = time.monotonic() + self.LOCK_WAIT_S
         while True:
             try:
-                os.close(os.open(lock, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644))
-                break
+                return lock, os.open(lock, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
             except FileExistsError:
                 if time.monotonic() > deadline:
                     raise StoreError(
@@ -125,6 +123,12 @@ class DirBackend(Backend):
                         "remove that file if no push is running"
                     ) from None
                 time.sleep(0.05)
+
+    @contextlib.contextmanager
+    def _locked(self, key: str) -> Iterator[None]:
+        """The lock swap uses, held while a ref is removed (its content is irrelevant)."""
+        lock, fd = self._take_lock(key)
+        os.close(fd)
         try:
             yield
         finally:
@@ -133,20 +137,7 @@ class DirBackend(Backend):
     def _swap(self, key: str, data: bytes, expect: str | None) -> str:
         self._ensure_root()
         target = self._path(key)
-        lock = self.root / "locks" / (key + ".lock")
-        lock.parent.mkdir(parents=True, exist_ok=True)
-        deadline = time.monotonic() + self.LOCK_WAIT_S
-        while True:
-            try:
-                fd = os.open(lock, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
-                break
-            except FileExistsError:
-                if time.monotonic() > deadline:
-                    raise StoreError(
-                        f"{self.describe()}: {key} is locked by another push ({lock}); "
-                        "remove that file if no push is running"
-                    ) from None
-                time.sleep(0.05)
+        lock, fd = self._take_lock(key)
         try:
             try:
                 os.write(fd, data)
