@@ -172,6 +172,8 @@ def test_bench_report_reads_the_report_set_and_says_which_runs_have_one(tmp_path
     assert old["metrics"]["ACC_final"] == pytest.approx((0.2 + 0.7) / 2)
     assert old["metrics"]["F_final"] == pytest.approx(0.9 - 0.2)
     assert report["runs_with_report_set"] == 1
+    # the stage curves average the report set of the new run with the one set of the old: stage 1 at e = 2
+    assert report["stage_curves"]["accrue"][0]["current"][2]["mean"] == pytest.approx((0.8 + 0.5) / 2)
     text = markdown(report)
     assert "1 of 2 runs have a disjoint report set" in text
     # the declared prediction is judged and shown: single-task has no run, so it is not resolved

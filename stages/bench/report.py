@@ -57,13 +57,15 @@ def default_out_dir(spec: BenchSpec) -> Path:
 
 
 def _stage_curves(run) -> list[dict]:
-    """Per stage k: its grid, the success of the task learned in k, and the mean over earlier tasks."""
+    """Per stage k: its grid, the success of the task learned in k, and the mean over earlier tasks (on the
+    disjoint report set when the run has one)."""
     out = []
     for sc in run.curves:
-        current = sc.success[sc.task_ids[-1]]
+        success = sc.report if sc.report is not None else sc.success
+        current = success[sc.task_ids[-1]]
         earlier = sc.task_ids[:-1]
         mean_earlier = (
-            [sum(sc.success[t][e] for t in earlier) / len(earlier) for e in range(len(sc.grid))] if earlier else None
+            [sum(success[t][e] for t in earlier) / len(earlier) for e in range(len(sc.grid))] if earlier else None
         )
         out.append({"grid": sc.grid, "current": current, "earlier": mean_earlier})
     return out
