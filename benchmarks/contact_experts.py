@@ -26,7 +26,7 @@ import sys
 import time
 from pathlib import Path
 
-CONTACT = ["contact/round_peg", "contact/keyed_peg", "contact/gear_mesh"]
+CONTACT = ["contact/round_peg", "contact/keyed_peg", "contact/gear_mesh", "contact/rect_peg"]
 NIST = ["nist/rect_peg", "nist/round_peg", "nist/gear"]
 DEMO_BIAS_KNOWN = 0.75  # workflows/quickstart.yaml's demonstrator on the nist tasks
 

@@ -10,7 +10,7 @@ from accrue.sim import expert_success_rate, list_tasks, make_vec_env
 from accrue.sim.tasks import MM, get_task
 from accrue.sim.vec_env import is_success
 
-CONTACT = ["contact/round_peg", "contact/keyed_peg", "contact/gear_mesh"]
+CONTACT = ["contact/round_peg", "contact/keyed_peg", "contact/gear_mesh", "contact/rect_peg"]
 
 
 def test_family_and_roles():

@@ -144,6 +144,8 @@ CONTACT_PART_TABLE = {
     "round_peg": ("contact", "round_peg", 0.20 * MM, 16 * MM, 0.5 * MM, 30 * MM),
     "keyed_peg": ("contact", "keyed_round", 0.25 * MM, 14 * MM, 0.6 * MM, 30 * MM),
     "gear_mesh": ("contact", "gear", 0.30 * MM, 10 * MM, 0.5 * MM, 8 * MM),
+    # inside the others' geometry range on every descriptor column: the family's candidate unseen task
+    "rect_peg": ("contact", "rect_peg", 0.25 * MM, 12 * MM, 0.55 * MM, 28 * MM),
 }
 
 
@@ -221,6 +223,13 @@ def _builtin_specs() -> list[TaskSpec]:
             0.95,
             max_steps=100,
             randomisation=_contact_randomisation(friction=(0.4, 1.2), estimate_yaw=5.0 * DEG, in_hand_yaw=2.0 * DEG),
+        ),
+        contact(
+            "rect_peg",
+            "insert the rectangular peg into its tight hole",
+            2,
+            0.9,
+            randomisation=_contact_randomisation(friction=(0.3, 1.1)),
         ),
     ]
 
