@@ -14,7 +14,7 @@ from accrue.learner_inputs import GEOMETRY_NAMES, geometry_descriptor, per_task_
 from accrue.sim import STATE_DIM, list_tasks, make_expert, make_vec_env
 from accrue.sim.observation import HISTORY_DIM, HISTORY_STEPS
 from artifacts.store import Store
-from stages.plan import plan_stage
+from stages.plan import apply_budget, plan_stage
 from stages.workflow import load_workflow
 
 WORKFLOWS = Path(__file__).resolve().parents[1] / "workflows"
@@ -99,6 +99,8 @@ def test_contact_workflow_turns_the_inputs_on_and_demos_come_from_the_limited_de
     store = Store.init(tmp_path / "store")[0]
     wf = load_workflow(WORKFLOWS / "contact-quickstart.yaml")
     assert wf.tasks == ["contact/round_peg", "contact/keyed_peg", "contact/gear_mesh"]
+    for k in range(1, wf.num_stages + 1):
+        plan_stage(apply_budget(wf, "0.01"), k, store)
     steps = {inv.step.name: inv.config for inv in plan_stage(wf, 1, store).steps}
     assert steps["record-demos"]["search"] is False
     assert steps["train"]["history"] == 4 and steps["train"]["task_descriptor"] == "geometry"
