@@ -285,7 +285,7 @@ def train_loop(
         deployed = actor_act(learner)
         acts = {t: (frozen_acts or {}).get(t, deployed) for t in settings.task_ids}
         rates = {t: evaluator.success_rate(t, acts[t]) for t in settings.task_ids}
-        report = evaluator.report
+        report = getattr(evaluator, "report", None)  # a stand-in evaluator may have no report set
         report_rates = {t: report.success_rate(t, acts[t]) for t in settings.task_ids} if report else {}
         for g in due:
             state.grid_done.append(g)
