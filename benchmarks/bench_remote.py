@@ -2,7 +2,8 @@
 
 1. push and pull throughput of a 1 GiB store (default) to a local S3 server (moto, in its own
    process) against a plain parallel recursive upload / download of the same files with the same
-   library (obstore, same parallelism) — goal: >= 0.8x;
+   library (obstore, same parallelism) and with boto3 (upload_file / download_file, same number of
+   threads) — goal: >= 0.8x of each;
 2. the wall time of a no-op `accrue push` of a store with 10,000 objects (goal: < 2 s), run as
    the user runs it (a fresh process, start-up included).
 
@@ -114,6 +115,36 @@ def plain_download(store, keys: list[str], dest: Path, jobs: int, fsync: bool = 
         list(pool.map(one, keys))
 
 
+def boto3_upload(client, bucket: str, prefix: str, files: list[Path], base: Path, jobs: int) -> None:
+    """What a user would script without accrue: boto3's managed transfer, one thread per file."""
+    from boto3.s3.transfer import TransferConfig
+
+    config = TransferConfig(use_threads=False)  # the pool below is the parallelism, as for accrue
+    with ThreadPoolExecutor(jobs) as pool:
+        list(
+            pool.map(
+                lambda p: client.upload_file(
+                    str(p), bucket, f"{prefix}/{p.relative_to(base).as_posix()}", Config=config
+                ),
+                files,
+            )
+        )
+
+
+def boto3_download(client, bucket: str, prefix: str, keys: list[str], dest: Path, jobs: int) -> None:
+    from boto3.s3.transfer import TransferConfig
+
+    config = TransferConfig(use_threads=False)
+
+    def one(key: str) -> None:
+        target = dest / key
+        target.parent.mkdir(parents=True, exist_ok=True)
+        client.download_file(bucket, f"{prefix}/{key}", str(target), Config=config)
+
+    with ThreadPoolExecutor(jobs) as pool:
+        list(pool.map(one, keys))
+
+
 def pull_into(path: Path, env: dict, cli: bool) -> None:
     """An empty store (with the remote added) pulls everything: as the user runs it (cli), or
     inside this process (no interpreter start-up, to show what the transfer itself costs)."""
@@ -201,6 +232,7 @@ def main() -> None:
         for r in range(args.repeat):
             plain = S3Store("plain", prefix=f"lab{r}", endpoint=endpoint, client_options={"allow_http": True})
             keep("plain_upload_s", timed(lambda plain=plain: plain_upload(plain, files, src, args.jobs)))
+            keep("boto3_upload_s", timed(lambda r=r: boto3_upload(s3, "plain", f"boto{r}", files, src, args.jobs)))
             accrue("remote", "add", f"r{r}", f"s3://accrue/lab{r}", store=store, env=env)
             keep("push_s", timed(lambda r=r: accrue("push", f"r{r}", store=store, env=env)))
             keep(
@@ -212,6 +244,11 @@ def main() -> None:
         for r in range(args.repeat):
             keep("plain_download_s", timed(lambda: plain_download(plain, keys, work / "plain-down", args.jobs)))
             shutil.rmtree(work / "plain-down")
+            keep(
+                "boto3_download_s",
+                timed(lambda: boto3_download(s3, "plain", "boto0", keys, work / "boto-down", args.jobs)),
+            )
+            shutil.rmtree(work / "boto-down")
             keep(
                 "plain_download_fsync_s",
                 timed(lambda: plain_download(plain, keys, work / "plain-down", args.jobs, fsync=True)),
@@ -242,6 +279,10 @@ def main() -> None:
             pull_ratio=t_plain_down / t_pull,
             pull_in_process_ratio=t_plain_down / t_pull_api,
             pull_in_process_ratio_vs_fsynced=t_plain_sync / t_pull_api,
+            boto3_upload_s=best["boto3_upload_s"],
+            boto3_download_s=best["boto3_download_s"],
+            push_ratio_vs_boto3=best["boto3_upload_s"] / t_push,
+            pull_ratio_vs_boto3=best["boto3_download_s"] / t_pull,
         )
         for key in [k for k in figures if k.endswith("_s")]:
             figures[key.replace("_s", "_mib_s")] = size / MIB / figures[key]
@@ -297,6 +338,20 @@ def main() -> None:
         rate("plain_download_fsync_s"),
         f"{f['pull_in_process_ratio_vs_fsynced']:.2f}x",
         "(context)",
+    )
+    table.add_row(
+        "upload (accrue push) vs boto3",
+        rate("push_s"),
+        rate("boto3_upload_s") + " boto3",
+        f"{f['push_ratio_vs_boto3']:.2f}x",
+        ">= 0.8x",
+    )
+    table.add_row(
+        "download (accrue pull) vs boto3",
+        rate("pull_s"),
+        rate("boto3_download_s") + " boto3",
+        f"{f['pull_ratio_vs_boto3']:.2f}x",
+        ">= 0.8x",
     )
     table.add_row(f"no-op push, {f['noop_objects']} objects", f"{f['noop_push_s']:.2f} s", "-", "-", "< 2 s")
     table.add_row("  same, in-process", f"{f['noop_push_in_process_s']:.3f} s", "-", "-", "(context)")

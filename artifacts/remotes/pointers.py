@@ -176,10 +176,12 @@ def remember_version(store: Store, remote: str, space: str, name: str, oid: str,
         save_json(path, cache)
 
 
-def present_on_remote(backend: Backend, oids: list[str], jobs: int) -> set[str]:
+def present_on_remote(backend: Backend, oids: list[str], jobs: int, listing: bool = False) -> set[str]:
+    """Which of oids the remote holds: one HEAD each, or one listing when there are many (or
+    when listing: a remote with no refs yet holds few objects, so its listing is one request)."""
     from artifacts.remotes.backends import object_key
 
-    if len(oids) <= HEAD_MAX:
+    if len(oids) <= HEAD_MAX and not listing:
         sizes = parallel(lambda o: backend.head(object_key(o)), oids, jobs)
         return {o for o, s in zip(oids, sizes) if s is not None}
     return set(backend.remote_object_ids()) & set(oids)

@@ -159,7 +159,7 @@ def _push(store: Store, spec, backend, sid: str, local: dict, force: bool, jobs:
     plan = _local_closure(store, list(to_move.values()), stop)
     candidates = sorted(set(plan.data) | set(plan.manifests) | plan.absent)
     seg_ids = [segment.data_id, segment.manifest_id] if segment else []
-    present = present_on_remote(backend, candidates + seg_ids, jobs)
+    present = present_on_remote(backend, candidates + seg_ids, jobs, listing=not current)
     report.objects_checked = len(candidates) + len(seg_ids)
     lacking = [o for o in candidates if o not in present]
     for oid in lacking:

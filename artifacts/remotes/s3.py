@@ -94,6 +94,7 @@ def _s3_store(spec: RemoteSpec):
     )
 
 
+MULTIPART_CONCURRENCY = 16
 _S3_CODE = re.compile(r"<Code>([A-Za-z]+)</Code>")
 
 
@@ -313,7 +314,9 @@ class S3Backend(Backend):
                 raise local_corrupt(oid)
 
         with self._errors():
-            obstore.put(self.store, key, chunks())  # multipart: 5 MiB parts, 12 at a time
+            # multipart: parts of CHUNK_SIZE, up to MULTIPART_CONCURRENCY in flight (obstore's
+            # default 5 MiB x 12 measured ~15% slower than a plain upload of the same file)
+            obstore.put(self.store, key, chunks(), chunk_size=CHUNK_SIZE, max_concurrency=MULTIPART_CONCURRENCY)
 
     def download_to(self, key: str, fd: int) -> tuple[str, int]:
         import obstore
