@@ -20,6 +20,19 @@ def parse_kinds(only: Optional[List[str]]) -> Optional[set]:
     return {check_kind(k.strip()) for item in only for k in item.split(",") if k.strip()}
 
 
+def _empty(directory: Path, remove: bool) -> None:
+    import shutil
+
+    if remove:
+        shutil.rmtree(directory, ignore_errors=True)
+        return
+    for child in directory.iterdir():
+        if child.is_dir():
+            shutil.rmtree(child, ignore_errors=True)
+        else:
+            child.unlink(missing_ok=True)
+
+
 def clone(
     url: Annotated[str, typer.Argument(help="s3://BUCKET/PREFIX, or a directory remote.")],
     directory: Annotated[Path, typer.Argument(metavar="DIR", help="The new store's directory (must not be a store).")],
@@ -32,8 +45,6 @@ def clone(
     as_json: JsonOpt = False,
 ) -> None:
     """Make a store in DIR with the remote as `origin`, and pull everything (or --only some kinds)."""
-    import shutil
-
     from artifacts.errors import StoreError
     from artifacts.remotes.config import add_remote, parse_url
     from artifacts.remotes.pull import pull
@@ -50,8 +61,10 @@ def clone(
         add_remote(store, name, url)
         report = pull(store, name, only=parse_kinds(only), jobs=jobs, meter=transfer_meter(as_json))
     except BaseException:
-        # a clone that did not happen leaves nothing behind (nothing of the user's was in it)
-        shutil.rmtree(directory, ignore_errors=True) if made else None
+        # a clone that received nothing leaves nothing behind; one cut off midway is kept, so that
+        # `accrue pull --store DIR` goes on from what arrived
+        if next(iter(store.iter_object_ids()), None) is None:
+            _empty(directory, remove=made)
         raise
     if as_json:
         print_json({"store": str(store.root), **report.as_dict()})

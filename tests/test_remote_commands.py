@@ -39,6 +39,9 @@ def test_clone_makes_a_store_with_origin_and_its_step_cache(tmp_path, remote_url
     assert cli(b, "verify", "--full").returncode == 0
     # a second clone into a store, or into a non-empty directory, is refused; a bad URL makes nothing
     assert "is a store already" in one_line_error(accrue("clone", remote_url, str(b)))
+    (tmp_path / "busy").mkdir()
+    (tmp_path / "busy" / "notes.txt").write_text("mine")
+    assert "exists and is not empty" in one_line_error(accrue("clone", remote_url, str(tmp_path / "busy")))
     assert "is malformed" in one_line_error(accrue("clone", "s3:/x", str(tmp_path / "c")))
     assert not (tmp_path / "c").exists()
     assert "does not exist" in one_line_error(accrue("clone", str(tmp_path / "nothing"), str(tmp_path / "d")))
