@@ -170,6 +170,10 @@ def test_a_copied_store_is_refused_until_rekeyed_and_the_original_chain_is_kept(
     cli(copy, "add", str(tmp_path / "new.bin"), "--kind", "replay", "--ref", "copy/replay")
     line = one_line_error(cli(copy, "push"))
     assert "was made in another directory (a copy, e.g. cp -a?); run `accrue remote rekey`" in line
+    moved = tmp_path / "moved"
+    a.rename(moved)  # a move keeps the directory's inode: not a copy
+    assert cli(moved, "push").returncode == 0
+    moved.rename(a)
     rekeyed = json.loads(cli(copy, "remote", "rekey", "--json").stdout)
     assert rekeyed["old"] != rekeyed["new"]
     assert cli(copy, "push").returncode == 0
@@ -192,7 +196,8 @@ def test_a_store_id_shared_without_the_marker_is_caught_at_the_remote(tmp_path, 
     (tmp_path / "t.bin").write_bytes(b"the twin's work")
     cli(twin, "add", str(tmp_path / "t.bin"), "--kind", "replay", "--ref", "twin/replay")
     with_remote(twin, remote_url)
-    (twin / "config").write_text(json.dumps({**cfg, "store_home": twin.stat().st_ino}))  # same id, own marker
+    home = {"path": str(twin.resolve()), "ino": twin.stat().st_ino}
+    (twin / "config").write_text(json.dumps({**cfg, "store_home": home}))  # same id, its own marker
     assert cli(twin, "push").returncode == 0  # first push of the twin: starts its chain over a's pointer
     line = one_line_error(cli(a, "push"))  # a's pointer moved behind its back: refused, not overwritten
     assert "another store pushed an audit log with this store's id" in line and "rekey" in line

@@ -153,9 +153,19 @@ def pick_remote(store: Store, words: list[str]) -> tuple[RemoteSpec, list[str]]:
     raise StoreError(f"which remote? this store has {', '.join(remotes)}; name one first")
 
 
-def _home(store: Store) -> int:
-    """The store directory's inode: a copy (`cp -a`, rsync) carries the config, not the inode."""
-    return store.root.stat().st_ino
+def _home(store: Store) -> dict:
+    """Where the store lives: a copy (`cp -a`, rsync) carries the config but has another path and
+    inode. A move (`mv`) keeps the inode; a store left in place keeps its path (an inode that
+    changes under a remount, as on some overlay filesystems, is not a copy)."""
+    return {"path": str(store.root.resolve()), "ino": store.root.stat().st_ino}
+
+
+def _copied(recorded: object, now: dict) -> bool:
+    if isinstance(recorded, int):  # a marker of the inode alone
+        return recorded != now["ino"]
+    if not isinstance(recorded, dict):
+        return False
+    return recorded.get("path") != now["path"] and recorded.get("ino") != now["ino"]
 
 
 def check_not_copied(store: Store) -> str | None:
@@ -163,7 +173,7 @@ def check_not_copied(store: Store) -> str | None:
     is another (the store was copied). Reads only."""
     cfg = store.read_config()
     sid, home = cfg.get("store_id"), cfg.get("store_home")
-    if sid and home is not None and home != _home(store):
+    if sid and home is not None and _copied(home, _home(store)):
         raise StoreError(
             f"this store's id {sid[:12]} was made in another directory (a copy, e.g. cp -a?); "
             "run `accrue remote rekey` to give this copy its own id"
