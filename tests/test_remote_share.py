@@ -254,3 +254,25 @@ def test_per_remote_endpoint_replaces_the_environment(tmp_path, s3_env, monkeypa
     assert "not an http(s) URL" in one_line_error(cli(a, "remote", "set", "origin", "endpoint", "minio:9000"))
     assert cli(a, "remote", "set", "origin", "endpoint", "--unset").returncode == 0
     assert "endpoint" not in json.loads(cli(a, "remote", "list", "--json").stdout)["origin"]
+
+
+def test_per_remote_profile_gives_the_credentials_and_an_unknown_one_is_one_line(tmp_path, s3_env, monkeypatch):
+    from remote_support import s3_client
+
+    s3_client(s3_env).create_bucket(Bucket="by-profile")
+    home = tmp_path / "home"
+    (home / ".aws").mkdir(parents=True)
+    (home / ".aws" / "config").write_text(
+        "[profile lab]\naws_access_key_id = testing\naws_secret_access_key = testing\nregion = us-east-1\n"
+    )
+    monkeypatch.setenv("HOME", str(home))
+    monkeypatch.setenv("AWS_CONFIG_FILE", str(home / ".aws" / "config"))
+    for var in ("AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY"):
+        monkeypatch.delenv(var)
+    a = tmp_path / "a"
+    make_store(a, files=1)
+    with_remote(a, "s3://by-profile/x")
+    assert cli(a, "remote", "set", "origin", "profile", "lab").returncode == 0
+    assert cli(a, "push").returncode == 0 and cli(a, "verify", "--remote", "origin").returncode == 0
+    assert cli(a, "remote", "set", "origin", "profile", "nope").returncode == 0
+    assert "no AWS profile 'nope'" in one_line_error(cli(a, "push"))
