@@ -276,3 +276,14 @@ def test_per_remote_profile_gives_the_credentials_and_an_unknown_one_is_one_line
     assert cli(a, "push").returncode == 0 and cli(a, "verify", "--remote", "origin").returncode == 0
     assert cli(a, "remote", "set", "origin", "profile", "nope").returncode == 0
     assert "no AWS profile 'nope'" in one_line_error(cli(a, "push"))
+
+
+def test_no_credentials_at_all_is_one_line_that_says_so(tmp_path, s3_env, monkeypatch):
+    monkeypatch.setenv("HOME", str(tmp_path))  # no ~/.aws either
+    for var in ("AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY"):
+        monkeypatch.delenv(var)
+    a = tmp_path / "a"
+    make_store(a, files=1)
+    with_remote(a, "s3://no-creds/x")
+    line = one_line_error(cli(a, "push"))
+    assert "no AWS credentials found" in line and "169.254" not in line
