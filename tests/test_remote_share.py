@@ -287,3 +287,66 @@ def test_no_credentials_at_all_is_one_line_that_says_so(tmp_path, s3_env, monkey
     with_remote(a, "s3://no-creds/x")
     line = one_line_error(cli(a, "push"))
     assert "no AWS credentials found" in line and "169.254" not in line
+
+
+_NODE = """
+import os, sys
+sys.path.insert(0, {tests!r}); sys.path.insert(0, {root!r})
+from rich.console import Console
+from test_runner_support import count_invocation
+from artifacts.refs import read_ref
+from artifacts.store import Store
+from stages.runner import Runner
+from stages.runner_types import StagePlan
+from artifacts.remotes.push import push
+store = Store.open(sys.argv[1])
+handoff = read_ref(store, "team/handoff")
+plan = StagePlan(sys.argv[2], 1, (count_invocation(int(sys.argv[3]), seed=3, inputs={{"seed": handoff}}),))
+Runner(store, console=Console(file=open(os.devnull, "w"))).run_plan(plan)
+report = push(store, "origin", ["workflow/" + sys.argv[2]])
+assert report.conflicts == [] and report.moved, report
+"""
+
+
+def test_two_nodes_that_share_only_the_remote_run_cells_and_push_their_results(tmp_path, remote_url):
+    """What a cell on a machine without the shared store does: a partial clone (the input's data
+    left on the remote, fetched when the step reads it), run, push its workflow's refs; two such
+    nodes at once, each with its own store, then the first store pulls both as cache hits."""
+    import os
+    import subprocess
+
+    from rich.console import Console
+    from test_runner_support import count_invocation
+
+    from artifacts.store import Store
+    from remote_support import accrue
+    from stages.runner import Runner
+    from stages.runner_types import StagePlan
+
+    a = tmp_path / "driver"
+    make_store(a)
+    with_remote(a, remote_url)
+    cli(a, "push")
+    nodes = []
+    for i in (1, 2):
+        node = tmp_path / f"node{i}"
+        assert accrue("clone", remote_url, str(node), "--only", "eval").returncode == 0
+        tree = json.loads(cli(node, "show", "team/handoff", "--json").stdout)["content"]
+        handoff_file = Store.open(node).read_json(tree)["entries"][0]["id"]
+        assert not Store.open(node).has_object(handoff_file)  # its data was left on the remote
+        nodes.append(node)
+    code = _NODE.format(tests=str(Path(__file__).parent), root=str(Path(__file__).parents[1]))
+    procs = [
+        subprocess.Popen([sys.executable, "-c", code, str(n), f"node{i}", str(3 + i)], env=dict(os.environ))
+        for i, n in enumerate(nodes, 1)
+    ]
+    assert [p.wait(timeout=120) for p in procs] == [0, 0]
+    assert Store.open(nodes[0]).has_object(handoff_file)  # fetched when the step read its input
+    assert cli(a, "pull").returncode == 0
+    for i in (1, 2):
+        plan = StagePlan(
+            f"node{i}", 1, (count_invocation(3 + i, seed=3, inputs={"seed": user_refs(a)["team/handoff"]}),)
+        )
+        [result] = Runner(Store.open(a), console=Console(file=open(os.devnull, "w"))).run_plan(plan)
+        assert result.cached and result.record_id == user_refs(a)[f"workflow/node{i}/stage/1/train"]
+    assert cli(a, "verify", "--remote", "origin").returncode == 0
