@@ -315,11 +315,11 @@ def test_two_nodes_that_share_only_the_remote_run_cells_and_push_their_results(t
     import os
     import subprocess
 
+    from remote_support import accrue
     from rich.console import Console
     from test_runner_support import count_invocation
 
     from artifacts.store import Store
-    from remote_support import accrue
     from stages.runner import Runner
     from stages.runner_types import StagePlan
 
