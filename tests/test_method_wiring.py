@@ -139,6 +139,8 @@ class Recorder:
             if prior is not None:
                 with torch.no_grad():  # Eq. 4's student output, before the update moves θ
                     entry["student"] = self.actor.deterministic(prior.state, self._ref_in(prior.ref))
+                    if prior.fresh_ref is not None:
+                        entry["student_fresh"] = self.actor.deterministic(prior.state, self._ref_in(prior.fresh_ref))
             rec.updates.append(entry)
             entry["info"] = update(self, current, prior)
             return entry["info"]
