@@ -1,4 +1,5 @@
-"""Remote commands: `accrue remote add/list/remove`, `accrue push`, `accrue fetch`, `accrue pull`.
+"""Remote commands: `accrue remote add/list/remove/set/rekey/prune/repair`, `accrue push` (and
+`push --delete`), `accrue fetch`, `accrue pull`.
 
 Only typer/rich at module level; the store and obstore are imported inside each command.
 """
@@ -307,7 +308,7 @@ def pull(
     store: StoreOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
-    """fetch, then move the local refs that have not changed since this store last saw the remote."""
+    """fetch, then fast-forward: take each ref only the remote moved since the two sides last agreed."""
     from artifacts.remotes.pull import pull as do_pull
 
     st, spec, refs = _pick(store, words)

@@ -1,6 +1,8 @@
 """fetch: download what the remote's refs reach, every object verified on arrival, then move the
-remote-tracking refs. pull: fetch, then move the local refs that have not changed since this store
-last saw the remote (or that do not exist yet). --only leaves other kinds' data on the remote."""
+remote-tracking refs and enter the step records that came in the step cache. pull: fetch, then
+fast-forward each local ref that has not moved since this store and the remote last agreed on it
+(or that does not exist yet); a ref only this store moved stays; one both moved is a conflict.
+--only leaves other kinds' data on the remote."""
 
 from __future__ import annotations
 

@@ -1,6 +1,6 @@
 """push: upload what the chosen refs reach and the remote lacks (data first, then manifests bottom
-up, then the audit-log segment), then move each remote ref by compare-and-swap from where this
-store last saw it (its remote-tracking ref)."""
+up, then the audit-log segment), then move each remote ref by compare-and-swap — only where the
+remote has not moved it since the two sides last agreed on it (pointers.merge_bases)."""
 
 from __future__ import annotations
 
