@@ -147,6 +147,21 @@ def row_finetune(args) -> dict:
 
 
 # --------------------------------------------------------------------------- cell
+def step_seconds(store: Path) -> list[list]:
+    """[step, seconds] of every step attempt that ran, in order, from the store's event log."""
+    from datetime import datetime
+
+    started, rows = {}, []
+    for line in (store / "log" / "events.jsonl").read_text().splitlines():
+        event = json.loads(line)
+        key = (event.get("cache_key"), event.get("attempt"))
+        if event.get("event") == "step-started":
+            started[key] = datetime.fromisoformat(event["ts"])
+        elif event.get("event") == "step-committed" and key in started:
+            rows.append([event["step"], round((datetime.fromisoformat(event["ts"]) - started[key]).total_seconds(), 1)])
+    return rows
+
+
 def row_cell(args) -> dict:
     """Two cells that share fine-tunes: accrue fills the store, sequential then finds every fine-tune cached."""
     with tempfile.TemporaryDirectory(prefix="perf-cell-") as tmp:
@@ -161,6 +176,7 @@ def row_cell(args) -> dict:
         t = time.perf_counter()
         summary = json.loads(accrue(store, "run", str(other), *budget, "--json").stdout)
         second = time.perf_counter() - t
+        steps = step_seconds(store)
     cached = sorted({f"{r['stage']}/{r['step']}" for r in summary if r["cached"]})
     return {
         "what": "quickstart (3 stages) with accrue, then the same cell with method sequential in the same store "
@@ -168,6 +184,7 @@ def row_cell(args) -> dict:
         "first_cell_s": round(first, 1),
         "cell_with_finetunes_cached_s": round(second, 1),
         "cached_steps_of_second_cell": cached,
+        "step_seconds": steps,
         "goal_cell_s": 60.0,
     }
 
@@ -249,11 +266,105 @@ def row_eval(args) -> dict:
 
 
 ROWS = {"finetune": row_finetune, "cell": row_cell, "update": row_update, "eval": row_eval}
+README = ROOT / "README.md"
+MARKERS = ("<!-- perf-table:start -->", "<!-- perf-table:end -->")
+
+
+def _figure(results: dict, row: str, key: str, unit: str = "", fmt: str = "{:.1f}") -> str:
+    value = results.get(row, {}).get(key)
+    return "not measured" if value is None else fmt.format(value) + unit
+
+
+def readme_table(results: dict) -> str:
+    """The README's speed table, from perf.json: issue 19's figure before, the measured one, and its command."""
+
+    def cmd(row: str) -> str:
+        return f"`{results[row]['command']}`" if row in results else f"`python benchmarks/perf_report.py --row {row}`"
+
+    ft = results.get("finetune", {})
+    rows = [
+        (
+            "quickstart `accrue run` (3 stages)",
+            "440 s",
+            _figure(results, "cell", "first_cell_s", " s", "{:.0f}"),
+            "≤ 240 s",
+            cmd("cell"),
+        ),
+        (
+            "finetune-base fixed cost (time − the same steps in a bare torch loop)",
+            "~50 s",
+            f"{_figure(results, 'finetune', 'fixed_cost_cached_s', ' s')} (training set cached), "
+            f"{_figure(results, 'finetune', 'fixed_cost_built_s', ' s')} (built); lerobot-train subprocess in "
+            f"the same run: {_figure(results, 'finetune', 'fixed_cost_subprocess_s', ' s')}",
+            "≤ 5 s",
+            cmd("finetune"),
+        ),
+        (
+            "a quickstart-scale 3-stage cell, fine-tunes cached",
+            "~4–5 min",
+            _figure(results, "cell", "cell_with_finetunes_cached_s", " s", "{:.0f}"),
+            "≤ 60 s",
+            cmd("cell"),
+        ),
+        (
+            "ACCRUE update vs plain FastTD3 reference, CPU",
+            "0.97×",
+            _figure(results, "update", "accrue_vs_reference", "×", "{:.2f}"),
+            "≥ 1.0×",
+            cmd("update"),
+        ),
+        (
+            "evaluation episodes/s vs raw env stepping, same policy",
+            "not measured",
+            _figure(results, "eval", "ratio", "×", "{:.2f}"),
+            "≥ 0.8×",
+            cmd("eval"),
+        ),
+        (
+            "ACCRUE update on a GPU, batch ≥ 4096",
+            "not measured",
+            "not measured (no GPU lent)",
+            "≥ 1.5×",
+            "`python benchmarks/gpu_path.py`",
+        ),
+    ]
+    loads = sorted({results[r]["machine_before"]["load_avg_1min"] for r in results if "machine_before" in results[r]})
+    lines = [
+        f"Measured on a {ft.get('machine_before', {}).get('cores', 2)}-core machine **shared with other jobs** "
+        f"(1-min load average {loads[0] if loads else '?'}–{loads[-1] if loads else '?'} at the rows' starts), "
+        "so every figure is an upper bound on an idle machine's; written by `python benchmarks/perf_report.py --readme` "
+        "from `benchmarks/results/perf.json`.",
+        "",
+        "| measure | issue 19 | measured | goal | command |",
+        "|---|---|---|---|---|",
+        *(f"| {' | '.join(r)} |" for r in rows),
+    ]
+    return "\n".join(lines)
+
+
+def write_readme(results: dict) -> None:
+    text = README.read_text(encoding="utf-8")
+    start, end = text.index(MARKERS[0]) + len(MARKERS[0]), text.index(MARKERS[1])
+    README.write_text(text[:start] + "\n" + readme_table(results) + "\n" + text[end:], encoding="utf-8")
+
+
+def _measuring_args(argv: list[str]) -> list[str]:
+    """argv without what does not change a figure (--note TEXT, --readme)."""
+    kept, skip = [], False
+    for a in argv:
+        if skip:
+            skip = False
+        elif a == "--note":
+            skip = True
+        elif not (a.startswith("--note=") or a == "--readme"):
+            kept.append(a)
+    return kept
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--row", choices=[*ROWS, "all"], required=True)
+    ap.add_argument("--row", choices=[*ROWS, "all"], help="measure this row (or all) and store it")
+    ap.add_argument("--readme", action="store_true", help="rewrite the README's speed table from the stored rows")
     ap.add_argument("--steps", type=int, default=800, help="finetune: gradient steps (quickstart: 800)")
     ap.add_argument("--budget", type=float, default=1.0, help="cell: the workflows' --budget (1.0 = the quickstart)")
     ap.add_argument("--episodes", type=int, default=64, help="eval: episodes per measurement")
@@ -261,12 +372,14 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=OUT)
     args = ap.parse_args()
     results = json.loads(args.out.read_text()) if args.out.is_file() else {}
-    for name in ROWS if args.row == "all" else [args.row]:
+    if args.row is None and not args.readme:
+        ap.error("give --row and/or --readme")
+    for name in [] if args.row is None else ROWS if args.row == "all" else [args.row]:
         before = machine()
         t = time.perf_counter()
         row = ROWS[name](args)
         row.update(
-            command=shlex.join(["python", "benchmarks/perf_report.py", *sys.argv[1:]]),
+            command=shlex.join(["python", "benchmarks/perf_report.py", *_measuring_args(sys.argv[1:])]),
             machine_before=before,
             machine_after=machine(),
             wall_s=round(time.perf_counter() - t, 1),
@@ -277,6 +390,8 @@ def main() -> None:
         print(json.dumps({name: row}, indent=2), flush=True)
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(results, indent=2) + "\n")
+    if args.readme:
+        write_readme(results)
 
 
 if __name__ == "__main__":
