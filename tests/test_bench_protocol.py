@@ -180,6 +180,7 @@ def test_bench_report_reads_the_report_set_and_says_which_runs_have_one(tmp_path
     [judged] = report["predictions"]
     assert judged["verdict"] == "not resolved" and judged["against"][0]["verdict"] == "no runs"
     assert "Predictions the spec declared before its runs" in text
+    assert "| method | pairs | ΔFWT_no0 | Δjumpstart | ΔT_thr |" in text and "| single-task | 0 | — | — | — |" in text
     assert "| transfers more | accrue higher on FWT_no0 | single-task | — | no runs | **not resolved** |" in text
     # a single run's report (`accrue report`) reads the same set
     single = summarize(load_run(store, spec.cell("accrue", "S1", 0).workflow))

@@ -215,6 +215,24 @@ def markdown(report: dict, command: str | None = None, heading_level: int = 3) -
                 ],
             ),
         ]
+        extra = [m for m in TRANSFER_METRICS if m not in TABLE_METRICS]
+        if all(m in d["metrics"] for d in report["differences"] for m in extra):
+            lines += [
+                f"The transfer figures, paired the same way (method − {ref}; for T_thr a positive difference "
+                "is slower, for the others worse when negative):",
+                "",
+                markdown_table(
+                    ["method", "pairs", *(f"Δ{m}" for m in extra)],
+                    [
+                        [
+                            d["method"],
+                            str(d["pairs"]),
+                            *(fmt_ci(d["metrics"][m], digits=0 if m == "T_thr" else 3, signed=True) for m in extra),
+                        ]
+                        for d in report["differences"]
+                    ],
+                ),
+            ]
     if report.get("claims"):
         lines += [
             f"Claims the spec makes about `{report['reference']}` (mostly the paper's), judged on the paired "
@@ -269,7 +287,7 @@ def _transfer_lines(report: dict) -> list[str]:
         "method",
         "runs",
         *(f"{m} {ARROWS[m]}" for m in TRANSFER_METRICS),
-        *(f"IQM {m}" for m in TRANSFER_METRICS),
+        *(f"{m} IQM" for m in TRANSFER_METRICS),
     ]
     rows = [
         [
