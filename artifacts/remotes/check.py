@@ -24,6 +24,7 @@ class RemoteVerifyReport:
     problems: list[str] = field(default_factory=list)
     damaged: list[str] = field(default_factory=list)  # ids missing, short or corrupt there (repair re-sends them)
     reached: set[str] = field(default_factory=set, repr=False)  # every id the walk met (prune keeps them)
+    manifests: set[str] = field(default_factory=set, repr=False)  # those of them that are manifests
     pointers: dict[str, str] = field(default_factory=dict, repr=False)  # "ref NAME" / "log SID" -> id
 
     @property
@@ -31,7 +32,10 @@ class RemoteVerifyReport:
         return not self.problems
 
     def as_dict(self) -> dict:
-        return {"ok": self.ok, **{k: v for k, v in self.__dict__.items() if k not in ("reached", "pointers")}}
+        return {
+            "ok": self.ok,
+            **{k: v for k, v in self.__dict__.items() if k not in ("reached", "manifests", "pointers")},
+        }
 
 
 def verify_remote(
@@ -85,6 +89,7 @@ def verify_remote(
         here = f"{obj.get('type')} {oid[:12]}"
         stack += [(k, here, s) for k, s in kids]
     report.reachable, report.reached, report.pointers = len(sizes), set(sizes), {w: o for w, o in pointers}
+    report.manifests = {o for o, size in sizes.items() if size is None}
     if full:
         import os
 

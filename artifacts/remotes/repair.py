@@ -7,6 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from artifacts.remotes.check import verify_remote
+from artifacts.remotes.closure import bottom_up, children
 from artifacts.remotes.config import get_remote
 from artifacts.remotes.connect import open_backend
 from artifacts.remotes.transfer import Meter, default_jobs, parallel
@@ -49,8 +50,12 @@ def repair_remote(
         backend.upload_object(oid, store.object_path(oid), sizes[oid], replace=True)
         meter.advance(sizes[oid])
 
+    # data first, then manifests bottom up: a reader never meets a manifest naming what is not back yet
+    named = {o: [k for k, _ in children(o, store.read_json(o))] for o in here if o in found.manifests}
     try:
-        parallel(send, here, jobs)
+        parallel(send, [o for o in here if o not in named], jobs)
+        for group in bottom_up(named):
+            parallel(send, group, jobs)
     finally:
         meter.stop()
     report.resent, report.bytes_sent = here, sum(sizes.values())
