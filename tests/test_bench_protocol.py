@@ -3,7 +3,10 @@ disjoint one (the "report" seeds), in the train loop, in the plan's cache keys a
 
 from __future__ import annotations
 
+import csv
+import io
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -15,7 +18,7 @@ from accrue.learner import LearnerConfig, ReplayBuffer, make_learner
 from accrue.learner_inputs import state_features
 from accrue.sim import STATE_DIM, make_vec_env
 from artifacts.store import Store
-from stages.bench.report import build_report, markdown
+from stages.bench.report import build_report, markdown, write_report
 from stages.bench.spec import load_spec
 from stages.plan import plan_stage
 from stages.report.data import EVALUATE, SOURCES, TRAIN, load_run
@@ -182,6 +185,16 @@ def test_bench_report_reads_the_report_set_and_says_which_runs_have_one(tmp_path
     assert "Predictions the spec declared before its runs" in text
     assert "| method | pairs | ΔFWT_no0 | Δjumpstart | ΔT_thr |" in text and "| single-task | 0 | — | — | — |" in text
     assert "| transfers more | accrue higher on FWT_no0 | single-task | — | no runs | **not resolved** |" in text
+    files = write_report(report, tmp_path / "out")
+    rows = {
+        r["seed"]: r
+        for r in csv.DictReader(io.StringIO(Path(files["cells_csv"]).read_text()))
+        if r["method"] == "accrue"
+    }
+    assert (rows["0"]["disjoint_report"], rows["1"]["disjoint_report"]) == ("true", "false")
+    assert float(rows["0"]["FWT_no0"]) == pytest.approx(0.5)
+    summary = list(csv.DictReader(io.StringIO(Path(files["summary_csv"]).read_text())))
+    assert any(r["metric"] == "T_thr" and r["method"] == "accrue" and r["ordering"] == "all" for r in summary)
     # a single run's report (`accrue report`) reads the same set
     single = summarize(load_run(store, spec.cell("accrue", "S1", 0).workflow))
     assert single["disjoint_report"] is True and single["success_matrix"][0][0] == 0.4

@@ -158,9 +158,11 @@ def build_report(store: Store, spec: BenchSpec) -> dict:
 def cells_csv(report: dict) -> str:
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(["cell", "method", "ordering", "seed", "state", *TABLE_METRICS, "error"])
+    extra = [n for n in METRICS if n not in TABLE_METRICS]
+    w.writerow(["cell", "method", "ordering", "seed", "state", *TABLE_METRICS, "error", *extra, "disjoint_report"])
     for c in report["cells"]:
         m = c["metrics"] or {}
+        disjoint = c.get("disjoint_report")
         w.writerow(
             [
                 c["cell"],
@@ -170,6 +172,8 @@ def cells_csv(report: dict) -> str:
                 c["state"],
                 *("" if m.get(n) is None else repr(float(m[n])) for n in TABLE_METRICS),
                 c["error"] or "",
+                *("" if m.get(n) is None else repr(float(m[n])) for n in extra),
+                "" if disjoint is None else str(disjoint).lower(),
             ]
         )
     return buf.getvalue()

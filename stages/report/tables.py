@@ -91,7 +91,7 @@ def summary_csv(agg: dict) -> str:
     for m in agg["methods"]:
         groups = [("all", m["runs"], m["metrics"])] + [(o["ordering"], o["runs"], o["metrics"]) for o in m["orderings"]]
         for ordering, runs, metrics in groups:
-            for name in TABLE_METRICS:
+            for name in (*TABLE_METRICS, *(x for x in METRICS if x not in TABLE_METRICS and x in metrics)):
                 s = metrics[name]
                 w.writerow(
                     [
