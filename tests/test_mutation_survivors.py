@@ -62,6 +62,9 @@ def test_stage_one_learner_is_make_learner_of_the_config():
     want = make_learner(cfg, D, H, A)
     assert (got.state_dim, got.horizon, got.action_dim, got.stage) == (D, H, A, 0)
     assert got.cfg is cfg and same_weights(got.actor, want.actor) and same_weights(got.critic, want.critic)
+    # the action dimension is passed through (survivor begin_stage 10), and 6 (the arm's Δ-pose) by default
+    assert begin_stage(None, cfg, D, H, 3).action_dim == 3
+    assert make_learner(cfg, D, H).action_dim == 6
 
 
 def test_single_task_restarts_from_the_stage_seed_and_counts_the_stage():
@@ -73,6 +76,9 @@ def test_single_task_restarts_from_the_stage_seed_and_counts_the_stage():
     want = make_learner(cfg.replace(seed=3 + 2), D, H, A)
     assert got.stage == 2 and got.action_dim == A
     assert same_weights(got.actor, want.actor) and same_weights(got.critic, want.critic)
+    three = make_learner(cfg, D, H, 3)  # survivor begin_stage 26: a non-default action dimension is kept
+    three.stage = 1
+    assert begin_stage(three, cfg, D, H, 3).action_dim == 3
 
 
 def test_reset_critic_draws_its_critic_from_the_stage_seed():
