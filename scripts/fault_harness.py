@@ -6,7 +6,7 @@ First one uninterrupted reference run (its own store), whose log gives each step
 (from its step-started event to the next one). Then each trial, in a fresh store: draw a step
 uniformly and a moment uniformly inside its reference window, start `accrue run WORKFLOW`, wait
 until that step has started, sleep that long and kill the whole process group with SIGKILL (with
-`--base embedded-mlp` that includes the lerobot fine-tuning subprocess), check the store, resume
+`--base embedded-mlp` the kill may land inside the in-process lerobot fine-tune), check the store, resume
 with `accrue run WORKFLOW --continue`, and check again. A trial passes when
 
   * `verify --full` finds no problem, both right after the kill and after the resume;
@@ -255,7 +255,7 @@ def main() -> int:
         "--base",
         default="scripted-reference:0.5",
         help="base_policy.init: scripted-reference:0.5 (default: no lerobot, every output byte-reproducible) "
-        "or embedded-mlp (demos and lerobot fine-tuning in a subprocess too; slower)",
+        "or embedded-mlp (recorded demos and the in-process lerobot fine-tune; slower)",
     )
     parser.add_argument("--out", type=Path, help="write the results as JSON here")
     parser.add_argument("--workdir", type=Path, help="keep the stores here (default: a temp dir, removed)")

@@ -7,8 +7,10 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 from rich.console import Console
@@ -25,6 +27,7 @@ from stages.runner_types import StepInvocation
 from stages.steps import finetune_base
 
 TASKS = ("insert the round peg", "insert the square peg")
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _config(stage: int, init: str) -> dict:
@@ -75,7 +78,20 @@ def runs(tmp_path_factory):
         write_synthetic_demos(root / "demos-a", TASKS[0], 1.0, episodes=3, length=10, seed=0),
         write_synthetic_demos(root / "demos-b", TASKS[1], -1.0, episodes=3, length=10, seed=1),
     ]
-    return [_two_stages(root / f"store-{n}", demos) for n in (1, 2)], root
+    first = _two_stages(root / "store-1", demos)
+    # the second store in another process with another hash seed: what varies between processes
+    # (set and dict orders lerobot writes in) must not reach the bytes either
+    code = (
+        "import json, sys; sys.path.insert(0, 'tests'); from pathlib import Path; "
+        "from test_finetune_inprocess import _two_stages; "
+        f"r = _two_stages(Path({str(root / 'store-2')!r}), [Path({str(demos[0])!r}), Path({str(demos[1])!r})]); "
+        "print(json.dumps({k: r[k].outputs for k in ('one', 'two')}))"
+    )
+    env = {**os.environ, "PYTHONHASHSEED": "12345"}
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True, check=True)
+    outputs = json.loads(out.stdout.strip().splitlines()[-1])
+    second = {"store": Store.open(root / "store-2"), **{k: SimpleNamespace(outputs=v) for k, v in outputs.items()}}
+    return [first, second], root
 
 
 def test_two_fresh_stores_produce_the_same_bytes_for_both_stages(runs):
@@ -90,10 +106,14 @@ def test_two_fresh_stores_produce_the_same_bytes_for_both_stages(runs):
             materialize(a["store"], a["two"].outputs["base-policy"], runs[1] / "two-a") / "accrue_finetune.json"
         ).read_text()
     )
-    # the record names inputs by content id, never by the attempt's temporary paths
-    assert record["init"] == read_artifact(a["store"], a["one"].outputs["base-policy"])["content"]
-    assert "/" not in json.dumps(record["datasets"])
+    # the record names inputs by role (the step record maps them to ids), never by temporary paths
+    assert record["init"] == "input:init" and record["datasets"] == ["input:demos-1", "input:demos-2"]
     assert "root" not in record["training_set"]
+    # the cached training sets too: the same names and the same bytes in both stores
+    sets_a = list_refs(a["store"], finetune_base.TRAINING_SET_REFS + "/")
+    sets_b = list_refs(b["store"], finetune_base.TRAINING_SET_REFS + "/")
+    assert sets_a.keys() == sets_b.keys()
+    assert [_content(a["store"], sets_a[k]) for k in sets_a] == [_content(b["store"], sets_b[k]) for k in sets_a]
 
 
 def test_the_checkpoint_keeps_no_machine_path(runs):

@@ -19,7 +19,7 @@ from accrue.policy.training_set import TRAINING_REPO_ID, build_training_set
 FINETUNE_RECORD = "accrue_finetune.json"
 WORK_DIR = "_work"
 SUMMARY_FILE = "accrue_training_set.json"
-TRAINING_SET_FORMAT = 1  # bump when build_training_set or the frame table writes different bytes
+TRAINING_SET_FORMAT = 2  # bump when build_training_set or the frame table writes different bytes
 
 
 @dataclass(frozen=True)

@@ -115,4 +115,13 @@ def build_training_set(
             writer.save_episode()
             summary.total_frames += len(src.states[ep])
     writer.finalize()
+    _canonical_json(out_root / "meta" / "stats.json")
     return summary
+
+
+def _canonical_json(path: Path) -> None:
+    """lerobot writes stats.json keys in an order that varies between runs; sorted, the same set gives the same bytes."""
+    if path.is_file():
+        path.write_text(
+            json.dumps(json.loads(path.read_text(encoding="utf-8")), indent=4, sort_keys=True), encoding="utf-8"
+        )

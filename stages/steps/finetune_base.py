@@ -107,12 +107,10 @@ def run(ctx: StepContext) -> None:
             last[0] = step
             ctx.console.print(f"finetune-base: step {step}/{total}")
 
-    # the record names inputs by content id, not by this attempt's paths, so its bytes are the same on
-    # every machine (the paths are in the step record)
-    labels = (
-        ctx.input_manifest("init")["content"] if ctx.has_input("init") else str(init),
-        [ctx.input_manifest(role)["content"] for role in roles],
-    )
+    # the record names inputs by role, not by this attempt's paths: the step record maps roles to
+    # artifact ids, and the bytes stay the same on every machine (content ids would not: recorded demos
+    # differ between runs in the key order of lerobot's meta/stats.json alone)
+    labels = ("input:init" if ctx.has_input("init") else str(init), [f"input:{role}" for role in roles])
     os.environ.setdefault("OMP_NUM_THREADS", "1")  # DataLoader workers, for training sets with cameras
     finetune(init, datasets, out, settings, progress, StoreTrainingSets(ctx, roles), labels)
     write_json(out / "accrue_base.json", {"stage": c["stage"], "finetuned": True, "tasks": c["tasks"]})
