@@ -283,3 +283,15 @@ def test_actor_loss_without_alpha_has_no_entropy_term():
     q, a, ref = torch.tensor([1.0, 2.0]), torch.zeros(2, 1, 1), torch.ones(2, 1, 1)
     base = actor_loss_current(q, a, ref, 0.5)
     assert float(actor_loss_current(q, a, ref, 0.5, torch.tensor([3.0, 4.0]))) == float(base)
+
+
+def test_copy_learner_is_an_independent_copy():
+    """Survivors (no tests) continual.copy_learner 1-2: Isolated's per-task learner is a deep copy."""
+    from accrue.learner import copy_learner
+
+    learner = make_learner(config("isolated"), D, H, A)
+    kept = copy_learner(learner)
+    assert kept is not learner and same_weights(kept.actor, learner.actor)
+    with torch.no_grad():
+        next(learner.actor.parameters()).add_(1.0)
+    assert not same_weights(kept.actor, learner.actor)
