@@ -23,7 +23,8 @@ def report(
         Optional[Path],
         typer.Option(
             "--out",
-            help="Directory for the figures, recording and report.json (default: runs/<workflow-name>/report/).",
+            help="Directory for the figures, recording and report.json (default: runs/<workflow-name>/report/ for "
+            "the default store, <store>-report/<workflow-name>/ beside any other).",
             show_default=False,
         ),
     ] = None,
@@ -40,21 +41,23 @@ def report(
 ) -> None:
     """Metrics (FWT, NBT, AUC, ACC_final, F_final), per-task base vs after-RL success, plots and a .rrd.
     A workflow with a robot gets the paper's Fig. 4 and Table III instead."""
-    from stages.report.build import write_report
+    from stages.report.build import default_out_dir, write_report
     from stages.workflow import load_workflow
 
     wf = load_workflow(workflow)
+    st = open_store(store)
+    out = out if out is not None else default_out_dir(wf, st)
     if wf.robot is not None:
         from stages.report.hardware import write_hardware_report
 
         other = load_workflow(single_task) if single_task is not None else None
-        summary = write_hardware_report(open_store(store), wf, out, other)
+        summary = write_hardware_report(st, wf, out, other)
         if as_json:
             print_json(summary)
         else:
             _print_hardware(summary)
         return
-    summary = write_report(open_store(store), wf, out)
+    summary = write_report(st, wf, out)
     if as_json:
         print_json(summary)
         return

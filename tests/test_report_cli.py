@@ -133,10 +133,27 @@ def test_human_output_table_and_default_out_dir(tmp_path, store, monkeypatch):
     assert "all 3 stages" in out and "not committed" not in out
     gear = next(ln for ln in out.splitlines() if "nist/gear" in ln and "stage 3" in ln and "0.350" in ln)
     assert "0.950" in gear
-    written = Path("runs/rep/report")
+    written = tmp_path / "store-report" / "rep"  # beside the store it reports on (not the default ./.accrue)
     for name in ("curves.png", "success_matrix.png", "base_vs_rl.png", "report.rrd", "report.json"):
         assert (written / name).is_file(), name
         assert str(written / name) in out.replace("\n", "")
+    assert not Path("runs").exists()
+
+
+def test_two_stores_reports_do_not_overwrite_each_other(tmp_path, monkeypatch):
+    """Without --out the report is keyed by its store: runs/<workflow>/report for ./.accrue, beside any other."""
+    monkeypatch.chdir(tmp_path)
+    default, _ = Store.init(tmp_path / ".accrue")
+    other, _ = Store.init(tmp_path / "elsewhere" / "second")
+    commit_stage(default, 1)
+    for k in (1, 2, 3):
+        commit_stage(other, k)
+    workflow = write_workflow(tmp_path)
+    assert invoke(str(workflow), store=default)[0] == 0
+    assert invoke(str(workflow), store=other)[0] == 0
+    first = json.loads(Path("runs/rep/report/report.json").read_text())
+    second = json.loads((tmp_path / "elsewhere" / "second-report" / "rep" / "report.json").read_text())
+    assert (first["stages_reported"], first["complete"]) == (1, False) and second["complete"] is True
 
 
 # ----------------------------------------------------------------------------- partial runs

@@ -50,20 +50,20 @@ def robot_factory(robot_type: str, config: dict[str, Any], imports: tuple[str, .
 
     `imports` are modules to import first so that third-party robot types register themselves (lerobot
     finds plugins by distribution name only in its own scripts); accrue's simulated robot is built in."""
-    import importlib
+    from accrue.robot.robot_types import builtin_module, builtin_types, import_robot_module, missing_dependency
 
     for name in ("accrue.robot.sim_robot", *imports):
-        try:
-            importlib.import_module(name)
-        except ImportError as exc:
-            raise AccrueError(f"robot.imports: cannot import {name!r} ({exc})") from None
+        import_robot_module(name, "robot.imports")
     from lerobot.robots.config import RobotConfig
     from lerobot.robots.utils import make_robot_from_config
 
-    known = sorted(RobotConfig.get_known_choices())
-    if robot_type not in known:
+    if robot_type not in RobotConfig.get_known_choices() and builtin_module(robot_type):
+        # one of lerobot's own robots: its module registers it (and names the extra it lacks)
+        import_robot_module(builtin_module(robot_type), f"robot.type {robot_type}")
+    known = sorted(set(RobotConfig.get_known_choices()) | set(builtin_types()))
+    if robot_type not in RobotConfig.get_known_choices():
         raise AccrueError(
-            f"robot.type: unknown lerobot robot type {robot_type!r} (registered: {', '.join(known)}; "
+            f"robot.type: unknown lerobot robot type {robot_type!r} (known: {', '.join(known)}; "
             "a third-party robot's module goes in robot.imports)"
         )
     cls = RobotConfig.get_choice_class(robot_type)
@@ -74,7 +74,15 @@ def robot_factory(robot_type: str, config: dict[str, Any], imports: tuple[str, .
     except Exception as exc:  # noqa: BLE001 - draccus raises many types for a bad field
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise AccrueError(f"robot.config: not a valid {cls.__name__} ({first})") from None
-    return lambda: make_robot_from_config(robot_config)
+
+    def make():
+        try:
+            return make_robot_from_config(robot_config)
+        except ModuleNotFoundError as exc:  # the driver's SDK (lerobot imports it when the robot is built)
+            raise missing_dependency(exc, f"robot.type {robot_type}", cls.__module__.rsplit(".", 1)[0]) from None
+
+    make()  # a missing SDK or a bad field is a configuration error now, not a fault mid-session
+    return make
 
 
 class RobotBridge:
@@ -102,8 +110,8 @@ class RobotBridge:
             self._pool.shutdown(wait=False)  # the stuck call keeps its thread; later calls get a new one
             self._pool = None
             raise RobotFault("timeout", f"robot did not answer {what} within {timeout:g} s") from None
-        except RobotFault:
-            raise
+        except (RobotFault, AccrueError):
+            raise  # AccrueError: the robot's configuration (a missing SDK), not a fault of the arm
         except Exception as exc:  # noqa: BLE001 - any driver error ends the episode, with its text
             kind = (
                 "disconnected" if "connect" in type(exc).__name__.lower() or "connect" in str(exc).lower() else "error"

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from artifacts.store import Store
+from artifacts.store import DEFAULT_DIRNAME, Store
 from stages.report.data import load_run
 from stages.report.plots import plot_base_vs_rl, plot_curves, plot_matrix
 from stages.report.recording import write_recording
@@ -26,8 +26,12 @@ FILES = {
 }
 
 
-def default_out_dir(wf: Workflow) -> Path:
-    return Path("runs") / wf.name / "report"
+def default_out_dir(wf: Workflow, store: Store | None = None) -> Path:
+    """runs/<workflow>/report for the default store (./.accrue); `<store>-report/<workflow>` beside any
+    other, so the reports of two stores never overwrite each other."""
+    if store is None or store.root == (Path.cwd() / DEFAULT_DIRNAME).absolute():
+        return Path("runs") / wf.name / "report"
+    return store.root.parent / f"{store.root.name}-report" / wf.name
 
 
 def write_report(store: Store, wf: Workflow, out_dir: Path | None = None) -> dict:
@@ -35,7 +39,7 @@ def write_report(store: Store, wf: Workflow, out_dir: Path | None = None) -> dic
 
     run = load_run(store, wf)
     summary = summarize(run)
-    out = Path(out_dir) if out_dir is not None else default_out_dir(wf)
+    out = Path(out_dir) if out_dir is not None else default_out_dir(wf, store)
     out.mkdir(parents=True, exist_ok=True)
     base_vs_rl = plot_base_vs_rl(run, summary, out / FILES["base_vs_rl"])
     if base_vs_rl is None:  # a stale figure from an earlier report would contradict this one

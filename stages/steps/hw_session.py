@@ -73,7 +73,6 @@ def make_operator(settings: SessionSettings, bridge, console):
         s = settings.scripted
         return ScriptedOperator(
             oracle=lambda: bool(bridge.hook("episode_success")()),
-            reset_scene=lambda: bridge.hook("reset_scene") and bridge.hook("reset_scene")(),
             name=settings.operator_name or "scripted",
             delay_s=float(s.get("delay_s", 0.0)),
             mistakes=set(s.get("mistakes", ())),
@@ -347,6 +346,9 @@ def episode_loop(
             raise StageError(
                 f"aborted by the operator; {len(session.episodes)} episodes are sealed (resume with --continue)"
             )
+        reset_scene = bridge.hook("reset_scene")
+        if reset_scene is not None:  # a simulated robot: the scene is put back when any operator says reset
+            reset_scene()
         policy, version = policy_now()
         session.started(index)
         recorder = EpisodeRecorder(logs, control_hz=settings.control_hz, state_names=list(STATE_NAMES))
