@@ -295,3 +295,18 @@ def test_copy_learner_is_an_independent_copy():
     with torch.no_grad():
         next(learner.actor.parameters()).add_(1.0)
     assert not same_weights(kept.actor, learner.actor)
+
+
+# ------------------------------------------------------------------------------------ metrics
+def test_iqm_and_bootstrap_edge_cases_by_hand():
+    """Survivors metrics.iqm 4-17 and bootstrap_ci 10: the interquartile mean drops floor(n/4) values at
+    each end; one value is its own IQM; no values is one exact error."""
+    from accrue.metrics import bootstrap_ci, iqm
+
+    assert iqm([4, 0, 60, 2, 0, 3, 50, 1]) == pytest.approx(2.5)  # cut 2: mean of 1, 2, 3, 4 (cut 1 gives 10)
+    assert iqm([1.0, 2.0, 3.0, 10.0, 20.0]) == pytest.approx(5.0)  # cut 1: mean of 2, 3, 10
+    assert iqm([5.0]) == 5.0
+    with pytest.raises(AccrueError, match="^iqm: no values$"):
+        iqm([])
+    with pytest.raises(AccrueError, match="^bootstrap_ci: no values$"):
+        bootstrap_ci([])
