@@ -53,6 +53,14 @@ MUTATIONS = (
         "train_loop stops passing B^{<k} and the cached targets: ACCRUE trains as Sequential",
     ),
     Mutation(
+        "train-step-drops-teacher",
+        "stages/steps/train.py",
+        'teacher = load_teacher(ctx.input_path("teacher")) if ctx.has_input("teacher") else None',
+        "teacher = None",
+        ("tests/test_train_step_wiring.py",),
+        "the train step stops loading the cached Eq. 3 targets (ACCRUE cannot distil at stage 2)",
+    ),
+    Mutation(
         "distill-dropped",
         "accrue/learner/agent.py",
         "distill = self.rules.distill and prior is not None",
