@@ -166,7 +166,7 @@ def finetune(
     init: a checkpoint directory to continue from, or a from-scratch name ("embedded-mlp", "embedded-act", "act",
     "diffusion"). out_dir must not exist or be empty. The work files stay in out_dir/_work when training
     fails. training_sets: a cache of merged training sets; labels: (init, datasets) as the record names
-    them (default: their paths; the step passes content ids, so that the record is machine-independent).
+    them (default: their paths; the step passes its input roles, so that the record is machine-independent).
     """
     settings.check()
     out_dir = Path(out_dir)
