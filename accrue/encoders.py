@@ -11,6 +11,7 @@ Specs:  "none"                          -> (B, 0) features, for state-only runs
 
 from __future__ import annotations
 
+import functools
 import hashlib
 from dataclasses import dataclass
 from pathlib import Path
@@ -183,6 +184,25 @@ def parse_spec(spec: str) -> EncoderSpec | None:
         )
     name, size = ALIASES.get(model, (model, None))
     return EncoderSpec(name, Path(path).expanduser(), size)
+
+
+def encoder_identity(spec: str) -> str:
+    """What a step computing s = (E(I), q) keys on: the model, its input size and the weights file's digest
+    (a path names a file; a new file under the same path is a new encoder). "none" for none."""
+    parsed = parse_spec(spec)
+    if parsed is None:
+        return "none"
+    if not parsed.weights.is_file():
+        raise AccrueError(
+            f"encoder weights file {parsed.weights} does not exist (download it once, then pass its path)"
+        )
+    stat = parsed.weights.stat()
+    return f"{parsed.model_name}@{parsed.image_size or 'native'}-{_cached_digest(str(parsed.weights), stat.st_size, stat.st_mtime_ns)}"
+
+
+@functools.lru_cache(maxsize=16)
+def _cached_digest(path: str, size: int, mtime_ns: int) -> str:
+    return _file_digest(Path(path))  # size and mtime in the key: a rewritten file is hashed again
 
 
 def make_encoder(spec: str, cache_dir: Path | str | None = None, image_size: int | None = None):

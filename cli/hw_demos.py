@@ -32,6 +32,8 @@ def convert_demos_for_workflow(path: Path, kind: str, workflow: Path, task: str 
 
     Returns the converted dataset's meta (meta/accrue.json). Every refusal is one line (exit 2).
     """
+    import dataclasses
+
     from stages.errors import StageError
     from stages.workflow import load_workflow
 
@@ -40,12 +42,21 @@ def convert_demos_for_workflow(path: Path, kind: str, workflow: Path, task: str 
     wf = load_workflow(workflow)
     if wf.robot is None:
         raise StageError(f"--workflow {workflow}: has no robot section to check the dataset against")
+    from accrue.robot.bridge import robot_factory
     from accrue.robot.demo_convert import convert_robot_dataset, recorded_tasks
     from accrue.robot.demos import check_robot_dataset
     from accrue.robot.mapping import RobotMapping
     from accrue.sim.demos import get_task_spec
+    from stages.steps.hw_plan import robot_config
 
-    mapping = RobotMapping.from_dict(wf.robot.model_dump())
+    r = robot_config(wf)
+    # the keys the robot itself declares (building its driver object connects nothing): the dataset must hold
+    # them, so demos recorded on another robot are refused
+    robot = robot_factory(r["type"], dict(r["config"]), tuple(r["imports"]))()
+    mapping = RobotMapping.from_dict(r).bind(
+        robot.observation_features, robot.action_features, f"robot {wf.robot.type}"
+    )
+    mapping = dataclasses.replace(mapping, camera_keys=())  # demos are converted state-only
     check_robot_dataset(path, mapping, wf.robot.type)  # metadata first: a misfit is refused before lerobot loads
     task_id = _task_of(wf, recorded_tasks(path), task)
     return convert_robot_dataset(

@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
+from accrue.encoders import encoder_identity
 from accrue.policy.from_scratch import SCRATCH_NAMES
 from stages.errors import StageError
 from stages.runner import step_ref
@@ -150,10 +151,14 @@ def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
     distill_inputs = learner.get("distill_inputs", "stored")
     if distills and distill_inputs != "stored":  # π_base^k's chunks at the retained states are cached too
         teacher_config.update(distill_inputs=distill_inputs, task_ids=tasks, encoder=wf.encoder, horizon=wf.horizon)
+        if wf.encoder != "none":
+            teacher_config["encoder_id"] = encoder_identity(wf.encoder)
         teacher_inputs["base-policy"] = FromStep("finetune-base", "base-policy")
     add("cache-teacher", teacher_config, teacher_inputs)
 
     env = {"horizon": wf.horizon, "obs_mode": wf.obs_mode, "encoder": wf.encoder, "num_envs": b.num_envs}
+    if wf.encoder != "none":  # the frozen encoder's identity (weights digest), not just its path
+        env["encoder_id"] = encoder_identity(wf.encoder)
     if wf.task_features:  # in the cache key only when used, so workflows without it keep their keys
         env["task_features"] = wf.task_features
     if wf.history:  # likewise the opt-in learner inputs

@@ -88,13 +88,20 @@ class RobotSpec(_Strict):
     type: str  # a lerobot RobotConfig registry name, e.g. accrue_sim
     config: dict[str, Any] = {}  # that robot config's fields
     imports: list[str] = []  # modules registering a third-party robot type
-    state_keys: Optional[list[str]] = None  # observation key per accrue state column (default STATE_NAMES)
-    action_keys: Optional[list[str]] = None  # action key per delta axis (default dx dy dz droll dpitch dyaw)
-    action_limits: Optional[list[float]] = None  # robot units per unit of normalised action, per axis
+    # s = (E(I), q) and actions from the robot's own lerobot features (accrue.robot.mapping): by default q is
+    # every scalar observation it declares, I its cameras, a its action keys; these pick and order a subset
+    state_keys: Optional[list[str]] = None
+    camera_keys: Optional[list[str]] = None
+    action_keys: Optional[list[str]] = None
+    action_mode: Literal["delta", "joint"] = "delta"  # end-effector deltas, or absolute joint targets
+    action_limits: Optional[list[float]] = None  # delta: robot units per unit of normalised action, per key
+    action_bounds: Optional[list[list[float]]] = None  # joint: [lo, hi] per action key, robot units
     done_key: Optional[str] = None  # observation key > 0.5 when the robot ends an episode itself
     control_hz: Optional[float] = Field(None, gt=0)  # default: the task's
     episode_steps: Optional[int] = Field(None, gt=0)  # default: the task's max_steps
-    safety: dict[str, Any] = {}  # workspace_min_m/max_m [x,y,z], max_speed_m_s, max_force_n, max_torque_nm
+    # workspace_min_m/max_m [x,y,z], max_speed_m_s, max_force_n, max_torque_nm (where q shows pose and
+    # wrench); joint_bounds {key: [lo, hi]} and max_step {key: units per control step} on the commands sent
+    safety: dict[str, Any] = {}
     stop_window: int = Field(20, gt=0)  # the running-success window ...
     stop_successes: int = Field(19, gt=0)  # ... and the successes in it that end the stage (19/20)
     budget_s: float = Field(3600.0, gt=0)  # RL robot time per stage (s) when the stop rule is not reached

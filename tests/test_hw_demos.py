@@ -129,9 +129,12 @@ def test_recorded_demos_are_converted_stored_and_trained_on(datasets, tmp_path):
     table = pd.concat(pd.read_parquet(p) for p in sorted((demos / "data").rglob("*.parquet")))
     states, actions = np.stack(table["observation.state"]), np.stack(table["action"])
     from accrue.robot.mapping import RobotMapping
-    from accrue.sim import ACTION_NAMES
+    from accrue.robot.sim_robot import DONE_KEY
+    from accrue.sim import ACTION_NAMES, STATE_NAMES
 
-    mapping = RobotMapping(action_limits=tuple(LIMITS))
+    mapping = RobotMapping(action_limits=tuple(LIMITS), done_key=DONE_KEY).bind(
+        {n: float for n in STATE_NAMES}, {n: float for n in ACTION_NAMES}, "accrue_sim"
+    )
     for i in (0, 3, 5, 9):  # by hand: the mapping applied to what was recorded
         obs, act = sent[i]
         np.testing.assert_allclose(states[i], mapping.state({k: np.float32(v) for k, v in obs.items()}))

@@ -17,23 +17,54 @@ from accrue.sim import STATE_NAMES
 from accrue.sim.observation import IDX
 
 
-def test_mapping_reads_named_keys_and_scales_actions():
-    keys = [f"obs.{n}" for n in STATE_NAMES]
-    m = RobotMapping(
-        state_keys=tuple(keys),
-        action_keys=("x", "y", "z", "r", "p", "w"),
-        action_limits=(0.002, 0.002, 0.001, 0.05, 0.05, 0.05),
-        done_key="end",
+def test_mapping_takes_the_robots_declared_features():
+    """q = the scalar observations as declared (not the simulator's 29), I = its cameras, a = its action keys."""
+    so101 = {f"{j}.pos": float for j in ("shoulder_pan", "shoulder_lift", "elbow_flex", "wrist_flex", "wrist_roll")}
+    so101 |= {"gripper.pos": float, "wrist": (48, 64, 3), "front": (48, 64, 3)}
+    actions = {k: float for k in so101 if k.endswith(".pos")}
+    bounds = [(-100.0, 100.0)] * 5 + [(0.0, 100.0)]
+    m = RobotMapping(action_mode="joint", action_bounds=tuple(bounds)).bind(so101, actions, "robot so101")
+    assert m.state_keys == tuple(actions) and m.camera_keys == ("wrist", "front") and m.action_keys == tuple(actions)
+    obs = {k: float(i) for i, k in enumerate(actions)} | {"wrist": np.ones((48, 64, 3)), "front": np.zeros((48, 64, 3))}
+    assert m.state(obs).tolist() == [0, 1, 2, 3, 4, 5]
+    assert [f.shape for f in m.images(obs)] == [(48, 64, 3)] * 2 and m.images(obs)[0].dtype == np.uint8
+    # joint targets: a in [-1, 1] spread over [lo, hi]; the inverse takes recorded targets back
+    sent = m.action(np.array([1, -1, 0, 0.5, 2.0, 0]))
+    assert list(sent.values()) == pytest.approx([100, -100, 0, 50, 100, 50])
+    assert m.normalise(np.array([list(sent.values())])) == pytest.approx(np.array([[1, -1, 0, 0.5, 1, 0]]))
+    picked = RobotMapping(
+        state_keys=("gripper.pos",), camera_keys=("front",), action_mode="joint", action_bounds=tuple(bounds)
     )
-    obs = {k: float(i) for i, k in enumerate(keys)} | {"end": 1.0}
-    assert m.state(obs).tolist() == list(range(len(STATE_NAMES)))
-    assert m.done(obs)
+    assert picked.bind(so101, actions, "r").state(obs).tolist() == [5.0]
+    with pytest.raises(AccrueError, match="observation has no 'ee_x_cm'"):
+        RobotMapping(state_keys=("ee_x_cm",)).bind(so101, actions, "robot so101")
+    with pytest.raises(AccrueError, match="action_mode joint needs one \\[lo, hi\\] per action key"):
+        RobotMapping(action_mode="joint").bind(so101, actions, "robot so101")
+    with pytest.raises(AccrueError, match="learner acts in 6 dimensions; the robot declares 5"):
+        RobotMapping().bind(so101, dict(list(actions.items())[:5]), "robot so101")
+
+
+def test_mapping_scales_end_effector_deltas():
+    keys = ("x", "y", "z", "r", "p", "w")
+    m = RobotMapping(action_limits=(0.002, 0.002, 0.001, 0.05, 0.05, 0.05), done_key="end").bind(
+        {"a": float, "end": float}, {k: float for k in keys}, "r"
+    )
+    assert m.state_keys == ("a",) and m.done({"end": 1.0})  # the done flag is not part of q
     sent = m.action(np.array([1, -1, 0.5, 2.0, 0, 0]))  # clipped to [-1, 1], then scaled
     assert sent == pytest.approx({"x": 0.002, "y": -0.002, "z": 0.0005, "r": 0.05, "p": 0.0, "w": 0.0})
-    with pytest.raises(AccrueError, match="observation has no 'obs.ee_x_cm'"):
-        m.check_features({"ee_x_cm": float}, {}, "robot so101")
-    with pytest.raises(AccrueError, match="needs 29 keys"):
-        RobotMapping(state_keys=("a",))
+
+
+def test_action_envelope_clips_to_joint_bounds_and_rate_limits():
+    from accrue.robot.safety import ActionEnvelope
+
+    env = ActionEnvelope.from_dict({"joint_bounds": {"a": [-10, 10]}, "max_step": {"a": 2.0, "b": 0.5}})
+    sent, changed = env.limit({"a": 30.0, "b": 1.0, "c": 7.0}, {"a": 9.0, "b": 0.0})
+    assert sent == {"a": 10.0, "b": 0.5, "c": 7.0} and changed == ["a", "b"]
+    assert env.limit({"a": 1.0, "b": 0.2}, {"a": 0.0, "b": 0.0}) == ({"a": 1.0, "b": 0.2}, [])
+    with pytest.raises(AccrueError, match="'zz' is not one of the robot's action keys"):
+        ActionEnvelope.from_dict({"max_step": {"zz": 1.0}}).check_keys(("a", "b"))
+    with pytest.raises(AccrueError, match="needs hi > lo"):
+        ActionEnvelope.from_dict({"joint_bounds": {"a": [1, 0]}})
 
 
 def test_safety_envelope_names_the_limit():
@@ -53,6 +84,10 @@ def test_safety_envelope_names_the_limit():
     s[IDX["wrist_fz"]] = 4.0  # 40 N (the state holds N / 10)
     assert env.violation(s).startswith("wrist force: 40.0 N exceeds")
     assert SafetyEnvelope().violation(s) is None  # no sensor limits: nothing checked
+    joints = ("shoulder_pan.pos", "gripper.pos")
+    with pytest.raises(AccrueError, match="safety.workspace: the robot's state has no 'ee_x_cm'"):
+        env.check_names(joints)  # an arm reporting joints only cannot be held to a Cartesian box
+    SafetyEnvelope().check_names(joints)
 
 
 def test_rewards_follow_the_label_on_the_last_three_steps():
@@ -159,8 +194,8 @@ def test_bridge_faults_end_in_robot_faults_never_hangs(sim_factory):
 
     mapping = RobotMapping(done_key=DONE_KEY)
     settings = EpisodeSettings(horizon=4, max_steps=40, control_hz=20.0, clock=0)
-    identity = lambda s: s  # noqa: E731
-    zero_ref = lambda s: np.zeros((len(s), 4, 6), np.float32)  # noqa: E731
+    identity = lambda obs: obs["state"]  # noqa: E731
+    zero_ref = lambda obs: np.zeros((len(obs["state"]), 4, 6), np.float32)  # noqa: E731
     execute = lambda s, ref, fresh: ref  # noqa: E731
 
     # disconnect at step 6: the episode ends as a fault after 5 executed steps, then reconnects

@@ -1,10 +1,12 @@
 """Any lerobot 0.4.4 `Robot` behind deadlines: every call to the robot runs on a worker thread and is
 given up after its timeout, so a robot that stops answering ends the episode instead of hanging it.
 
-    bridge = RobotBridge(make_robot, mapping, Timeouts(connect_s=10, observation_s=1, action_s=1))
-    bridge.connect()                     # RobotFault on failure, with the reason
-    state, done = bridge.observe()       # (STATE_DIM,) float32 via the mapping; done = robot ended the episode
-    bridge.act(a)                        # a: (6,) normalised delta -> the robot's action dict
+    bridge = RobotBridge(make_robot, mapping, Timeouts(connect_s=10, observation_s=1, action_s=1), actions=env)
+    bridge.connect()                     # RobotFault on failure; the mapping is bound to the robot's features
+    state, done = bridge.observe()       # q (the robot's scalar readings) as float32; done = robot ended the episode
+    bridge.observation()                 # {"state": (1, D), "image": (1, h, w, 3) first camera, "images": [...]}
+    bridge.act(a)                        # a: (6,) normalised, in the robot's action space -> its action dict,
+                                         # through the action envelope (per-key bounds, rate limits)
     bridge.reconnect()                   # a fresh Robot from make_robot, connected; False when it cannot be
 
 A call that times out leaves its worker thread behind (a driver stuck in I/O cannot be interrupted from
@@ -22,6 +24,7 @@ import numpy as np
 
 from accrue.errors import AccrueError
 from accrue.robot.mapping import RobotMapping
+from accrue.robot.safety import ActionEnvelope, SafetyEnvelope
 
 
 class RobotFault(Exception):
@@ -92,9 +95,15 @@ class RobotBridge:
         mapping: RobotMapping,
         timeouts: Timeouts = Timeouts(),
         report: Callable[[str], None] = lambda line: None,
+        actions: ActionEnvelope = ActionEnvelope(),
+        safety: SafetyEnvelope = SafetyEnvelope(),
     ):
         self.make_robot, self.mapping, self.timeouts, self.report = make_robot, mapping, timeouts, report
+        self.actions, self.safety = actions, safety
         self.robot = None
+        self._last_obs: dict = {}
+        self._last_sent: dict[str, float] = {}
+        self.limited = 0  # commands the action envelope changed
         self._pool: cf.ThreadPoolExecutor | None = None
         self.last_latency_s = 0.0
 
@@ -128,11 +137,13 @@ class RobotBridge:
     def connect(self) -> None:
         if self.robot is None:
             self.robot = self._call("creation", self.make_robot, self.timeouts.connect_s)
-            self.mapping.check_features(
+            self.mapping = self.mapping.bind(
                 self.robot.observation_features,
                 self.robot.action_features,
                 f"robot {getattr(self.robot, 'name', type(self.robot).__name__)}",
             )
+            self.safety.check_names(self.mapping.state_keys)
+            self.actions.check_keys(self.mapping.action_keys)
         if not self.robot.is_connected:
             self._call("connect", self.robot.connect, self.timeouts.connect_s, calibrate=False)
 
@@ -172,14 +183,35 @@ class RobotBridge:
         if self.robot is None:
             raise RobotFault("disconnected", "robot is not connected")
         obs = self._call("get_observation", self.robot.get_observation, self.timeouts.observation_s)
+        self._last_obs = obs
         return self.mapping.state(obs), self.mapping.done(obs)
+
+    def observation(self) -> dict:
+        """The last observation as a batch of one: q, and the frames of its cameras (if any)."""
+        out = {"state": self.mapping.state(self._last_obs)[None]}
+        frames = self.frames()
+        if frames:
+            out["images"] = [f[None] for f in frames]
+            out["image"] = out["images"][0]
+        return out
+
+    def frames(self) -> list[np.ndarray]:
+        """The last observation's camera frames, (h, w, 3) uint8 each, in camera_keys order."""
+        return self.mapping.images(self._last_obs)
+
+    def new_episode(self) -> None:
+        """Rate limits start again from the robot's observed values (after a reset)."""
+        self._last_sent = {}
 
     def act(self, normalised: np.ndarray) -> bool:
         """Send one action; False when the robot reports it did not take it (a dropped command)."""
         if self.robot is None:
             raise RobotFault("disconnected", "robot is not connected")
-        action = self.mapping.action(normalised)
+        observed = {k: float(self._last_obs[k]) for k in self.mapping.action_keys if k in self._last_obs}
+        action, changed = self.actions.limit(self.mapping.action(normalised), {**observed, **self._last_sent})
+        self.limited += bool(changed)
         sent = self._call("send_action", self.robot.send_action, self.timeouts.action_s, action)
+        self._last_sent = dict(action)
         return not isinstance(sent, dict) or all(k in sent for k in action)
 
     def hook(self, name: str):

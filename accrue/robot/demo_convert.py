@@ -2,9 +2,9 @@
 
 lerobot-record stores what the robot reported (`observation.state` named by the robot's float observation
 keys) and what it was told (`action` named by its action keys). finetune-base trains on accrue's layout
-(accrue.sim.demos): the 29 STATE_NAMES columns and the normalised 6-D end-effector delta. The mapping that
-drives the robot live gives both directions: `state_keys` picks the state columns, and the inverse of its
-action map (robot value / per-axis limit, clipped to [-1, 1]) gives the normalised delta.
+(accrue.sim.demos): q (the robot's own state keys, or those `state_keys` picks) and the normalised action in
+the robot's action space. The mapping that drives the robot live gives both directions: the inverse of its
+action map (RobotMapping.normalise, clipped to [-1, 1]) gives the normalised action.
 
 Frames keep lerobot-record's order and fps: frame t is the observation before action t, as in accrue's demos.
 A teleoperated demonstration counts as a success, so each episode's last frame is done and successful and
@@ -17,6 +17,7 @@ from __future__ import annotations
 import os
 import shutil
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -40,7 +41,6 @@ from accrue.sim.demos import (
     demo_features,
     repo_id_for,
 )
-from accrue.sim.observation import STATE_NAMES
 
 SOURCE = "lerobot-record"
 
@@ -55,11 +55,12 @@ def mapped_states(observation: np.ndarray, names: list[str], mapping: RobotMappi
 def normalised_actions(action: np.ndarray, names: list[str], mapping: RobotMapping) -> tuple[np.ndarray, int]:
     """(T, len(names)) recorded actions -> ((T, 6) normalised deltas in [-1, 1], values that were clipped).
 
-    The inverse of RobotMapping.action: axis j is action_keys[j] divided by action_limits[j].
+    The inverse of RobotMapping.action: axis j is action_keys[j] in the mapping's action space (a delta over
+    its action_limit, or a joint target spread over its action_bounds).
     """
     _check_width(action, names, ACTION_KEY)
     columns = [names.index(k) for k in mapping.action_keys]
-    raw = np.asarray(action, dtype=np.float64)[:, columns] / np.asarray(mapping.action_limits, dtype=np.float64)
+    raw = mapping.normalise(np.asarray(action, dtype=np.float64)[:, columns])
     clipped = int(np.count_nonzero(np.abs(raw) > 1.0))
     raw[~np.isfinite(raw)] = np.nan  # an infinite command is a broken frame, not a full-scale one
     return np.clip(raw, -1.0, 1.0).astype(np.float32), clipped
@@ -116,6 +117,10 @@ def convert_robot_dataset(
     """
     src, out_dir = Path(src), Path(out_dir)
     check = check_robot_dataset(src, mapping, robot)
+    # the keys as lerobot-record wrote them stand for what the robot declares (cameras are not converted)
+    mapping = replace(mapping, camera_keys=()).bind(
+        {n: float for n in check["state_names"]}, {n: float for n in check["action_names"]}, f"{src}"
+    )
     fps, observation, action, episode_index = _read_recorded(src)
     states = mapped_states(observation, check["state_names"], mapping)
     actions, clipped = normalised_actions(action, check["action_names"], mapping)
@@ -144,7 +149,7 @@ def convert_robot_dataset(
             repo_id=repo_id_for(task_id),
             root=staging,
             fps=fps,
-            features=demo_features(list(STATE_NAMES)),
+            features=demo_features(list(mapping.state_keys)),
             use_videos=False,
         )
         try:
@@ -191,11 +196,13 @@ def convert_robot_dataset(
             "only_successful": True,
             "fps": fps,
             "clipped_action_values": clipped,
-            "state_names": list(STATE_NAMES),
+            "state_names": list(mapping.state_keys),
             "mapping": {
                 "state_keys": list(mapping.state_keys),
                 "action_keys": list(mapping.action_keys),
-                "action_limits": list(mapping.action_limits),
+                "action_mode": mapping.action_mode,
+                "action_limits": list(mapping.action_limits) if mapping.action_limits else None,
+                "action_bounds": [list(b) for b in mapping.action_bounds] if mapping.action_bounds else None,
             },
         }
         _write_json_atomic(staging / ACCRUE_META, meta)

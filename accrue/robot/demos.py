@@ -52,7 +52,7 @@ def check_robot_dataset(root: Path | str, mapping: RobotMapping, robot: str) -> 
         ("action", mapping.action_keys, "robot.action_keys"),
     ):
         names = recorded[key] = _names(features, key, root)
-        missing = [k for k in wanted if k not in names]
+        missing = [k for k in (wanted or ()) if k not in names]  # None: the robot's keys as recorded
         if missing:
             raise AccrueError(
                 f"{root}: recorded on robot {info.get('robot_type') or '?'} with {key} "

@@ -2,8 +2,10 @@
 
     out = run_episode(bridge, settings, reference, policy, features, recorder, metadata, operator)
 
-`reference(state (1, D)) -> (1, H, 6)` is π_base's chunk, `policy(s, ref, fresh) -> (1, H, 6)` what is
-executed (the reference itself for warmup and base-policy trials, the actor's refinement in training).
+`reference(obs) -> (1, H, 6)` is π_base's chunk and `features(obs) -> (1, F)` the learner's s = (E(I), q), both
+of the bridge's observation batch ({"state": q, "image": first camera, ...}, RobotBridge.observation), so
+E(I) is computed here on the actor host once per chunk start and stored with the transition;
+`policy(s, ref, fresh) -> (1, H, 6)` what is executed (the reference itself for warmup and base-policy trials, the actor's refinement in training).
 The episode ends when the robot says it is done (`mapping.done_key`), at the step limit, when the state
 leaves the safety envelope, when the operator ends it, or when the robot faults (disconnect, timeout):
 a faulted or unsafe episode is never a success. Rewards come later, from the operator's label
@@ -79,7 +81,7 @@ def run_episode(
     poll: Callable[[], str | None] = lambda: None,
 ) -> EpisodeOutcome:
     """Drive one episode; never raises for a robot fault (the outcome says so)."""
-    from accrue.sim.observation import decode_state
+    from accrue.sim.observation import STATE_NAMES, decode_state
 
     H = settings.horizon
     period = 0.0 if settings.clock <= 0 else 1.0 / (settings.control_hz * settings.clock)
@@ -89,10 +91,14 @@ def run_episode(
     started = time.monotonic()
     recorder.start(0, metadata)
     state = None
+    bridge.new_episode()
     try:
         state, done = bridge.observe()
+        names = bridge.mapping.state_keys
+        sim_state = tuple(names) == STATE_NAMES  # pose and wrench to log are readable by name
         while True:
-            s, ref = features(state[None]), reference(state[None])
+            obs = bridge.observation()
+            s, ref = features(obs), reference(obs)
             S.append(s[0])
             R.append(ref[0])
             if done:
@@ -109,19 +115,15 @@ def run_episode(
                 state, done = bridge.observe()
                 if bridge.last_latency_s > late_after:
                     faults.append(f"late observation at step {t}: {bridge.last_latency_s:.2f} s")
-                d = decode_state(state[None])
-                recorder.log_step(
-                    0,
-                    t,
-                    state,
-                    chunk[h],
-                    reference=ref[0] if h == 0 else None,
-                    ee_pose=d["pos"][0],
-                    wrench=np.concatenate([d["force"][0], d["torque"][0]]),
-                )
+                frames = bridge.frames()
+                extra = {"image": frames[0]} if frames else {}
+                if sim_state:
+                    d = decode_state(state[None])
+                    extra |= {"ee_pose": d["pos"][0], "wrench": np.concatenate([d["force"][0], d["torque"][0]])}
+                recorder.log_step(0, t, state, chunk[h], reference=ref[0] if h == 0 else None, **extra)
                 executed += 1
                 t += 1
-                why = settings.safety.violation(state)
+                why = settings.safety.violation(state, names)
                 if why:
                     end, reason = "safety", why
                     break
@@ -141,11 +143,10 @@ def run_episode(
     except RobotFault as exc:
         end, reason = "fault", f"{exc.kind}: {exc}"
         faults.append(reason)
-    if len(S) == len(A):  # ended inside a chunk (fault, safety): the last state closes the chunk
-        last = state if state is not None else np.zeros(S[0].shape if S else (0,), np.float32)
-        if len(A):
-            S.append(features(last[None])[0])
-            R.append(reference(last[None])[0])
+    if len(S) == len(A) and len(A):  # ended inside a chunk (fault, safety): the last observation closes it
+        last = bridge.observation()  # the last one that arrived (a fault leaves the one before it)
+        S.append(features(last)[0])
+        R.append(reference(last)[0])
     return EpisodeOutcome(
         s=np.asarray(S, dtype=np.float32),
         ref=np.asarray(R, dtype=np.float32).reshape(len(R), H, 6),

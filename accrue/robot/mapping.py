@@ -1,74 +1,145 @@
-"""How a robot's flat lerobot observation/action dicts map onto accrue's vectors.
+"""A robot's own lerobot features as accrue's vectors: q, its camera frames I, and its actions.
 
-accrue's learner and base policies see the STATE_DIM-vector of accrue.sim.STATE_NAMES and act with the
-6-D end-effector delta [dx, dy, dz, droll, dpitch, dyaw] normalised to [-1, 1]. A robot names its own
-keys: `state_keys[i]` is the observation key read into state column i, `action_keys[j]` the action key
-that receives axis j, scaled by `action_limits[j]` (robot units per unit of normalised action).
+lerobot robots declare `observation_features` ({key: float} for a motor or sensor reading, {key: (h, w, 3)}
+for a camera) and `action_features` ({key: float}). By default accrue takes them as declared:
+
+    q = the scalar observations, in declared order (minus `done_key`)      -> s = (E(I), q)
+    I = the camera frames, in declared order                                  (accrue.learner_inputs)
+    a = the action keys, in declared order, in the base policy's own space:
+        action_mode delta   a in [-1, 1] times `action_limits` (robot units per unit; end-effector deltas)
+        action_mode joint   a in [-1, 1] spread over `action_bounds` [lo, hi] (absolute joint targets)
+
+`state_keys`, `camera_keys`, `action_keys` pick and order a subset instead. `bind(features)` checks the
+choice against what the robot declares and returns the resolved mapping; nothing maps onto simulator
+quantities (the simulated robot `accrue_sim` declares its own 29 readings, accrue.sim.STATE_NAMES).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from accrue.errors import AccrueError
-from accrue.sim.observation import ACTION_DIM, ACTION_NAMES, STATE_DIM, STATE_NAMES
+from accrue.sim.observation import ACTION_DIM
+
+ACTION_MODES = ("delta", "joint")
+
+
+def is_camera(feature) -> bool:
+    """lerobot declares a camera as its frame shape (h, w, 3); a scalar reading as `float`."""
+    return isinstance(feature, (tuple, list)) and len(feature) == 3
 
 
 @dataclass(frozen=True)
 class RobotMapping:
-    state_keys: tuple[str, ...] = STATE_NAMES
-    action_keys: tuple[str, ...] = ACTION_NAMES
-    action_limits: tuple[float, ...] = (1.0,) * ACTION_DIM
+    state_keys: tuple[str, ...] | None = None  # None: every scalar observation the robot declares
+    camera_keys: tuple[str, ...] | None = None  # None: every camera it declares
+    action_keys: tuple[str, ...] | None = None  # None: its action features
+    action_mode: str = "delta"
+    action_limits: tuple[float, ...] | None = None  # delta: robot units per unit of a (default 1)
+    action_bounds: tuple[tuple[float, float], ...] | None = None  # joint: [lo, hi] per action key
     done_key: str | None = None  # optional observation key > 0.5 when the robot ends the episode itself
 
     def __post_init__(self):
-        if len(self.state_keys) != STATE_DIM:
-            raise AccrueError(
-                f"robot.state_keys: needs {STATE_DIM} keys, one per accrue state column "
-                f"({', '.join(STATE_NAMES[:3])}, ...) (got {len(self.state_keys)})"
-            )
-        if len(self.action_keys) != ACTION_DIM or len(self.action_limits) != ACTION_DIM:
-            raise AccrueError(
-                f"robot.action_keys and robot.action_limits: need {ACTION_DIM} entries each ({', '.join(ACTION_NAMES)})"
-            )
-        if any(not (x > 0) for x in self.action_limits):
+        if self.action_mode not in ACTION_MODES:
+            raise AccrueError(f"robot.action_mode must be one of {', '.join(ACTION_MODES)} (got {self.action_mode!r})")
+        if self.action_limits is not None and any(not (x > 0) for x in self.action_limits):
             raise AccrueError(f"robot.action_limits: must all be > 0 (got {list(self.action_limits)})")
+        if self.action_bounds is not None and any(not (hi > lo) for lo, hi in self.action_bounds):
+            raise AccrueError(f"robot.action_bounds: each [lo, hi] needs hi > lo (got {list(self.action_bounds)})")
 
     @classmethod
     def from_dict(cls, d: dict) -> "RobotMapping":
+        opt = lambda k: tuple(d[k]) if d.get(k) else None  # noqa: E731
+        bounds = d.get("action_bounds")
         return cls(
-            state_keys=tuple(d.get("state_keys") or STATE_NAMES),
-            action_keys=tuple(d.get("action_keys") or ACTION_NAMES),
-            action_limits=tuple(float(x) for x in (d.get("action_limits") or (1.0,) * ACTION_DIM)),
+            state_keys=opt("state_keys"),
+            camera_keys=tuple(d["camera_keys"]) if d.get("camera_keys") is not None else None,
+            action_keys=opt("action_keys"),
+            action_mode=d.get("action_mode") or "delta",
+            action_limits=tuple(float(x) for x in d["action_limits"]) if d.get("action_limits") else None,
+            action_bounds=tuple((float(lo), float(hi)) for lo, hi in bounds) if bounds else None,
             done_key=d.get("done_key"),
         )
 
-    def check_features(self, observation_features: dict, action_features: dict, who: str) -> None:
-        """One line naming the first key the robot (or dataset) lacks."""
-        missing = [k for k in self.state_keys if k not in observation_features]
-        if missing:
-            raise AccrueError(
-                f"{who}: observation has no {missing[0]!r} (robot.state_keys wants {len(missing)} "
-                f"key(s) it lacks; it has {', '.join(list(observation_features)[:6])}...)"
-            )
-        missing = [k for k in self.action_keys if k not in action_features]
+    # ------------------------------------------------------------------ against the robot's declaration
+    def bind(self, observation_features: dict, action_features: dict, who: str) -> "RobotMapping":
+        """This mapping resolved against what `who` declares; one line naming the first misfit."""
+        scalars = [k for k, v in observation_features.items() if not is_camera(v) and k != self.done_key]
+        cameras = [k for k, v in observation_features.items() if is_camera(v)]
+        state = self.state_keys if self.state_keys is not None else tuple(scalars)
+        cams = self.camera_keys if self.camera_keys is not None else tuple(cameras)
+        acts = self.action_keys if self.action_keys is not None else tuple(action_features)
+        for keys, have, what in ((state, scalars, "state_keys"), (cams, cameras, "camera_keys")):
+            missing = [k for k in keys if k not in have]
+            if missing:
+                raise AccrueError(
+                    f"{who}: observation has no {missing[0]!r} (robot.{what} wants {len(missing)} key(s) it "
+                    f"lacks; it has {', '.join(list(have)[:6]) or 'none'}{'...' if len(have) > 6 else ''})"
+                )
+        missing = [k for k in acts if k not in action_features]
         if missing:
             raise AccrueError(
                 f"{who}: action has no {missing[0]!r} (robot.action_keys; it has "
                 f"{', '.join(list(action_features)[:6]) or 'none'})"
             )
+        if not state:
+            raise AccrueError(f"{who}: declares no scalar observation to use as q (robot.state_keys)")
+        if len(acts) != ACTION_DIM:  # the learner's chunks are (H, 6)
+            raise AccrueError(
+                f"{who}: accrue's learner acts in {ACTION_DIM} dimensions; the robot declares {len(acts)} action "
+                f"keys ({', '.join(acts[:8])}): pick {ACTION_DIM} with robot.action_keys"
+            )
+        if self.action_mode == "joint" and (self.action_bounds is None or len(self.action_bounds) != len(acts)):
+            raise AccrueError(
+                f"robot.action_bounds: action_mode joint needs one [lo, hi] per action key ({', '.join(acts)}), "
+                "in the robot's units"
+            )
+        if self.action_limits is not None and len(self.action_limits) != len(acts):
+            raise AccrueError(f"robot.action_limits: needs {len(acts)} entries, one per action key ({', '.join(acts)})")
+        return replace(self, state_keys=tuple(state), camera_keys=tuple(cams), action_keys=tuple(acts))
 
+    def _bound(self) -> None:
+        if self.state_keys is None or self.action_keys is None or self.camera_keys is None:
+            raise AccrueError("robot mapping used before bind() resolved it against the robot's features")
+
+    # ------------------------------------------------------------------ per observation / action
     def state(self, observation: dict) -> np.ndarray:
+        self._bound()
         try:
             return np.array([float(observation[k]) for k in self.state_keys], dtype=np.float32)
         except KeyError as exc:
             raise AccrueError(f"robot observation lacks {exc.args[0]!r} (robot.state_keys)") from None
 
+    def images(self, observation: dict) -> list[np.ndarray]:
+        """The frames of camera_keys, (h, w, 3) uint8 each."""
+        self._bound()
+        try:
+            return [np.asarray(observation[k], dtype=np.uint8) for k in self.camera_keys]
+        except KeyError as exc:
+            raise AccrueError(f"robot observation lacks camera {exc.args[0]!r} (robot.camera_keys)") from None
+
     def done(self, observation: dict) -> bool:
         return self.done_key is not None and float(observation.get(self.done_key, 0.0)) > 0.5
 
+    def _span(self) -> tuple[np.ndarray, np.ndarray]:
+        """raw = centre + a * half, per action key."""
+        n = len(self.action_keys)
+        if self.action_mode == "joint":
+            b = np.asarray(self.action_bounds, dtype=np.float64)
+            return (b[:, 0] + b[:, 1]) / 2, (b[:, 1] - b[:, 0]) / 2
+        half = np.asarray(self.action_limits or (1.0,) * n, dtype=np.float64)
+        return np.zeros(n), half
+
     def action(self, normalised: np.ndarray) -> dict[str, float]:
-        a = np.clip(np.asarray(normalised, dtype=np.float64).reshape(ACTION_DIM), -1.0, 1.0)
-        return {k: float(v * lim) for k, v, lim in zip(self.action_keys, a, self.action_limits)}
+        self._bound()
+        a = np.clip(np.asarray(normalised, dtype=np.float64).reshape(len(self.action_keys)), -1.0, 1.0)
+        centre, half = self._span()
+        return {k: float(v) for k, v in zip(self.action_keys, centre + a * half)}
+
+    def normalise(self, raw: np.ndarray) -> np.ndarray:
+        """The inverse of action(), for recorded (T, A) robot actions (not clipped)."""
+        self._bound()
+        centre, half = self._span()
+        return (np.asarray(raw, dtype=np.float64) - centre) / half

@@ -20,8 +20,11 @@ KEYED = (
     "config",
     "imports",
     "state_keys",
+    "camera_keys",
     "action_keys",
+    "action_mode",
     "action_limits",
+    "action_bounds",
     "done_key",
     "control_hz",
     "episode_steps",
@@ -57,6 +60,11 @@ def hardware_steps(wf: Workflow, stage: int, steps: list[StepInvocation]) -> lis
     from stages.steps import hw_evaluate, hw_train, hw_warmup
 
     r = wf.robot
+    if r.action_mode == "joint" and parse_spec(wf.base_policy.init) is not None:
+        raise StageError(
+            f"workflow {wf.name}: base_policy.init {wf.base_policy.init} acts in end-effector deltas; "
+            "robot.action_mode joint needs a base policy of joint targets (fine-tuned on the robot's demos)"
+        )
     if r.type != "accrue_sim" and parse_spec(wf.base_policy.init) is None:
         missing = [t for t in wf.tasks[:stage] if t not in wf.base_policy.demos]
         if missing:

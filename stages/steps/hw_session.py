@@ -51,6 +51,7 @@ def make_bridge(c: dict, settings: SessionSettings, task: str, report):
     """The robot of the workflow behind deadlines; accrue_sim gets the task, seed and faults injected."""
     from accrue.robot.bridge import RobotBridge, Timeouts, robot_factory
     from accrue.robot.mapping import RobotMapping
+    from accrue.robot.safety import ActionEnvelope, SafetyEnvelope
 
     r = c["robot"]
     config = dict(r["config"])
@@ -62,6 +63,8 @@ def make_bridge(c: dict, settings: SessionSettings, task: str, report):
         RobotMapping.from_dict(r),
         Timeouts.from_dict(settings.timeouts),
         report=report,
+        actions=ActionEnvelope.from_dict(r.get("safety")),
+        safety=SafetyEnvelope.from_dict(r.get("safety")),
     )
 
 
@@ -313,7 +316,6 @@ def episode_loop(
     from accrue.robot.bridge import RobotFault
     from accrue.robot.episode import run_episode, transitions
     from accrue.robot.operator import Label, now_iso
-    from accrue.sim import STATE_NAMES
 
     def lost(why: str):
         session.close(f"robot lost: {why}")
@@ -327,8 +329,6 @@ def episode_loop(
     except RobotFault as exc:
         if not bridge.reconnect():
             lost(str(exc))
-    feat = lambda st: features({"state": st})  # noqa: E731
-    ref = lambda st: reference({"state": st})  # noqa: E731
     sealed = session.ordered()
     last = sealed[-1]["index"] if sealed else None
     logs = Path(tempfile.mkdtemp(dir=ctx.scratch_dir("mcap")))
@@ -351,9 +351,9 @@ def episode_loop(
             reset_scene()
         policy, version = policy_now()
         session.started(index)
-        recorder = EpisodeRecorder(logs, control_hz=settings.control_hz, state_names=list(STATE_NAMES))
+        recorder = EpisodeRecorder(logs, control_hz=settings.control_hz, state_names=list(bridge.mapping.state_keys))
         meta = {**metadata, "index": index, "weights_version": version, "session": session.session["id"]}
-        out = run_episode(bridge, settings, ref, policy, feat, recorder, meta, poll=operator.poll)
+        out = run_episode(bridge, settings, reference, policy, features, recorder, meta, poll=operator.poll)
         if out.end == "abort":
             recorder.abort(0)
             session.discard(index, "aborted by the operator")

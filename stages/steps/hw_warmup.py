@@ -56,12 +56,11 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
         bridge.disconnect()
         operator.close()
     eps = session.ordered()
-    dim = (
-        session.arrays(eps[0]["index"])["s"].shape[-1]
-        if eps
-        else features({"state": np.zeros((1, 29), np.float32)}).shape[1]
-    )
-    buffer = replay_from_episodes(ReplayBuffer(dim, horizon), [session.arrays(e["index"]) for e in eps], k - 1)
+    arrays = [session.arrays(e["index"]) for e in eps]
+    # s's width from an episode that executed a chunk (one a fault ended before its first has no s rows)
+    widths = [a["s"].shape[-1] for a in arrays if len(a["action"])]
+    dim = widths[0] if widths else features({"state": np.zeros((1, 29), np.float32)}).shape[1]
+    buffer = replay_from_episodes(ReplayBuffer(dim, horizon), arrays, k - 1)
     out = ctx.new_output("replay", "replay")
     buffer.save_new_shards(out)
     successes = sum(bool(e["label"]["success"]) for e in eps)

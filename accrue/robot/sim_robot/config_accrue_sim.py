@@ -14,6 +14,12 @@ class AccrueSimConfig(RobotConfig):
     task: str = "nist/rect_peg"  # an accrue.sim task id
     seed: int = 0
     estimate_noise: float = 1.0  # scale of the socket-estimate error (a better or worse camera)
+    # MuJoCo cameras rendered into each observation as (image_size, image_size, 3) uint8 (MUJOCO_GL=egl)
+    render_cameras: list[str] = field(default_factory=list)  # e.g. ["front"] (`cameras` is lerobot's own field)
+    image_size: int = 64
+    # delta: the 6-D normalised end-effector delta; joint: absolute targets of the gripper's six joints
+    # (x, y, z in m, roll, pitch, yaw in rad, socket frame), as an arm that takes joint targets
+    action_mode: str = "delta"
     # injectable faults, counted in control steps (send_action calls) of this config's arm (every
     # driver built from this config object shares one count, so a rebuilt driver does not fault again)
     disconnect_after_steps: int = 0  # the link drops at this step (0: never); connect() restores it
