@@ -167,7 +167,8 @@ def random_image_act(out, state_dim: int = 29, size: int = 32, chunk: int = 4):
     return out
 
 
-def test_an_image_policy_is_pi_base_on_the_robot(tmp_path, tiny_encoder):
+@pytest.mark.parametrize("mode", ["delta", "joint"])
+def test_an_image_policy_is_pi_base_on_the_robot(tmp_path, tiny_encoder, mode):
     """π_base = a lerobot ACT reading the robot's camera, loaded by accrue's own loader (BasePolicy.load via
     finetune-base), drives warmup on the simulated robot; E(I) through the frozen encoder goes with each row."""
     from hw_workflow import robot_events, run_stage, write_hw_workflow
@@ -175,12 +176,13 @@ def test_an_image_policy_is_pi_base_on_the_robot(tmp_path, tiny_encoder):
     from accrue.policy import BasePolicy
     from artifacts.store import Store
 
-    ckpt = random_image_act(tmp_path / "act")
+    ckpt = random_image_act(tmp_path / "act", state_dim=29 + (6 if mode == "joint" else 0))
     policy = BasePolicy.load(ckpt)
     assert policy.image_keys == ["observation.image"]
     frame = np.random.default_rng(0).integers(0, 256, (1, 32, 32, 3), dtype=np.uint8)
-    chunk = policy.reference_chunk({"state": np.zeros((1, 29), np.float32), "image": frame}, "insert", 4)
-    other = policy.reference_chunk({"state": np.zeros((1, 29), np.float32), "image": 255 - frame}, "insert", 4)
+    q = np.zeros((1, policy.state_dim), np.float32)
+    chunk = policy.reference_chunk({"state": q, "image": frame}, "insert", 4)
+    other = policy.reference_chunk({"state": q, "image": 255 - frame}, "insert", 4)
     assert chunk.shape == (1, 4, 6) and not np.allclose(chunk, other)  # the chunk depends on the image
 
     Store.init(tmp_path / "store")
@@ -192,7 +194,33 @@ def test_an_image_policy_is_pi_base_on_the_robot(tmp_path, tiny_encoder):
         'base_policy: {init: "scripted-reference:1.0"}', f"base_policy: {{init: {ckpt}, finetune: false}}"
     )
     text = text.replace("observation_s: 0.5", "observation_s: 10")  # a busy CI machine renders slowly
+    if mode == "joint":  # π_base's chunk is joint targets: the sim arm's six joints within these bounds
+        text = text.replace(
+            "  operator: scripted\n",
+            "  operator: scripted\n  action_mode: joint\n  action_bounds: [[-0.01, 0.01], [-0.01, 0.01], [-0.01, 0.03], "
+            "[-0.2, 0.2], [-0.2, 0.2], [-0.5, 0.5]]\n  safety: {max_step: {z.pos: 0.0005}}\n",
+        ).replace("config: {render_cameras", "config: {action_mode: joint, render_cameras")
     wf.write_text(text.replace("horizon: 4\n", f"horizon: 4\nencoder: {tiny_encoder}\n"))
-    run_stage(tmp_path / "store", wf, 1, step="warmup")
+    results = run_stage(tmp_path / "store", wf, 1, step="warmup")
     sealed = robot_events(tmp_path / "store", "robot-episode-sealed")
     assert len(sealed) == 3 and all(e["robot_time_s"] > 0 for e in sealed)
+    from accrue.learner import ReplayBuffer
+    from artifacts.manifests import materialize
+
+    replay = materialize(Store.open(tmp_path / "store"), results["warmup"].outputs["replay"], tmp_path / "replay")
+    q_dim = 29 + (6 if mode == "joint" else 0)  # the joint readings join q where the arm takes joint targets
+    assert ReplayBuffer.load(replay).state_dim == 192 + q_dim
+
+
+def test_joint_targets_refuse_an_end_effector_base_policy(tmp_path):
+    from hw_workflow import write_hw_workflow
+
+    from stages.errors import StageError
+    from stages.plan import plan_stage
+    from stages.workflow import load_workflow
+
+    wf = write_hw_workflow(tmp_path / "hw.yaml", tmp_path / "calib")
+    bounds = "[[-0.01, 0.01], [-0.01, 0.01], [-0.01, 0.03], [-0.2, 0.2], [-0.2, 0.2], [-0.5, 0.5]]"
+    wf.write_text(wf.read_text() + f"  action_mode: joint\n  action_bounds: {bounds}\n")
+    with pytest.raises(StageError, match="acts in end-effector deltas; robot.action_mode joint needs"):
+        plan_stage(load_workflow(wf), 1, None)
