@@ -224,3 +224,18 @@ def test_joint_targets_refuse_an_end_effector_base_policy(tmp_path):
     wf.write_text(wf.read_text() + f"  action_mode: joint\n  action_bounds: {bounds}\n")
     with pytest.raises(StageError, match="acts in end-effector deltas; robot.action_mode joint needs"):
         plan_stage(load_workflow(wf), 1, None)
+
+
+def test_the_camera_workflow_plans_an_image_policy_on_the_camera_robot():
+    """workflows/hardware-sim-camera.yaml: demos with the front camera, an image ACT from scratch, and the
+    robot's front camera in the hardware steps' keys."""
+    from pathlib import Path
+
+    from stages.plan import plan_stage
+    from stages.workflow import load_workflow
+
+    wf = load_workflow(Path(__file__).resolve().parents[1] / "workflows" / "hardware-sim-camera.yaml")
+    steps = {inv.step.name: inv for inv in plan_stage(wf, 1, None).steps}
+    assert steps["record-demos"].config["obs_mode"] == "state+image"
+    assert steps["warmup"].config["robot"]["config"]["render_cameras"] == ["front"]
+    assert wf.base_policy.init == "act"
