@@ -104,18 +104,39 @@ def status(workflow: WorkflowArg, store: StoreOpt = None, as_json: JsonOpt = Fal
             print_json(rows)
         return
     table = Table(title=f"workflow {wf.name} ({wf.method}, {wf.num_stages} stages)", title_justify="left")
-    for col in ("stage", "task", "step", "state", "record / detail"):
+    for col in ("stage", "task", "step", "state", "started", "took", "host", "record / detail"):
         table.add_column(col, overflow="fold")
     colours = {"committed": "green", "running": "cyan", "failed": "red", "abandoned": "yellow", "not run": "dim"}
     for r in rows:
         table.add_row(
-            str(r["stage"]), r["task"], r["step"], f"[{colours.get(r['state'], 'white')}]{r['state']}[/]", r["detail"]
+            str(r["stage"]),
+            r["task"],
+            r["step"],
+            f"[{colours.get(r['state'], 'white')}]{r['state']}[/]",
+            _when(r["started"]),
+            _took(r["duration_s"]),
+            r["host"] or "",
+            r["detail"],
         )
     console().print(table)
     if wf.robot is not None:  # a hardware workflow: sessions, running success, robot time, stop rule
         from cli.hw_status_view import print_hardware_status
 
         print_hardware_status(open_store(store), wf)
+
+
+def _when(stamp: str | None) -> str:
+    """2026-12-02T07:38:12.345+00:00 -> 2026-12-02 07:38:12 (the store writes UTC)."""
+    return stamp[:19].replace("T", " ") if stamp else ""
+
+
+def _took(seconds: float | None) -> str:
+    if seconds is None:
+        return ""
+    if seconds < 60:
+        return f"{seconds:.1f} s"
+    minutes, secs = divmod(round(seconds), 60)
+    return f"{minutes} min {secs:02d} s" if minutes < 60 else f"{minutes // 60} h {minutes % 60:02d} min"
 
 
 def register(app: typer.Typer) -> None:

@@ -262,7 +262,7 @@ def test_stage_status_shows_committed_and_interrupted_steps(store, tmp_path):
         runner.run_plan(StagePlan("wf", 2, (StepInvocation(StepDef("warmup", "1", crash), {}),)))
     rows = json.loads(accrue("stage", "status", str(workflow_file(tmp_path)), "--json", store=store).stdout)
     by = {(r["stage"], r["step"]): r for r in rows}
-    assert len(rows) == 12 and by[(1, "train")]["state"] == "committed"
+    assert len(rows) == 14 and by[(1, "train")]["state"] == "committed"  # 7 steps a stage, record-demos first
     assert by[(2, "warmup")]["state"] == "abandoned" and "env_steps=500" in by[(2, "warmup")]["detail"]
     assert by[(1, "handoff")]["state"] == "not run" and by[(2, "warmup")]["task"] == "a/y"
     table = accrue("stage", "status", str(workflow_file(tmp_path)), store=store).stdout
