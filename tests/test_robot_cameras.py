@@ -204,6 +204,8 @@ def test_an_image_policy_is_pi_base_on_the_robot(tmp_path, tiny_encoder, mode):
     results = run_stage(tmp_path / "store", wf, 1, step="warmup")
     sealed = robot_events(tmp_path / "store", "robot-episode-sealed")
     assert len(sealed) == 3 and all(e["robot_time_s"] > 0 for e in sealed)
+    limited = sum(e.get("limited_commands") or 0 for e in sealed)  # the envelope's clips are on record
+    assert (limited > 0) == (mode == "joint")
     from accrue.learner import ReplayBuffer
     from artifacts.manifests import materialize
 

@@ -48,6 +48,7 @@ class EpisodeOutcome:
     faults: list[str] = field(default_factory=list)
     wall_s: float = 0.0
     robot_time_s: float = 0.0  # control steps / control rate: the time the robot spent acting
+    limited: int = 0  # commands the action envelope clipped (joint bounds, rate limits)
 
     @property
     def can_succeed(self) -> bool:
@@ -92,6 +93,7 @@ def run_episode(
     recorder.start(0, metadata)
     state = None
     bridge.new_episode()
+    limited_before = bridge.limited
     try:
         state, done = bridge.observe()
         names = bridge.mapping.state_keys
@@ -158,6 +160,7 @@ def run_episode(
         faults=faults,
         wall_s=time.monotonic() - started,
         robot_time_s=t / settings.control_hz,
+        limited=bridge.limited - limited_before,
     )
 
 

@@ -179,6 +179,7 @@ class HardwareSession:
             end=record["end"],
             faults=record["faults"] or None,
             robot_time_s=round(record["robot_time_s"], 3),
+            limited_commands=record.get("limited_commands") or None,
             weights_version=record.get("weights_version"),
             checkpoint=cid,
         )
@@ -386,6 +387,7 @@ def episode_loop(
             "control_steps": out.control_steps,
             "chunks": int(len(out.action)),
             "robot_time_s": out.robot_time_s,
+            "limited_commands": out.limited,
             "wall_s": round(out.wall_s, 3),
             "weights_version": version,
             "ended_at": now_iso(),
