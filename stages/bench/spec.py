@@ -19,6 +19,9 @@ Spec fields (YAML):
     seeds        list of seeds
     resources    per cell: {num_cpus: 1, num_gpus: 0 (fractions allowed), custom: {name: amount}}
     retries      extra tries of a failed cell (default 1)
+    remote       optional: the store's remote (a name of `accrue remote list`) that cells on nodes without
+                 the store use: each node runs on its own store, pulls lazily and pushes its results
+                 (`accrue bench run --remote NAME` gives or overrides it)
     reference    optional method name the report compares the others against (default: accrue if present)
     claims       optional: the paper's claims about the reference, [{claim, metric, reference_is, than}]
     predictions  optional: what the spec predicts, declared (committed) before any of its cells ran:
@@ -58,6 +61,7 @@ SPEC_FIELDS = (
     "seeds",
     "resources",
     "retries",
+    "remote",
     "reference",
     "claims",
     "predictions",
@@ -115,6 +119,7 @@ class BenchSpec:
     claims: list[Claim] = field(default_factory=list)
     predictions: list[Claim] = field(default_factory=list)
     success_threshold: float = THRESHOLD
+    remote: str | None = None
 
     def cell(self, method: str, ordering: str, seed: int) -> Cell:
         for c in self.cells:
@@ -318,6 +323,9 @@ def load_spec(path: Path | str) -> BenchSpec:
     if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
         raise StageError(f"{src}: retries: must be a non-negative integer (got {retries!r})")
     resources = _resources(data.get("resources"), f"{src}: resources")
+    remote = data.get("remote")
+    if remote is not None and (not isinstance(remote, str) or not remote.strip()):
+        raise StageError(f"{src}: remote: expected the name of one of the store's remotes (got {remote!r})")
     _check_tasks(orderings, f"{src}: orderings")
 
     cells: list[Cell] = []
@@ -375,6 +383,7 @@ def load_spec(path: Path | str) -> BenchSpec:
         claims=claims,
         predictions=predictions,
         success_threshold=float(threshold),
+        remote=remote,
     )
 
 
