@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 from artifacts.errors import StoreError
+from artifacts.provenance import provenance, provenance_index
 from artifacts.store import Store
 
 
@@ -21,10 +22,12 @@ def seed_like(config: Any, prefix: str = "") -> dict[str, Any]:
     return out
 
 
-def lineage(store: Store, oid: str, _seen: set[str] | None = None) -> dict:
+def lineage(store: Store, oid: str, _seen: set[str] | None = None, _index: dict | None = None) -> dict:
     """Nested {id, type, kind, step, seeds, created, inputs: {role: node}}; a node met twice is
-    given once in full and then as {id, repeat: true}."""
+    given once in full and then as {id, repeat: true}. An artifact's created, host and source
+    come from its provenance (the audit log), not its manifest."""
     seen = _seen if _seen is not None else set()
+    index = _index if _index is not None else provenance_index(store)
     if oid in seen:
         return {"id": oid, "repeat": True}
     seen.add(oid)
@@ -34,16 +37,16 @@ def lineage(store: Store, oid: str, _seen: set[str] | None = None) -> dict:
         return {"id": oid, "error": str(exc)}
     node: dict[str, Any] = {"id": oid, "type": obj.get("type")}
     if obj.get("type") == "artifact":
-        producer = obj.get("producer", {})
+        made = provenance(obj, index, oid)
         node.update(
             kind=obj["kind"],
-            step=producer.get("step"),
+            step=(obj.get("producer") or {}).get("step"),
             size=obj.get("size"),
-            created=obj.get("created"),
+            created=made.get("created"),
             seeds=seed_like(obj.get("config", {})),
         )
-        if producer.get("source"):
-            node["source"] = producer["source"]
+        if made.get("source"):
+            node["source"] = made["source"]
     elif obj.get("type") == "step-record":
         node.update(
             step=obj["step"],
@@ -51,5 +54,5 @@ def lineage(store: Store, oid: str, _seen: set[str] | None = None) -> dict:
             created=obj.get("finished"),
             outputs=obj.get("outputs", {}),
         )
-    node["inputs"] = {role: lineage(store, i, seen) for role, i in sorted(obj.get("inputs", {}).items())}
+    node["inputs"] = {role: lineage(store, i, seen, index) for role, i in sorted(obj.get("inputs", {}).items())}
     return node

@@ -1,8 +1,16 @@
-"""Artifacts: a manifest object (kind, producer, inputs by role, config, code version, time, sizes)
+"""Artifacts: a manifest object (kind, producing step, inputs by role, config, code version, sizes)
 pointing at its content — one file object, or a tree object listing a directory's files.
 
-An artifact's id is the id of its manifest. Manifest kinds used by accrue: base-policy, replay,
-teacher-targets, checkpoint, eval, handoff, demos, episodes (any short lowercase name is accepted).
+An artifact's id is the id of its manifest, so the manifest holds only what the artifact is a
+function of: two machines that run the same step on the same inputs get the same id (as a git
+object's id is its content). When, where and by which attempt it was made is provenance, kept
+outside it: the attempt record and step record (time, host, attempt, cache key) and the audit
+log's artifact-written / checkpoint-saved events (time, host, an added file's source path) — see
+provenance(). Format 1 manifests (older stores) also held `created` and the producer's attempt,
+cache key or source; they are still read.
+
+Manifest kinds used by accrue: base-policy, replay, teacher-targets, checkpoint, eval, handoff,
+demos, episodes (any short lowercase name is accepted).
 """
 
 from __future__ import annotations
@@ -13,12 +21,16 @@ import stat
 from pathlib import Path
 from typing import Any, Callable, Literal
 
-from artifacts.clock import now_iso  # (also imported from here by older callers)
+from artifacts.clock import now_iso  # noqa: F401 - also imported from here by older callers
 from artifacts.errors import StoreError, os_error_text, path_text, quote
 from artifacts.hashing import copy_hashing, hash_file
 from artifacts.store import Store
 
-MANIFEST_FORMAT = 1
+MANIFEST_FORMAT = 1  # trees, step records and log segments (unchanged since format 1)
+ARTIFACT_FORMAT = 2  # artifact manifests: 2 = no time, attempt, cache key or source path inside
+# The producer fields an artifact's id depends on; the rest of what callers pass (attempt, cache
+# key, an added file's source path) is provenance that the attempt record and audit log hold.
+PRODUCER_IDENTITY = ("step",)
 KNOWN_KINDS = ("base-policy", "replay", "teacher-targets", "checkpoint", "eval", "handoff", "demos", "episodes")
 _KIND_RE = re.compile(r"^[a-z][a-z0-9-]{0,39}$")
 
@@ -117,16 +129,18 @@ def write_manifest(
     code_version: str = "",
     meta: dict[str, Any] | None = None,
 ) -> str:
-    """Write the manifest of already-stored content (see store_content); returns the artifact id."""
+    """Write the manifest of already-stored content (see store_content); returns the artifact id.
+
+    Only the producer's PRODUCER_IDENTITY fields enter the manifest: the caller records the rest
+    (attempt, cache key, source) with the attempt or in the audit log event it appends."""
     manifest: dict[str, Any] = {
         "type": "artifact",
-        "format": MANIFEST_FORMAT,
+        "format": ARTIFACT_FORMAT,
         "kind": check_kind(kind),
-        "producer": producer,
+        "producer": {k: producer[k] for k in PRODUCER_IDENTITY if k in producer},
         "inputs": dict(inputs or {}),
         "config": config or {},
         "code_version": code_version,
-        "created": now_iso(),
         "meta": meta or {},
         **content,
     }

@@ -11,8 +11,9 @@ with `accrue run WORKFLOW --continue`, and check again. A trial passes when
 
   * `verify --full` finds no problem, both right after the kill and after the resume;
   * no lock is held once the processes are gone (every locks/*.lock and the writer lock);
-  * every step of every stage ends committed with outputs whose content ids equal the reference's
-    (file by file, leaving out VOLATILE files that differ even between uninterrupted runs).
+  * every step of every stage ends committed with outputs whose artifact ids equal the reference's
+    (an artifact's id is a function of its kind, content, inputs, config and code version, so
+    this compares every output byte, in another store at another path).
 
 Prints one line per trial and a summary; --out writes them as JSON (with the command line).
 """
@@ -76,16 +77,9 @@ def accrue(store: Path, *args: str, timeout: float = 1800) -> subprocess.Complet
     )
 
 
-# Files whose bytes differ between two *uninterrupted* runs of the embedded-mlp workflow (measured:
-# LeRobot's meta/stats.json serialisation in recorded demos); they are left out of the comparison.
-# The fine-tune's record, log and train config used to be here too (temp paths, times); since the
-# fine-tune runs in-process with its inputs named by content id they are compared like every file.
-VOLATILE = {"meta/stats.json"}
-
-
 def outputs_by_step(store: Path) -> dict[str, dict]:
-    """'stage/step' -> {role: content id, or {path: id} of a directory minus VOLATILE files} of the
-    committed record each workflow ref names."""
+    """'stage/step' -> {role: {artifact: id, content: content id, or {path: id} of a directory}} of
+    the committed record each workflow ref names (the content shows which file differs)."""
     from artifacts.manifests import read_artifact, read_tree
     from artifacts.refs import list_refs
     from artifacts.store import Store
@@ -98,11 +92,12 @@ def outputs_by_step(store: Path) -> dict[str, dict]:
         roles = {}
         for role, oid in sorted(record["outputs"].items()):
             manifest = read_artifact(st, oid)
-            roles[role] = (
+            content = (
                 manifest["content"]
                 if manifest["layout"] == "file"
-                else {e["path"]: e["id"] for e in read_tree(st, manifest["content"]) if e["path"] not in VOLATILE}
+                else {e["path"]: e["id"] for e in read_tree(st, manifest["content"])}
             )
+            roles[role] = {"artifact": oid, "content": content}
         out[f"{stage}/{step}"] = roles
     return out
 

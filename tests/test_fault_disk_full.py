@@ -41,7 +41,8 @@ def _ingest(store, tmp):
 
 
 def _manifest(store, tmp):
-    return write_manifest(store, tmp["content"], "demos", producer={"step": "add", "source": "x"})
+    # another kind than the add's: the same kind and content would be the add's manifest, already stored
+    return write_manifest(store, tmp["content"], "episodes", producer={"step": "add", "source": "x"})
 
 
 def _record(store, tmp):

@@ -1,6 +1,6 @@
-"""finetune-base in-process: two fresh stores give byte-identical outputs (stage 1 from scratch and
-stage 2 from stage 1's checkpoint), the merged training set is a cached artifact, and the result
-stays a lerobot checkpoint that lerobot's own factory loads."""
+"""finetune-base in-process: two fresh stores give byte-identical outputs with the same artifact ids
+(stage 1 from scratch and stage 2 from stage 1's checkpoint), the merged training set is a cached
+artifact, and the result stays a lerobot checkpoint that lerobot's own factory loads."""
 
 from __future__ import annotations
 
@@ -101,6 +101,9 @@ def test_two_fresh_stores_produce_the_same_bytes_for_both_stages(runs):
         tree_b, files_b = _content(b["store"], b[stage].outputs["base-policy"])
         assert files_a == files_b, f"stage {stage}: files differ"
         assert tree_a == tree_b
+        # and the same artifact ids: the id is a function of kind, content, inputs, config and code
+        # version, never of the store's path, the attempt or the time (issue 23, item 3)
+        assert a[stage].outputs == b[stage].outputs, f"stage {stage}: artifact ids differ"
     record = json.loads(
         (
             materialize(a["store"], a["two"].outputs["base-policy"], runs[1] / "two-a") / "accrue_finetune.json"
@@ -114,6 +117,7 @@ def test_two_fresh_stores_produce_the_same_bytes_for_both_stages(runs):
     sets_b = list_refs(b["store"], finetune_base.TRAINING_SET_REFS + "/")
     assert sets_a.keys() == sets_b.keys()
     assert [_content(a["store"], sets_a[k]) for k in sets_a] == [_content(b["store"], sets_b[k]) for k in sets_a]
+    assert sets_a == sets_b  # the same artifact ids too
 
 
 def test_the_checkpoint_keeps_no_machine_path(runs):

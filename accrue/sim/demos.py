@@ -325,6 +325,7 @@ def write_demos(
                     break
         finally:
             ds.finalize()
+        _sort_stats_keys(staging / "meta" / "stats.json")
         if written == 0:
             raise AccrueError(
                 f"the {task_id} expert (quality {quality}) succeeded in none of {attempts} episodes; nothing written"
@@ -356,6 +357,15 @@ def write_demos(
         if hasattr(env, "close"):
             env.close()
     return summary
+
+
+def _sort_stats_keys(path: Path) -> None:
+    """lerobot writes stats.json's keys in an order that changes between processes; sorted, the same
+    demos give the same bytes (accrue/policy/training_set.py sorts its merged set's likewise)."""
+    if path.is_file():
+        path.write_text(
+            json.dumps(json.loads(path.read_text(encoding="utf-8")), indent=4, sort_keys=True), encoding="utf-8"
+        )
 
 
 def _remove_stale_staging(out_dir: Path) -> None:
