@@ -115,3 +115,21 @@ def test_format_1_manifests_are_still_read(tmp_path):
     assert node["created"] == "2026-01-02T03:04:05+00:00" and node["source"] == "/data/old-demos"
     set_ref(store, "demos/old", old)
     assert verify_store(store, full=True).ok
+
+
+def test_a_pulled_artifact_keeps_the_provenance_of_the_store_that_made_it(tmp_path):
+    from artifacts.remotes.config import add_remote
+    from artifacts.remotes.pull import pull
+    from artifacts.remotes.push import push
+
+    robot = Store.init(tmp_path / "robot")[0]
+    aid, _ = add_path(robot, tree(tmp_path / "recorded" / "demos", {"data.bin": b"123"}), "demos", ref="team/demos")
+    (tmp_path / "nas").mkdir()
+    add_remote(robot, "origin", str(tmp_path / "nas" / "remote"))
+    push(robot, "origin")
+    learner = Store.init(tmp_path / "learner")[0]
+    add_remote(learner, "origin", str(tmp_path / "nas" / "remote"))
+    pull(learner, "origin")
+    # the learner's own log never wrote it; the robot's log, pulled as segments, did
+    assert lineage(learner, aid)["source"] == str(tmp_path / "recorded" / "demos")
+    assert lineage(learner, aid)["created"] == lineage(robot, aid)["created"]
