@@ -6,7 +6,7 @@ function of: two machines that run the same step on the same inputs get the same
 object's id is its content). When, where and by which attempt it was made is provenance, kept
 outside it: the attempt record and step record (time, host, attempt, cache key) and the audit
 log's artifact-written / checkpoint-saved events (time, host, an added file's source path) — see
-provenance(). Format 1 manifests (older stores) also held `created` and the producer's attempt,
+artifacts/provenance.py. Format 1 manifests (older stores) also held `created` and the producer's attempt,
 cache key or source; they are still read.
 
 Manifest kinds used by accrue: base-policy, replay, teacher-targets, checkpoint, eval, handoff,
