@@ -62,8 +62,7 @@ def run(
         typer.Option(
             "--address",
             help="Join this Ray cluster (e.g. HEAD:6379) instead of starting a local one. Every node "
-            "must mount the store at the same path (a shared filesystem) and have accrue "
-            "installed.",
+            "needs accrue installed, and either the store mounted at the same path or --remote.",
             show_default=False,
         ),
     ] = None,
@@ -104,6 +103,25 @@ def run(
             show_default=False,
         ),
     ] = None,
+    remote: Annotated[
+        Optional[str],
+        typer.Option(
+            "--remote",
+            help="Nodes share only this remote of the store (default: the spec's `remote`): each runs its "
+            "cells on its own store (--node-store), fetching inputs as steps read them and pushing the "
+            "results, which are pulled back here.",
+            show_default=False,
+        ),
+    ] = None,
+    node_store: Annotated[
+        Optional[str],
+        typer.Option(
+            "--node-store",
+            help="With a remote: each node's store ({host} = its name, {node} = its Ray node id; "
+            "default ~/.cache/accrue/bench-node-{host}).",
+            show_default=False,
+        ),
+    ] = None,
     store: StoreOpt = None,
     as_json: JsonOpt = False,
 ) -> int:
@@ -127,6 +145,8 @@ def run(
         num_cpus=num_cpus,
         retries=retries,
         logs_dir=logs,
+        remote=remote,
+        node_store=node_store,
     )
     rows = summary_rows(results)
     failed = [r for r in rows if r["state"] == "failed"]

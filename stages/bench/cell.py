@@ -7,6 +7,10 @@ The runner waits (wait=True) when another cell holds a step's lock, so two cells
 fine-tune compute it once: the second finds the first's committed result when the lock frees. Steps
 run in `continue` mode: an attempt cut off by a killed bench resumes from its last checkpoint.
 The step output goes to the cell's log file, not to the bench's terminal.
+
+With a remote (`accrue bench run --remote NAME`) the cell runs on the node's own store instead
+(stages/bench/node_store.py): it pulls the remote's refs and step records first, fetches the data
+its steps read, and pushes its workflow's refs when done (after a failure too, what it committed).
 """
 
 from __future__ import annotations
@@ -24,12 +28,14 @@ ENV_PREFIXES = ("ACCRUE_", "HF_", "TRANSFORMERS_", "MUJOCO_", "RERUN", "OMP_", "
 
 @dataclass(frozen=True)
 class CellJob:
-    store: str  # absolute store path (a shared filesystem on a cluster)
+    store: str  # absolute store path (a shared filesystem on a cluster); unused with a remote
     workflow: dict  # the cell's validated workflow as JSON (stages.bench.spec.workflow_data)
     source: str  # where it came from, for error messages
     log: str  # the cell's log file (appended)
     cwd: str  # the bench's working directory (relative paths in workflows)
     env: dict = field(default_factory=dict)
+    remote: dict | None = None  # node_store.remote_target: the cell runs on the node's own store
+    node_store: str | None = None  # that store's path on the node ({host}, {node} filled in there)
 
 
 def job_env() -> dict:
@@ -83,12 +89,34 @@ def _run_stages(job: CellJob, log) -> tuple[int, int]:
     if Path(job.cwd).is_dir():  # on another node the bench's directory may not exist
         os.chdir(job.cwd)
     wf = parse_workflow(job.workflow, job.source)
-    store = Store.open(Path(job.store))
     console = Console(file=log, width=120, force_terminal=False, highlight=False)
     console.rule(f"cell {wf.name} ({wf.method}, seed {wf.seed}): {' → '.join(wf.tasks)}")
+    if job.remote is None:
+        store = Store.open(Path(job.store))
+    else:
+        from stages.bench.node_store import DEFAULT_NODE_STORE, open_node_store, sync_in
+
+        store = open_node_store(job.node_store or DEFAULT_NODE_STORE, job.remote)
+        sync_in(store, job.remote)
+        console.print(f"node store {store.root}: refs and step records pulled from remote {job.remote['name']}")
     runner = Runner(store, console=console, wait=True)
     run = cached = 0
-    for k in range(1, wf.num_stages + 1):
-        for r in runner.run_plan(plan_stage(wf, k, store), mode="continue"):
-            run, cached = run + (not r.cached), cached + r.cached
+    try:
+        for k in range(1, wf.num_stages + 1):
+            for r in runner.run_plan(plan_stage(wf, k, store), mode="continue"):
+                run, cached = run + (not r.cached), cached + r.cached
+    except BaseException:
+        if job.remote is not None:  # what it committed lets a retry on any node go on from there
+            with contextlib.suppress(Exception):
+                _push_results(store, job, wf.name, console)
+        raise
+    if job.remote is not None:
+        _push_results(store, job, wf.name, console)
     return run, cached
+
+
+def _push_results(store, job: CellJob, workflow: str, console) -> None:
+    from stages.bench.node_store import sync_out
+
+    sync_out(store, job.remote, workflow)
+    console.print(f"pushed workflow/{workflow} to remote {job.remote['name']}")

@@ -3,6 +3,11 @@ another in this process. Finished cells are skipped; a failed cell is tried agai
 `retries`, then recorded as failed while the others go on.
 
     results = run_bench(spec, store, executor="ray", address=None, console=console)
+    results = run_bench(spec, store, remote="team")   # nodes without the store: they share the remote
+
+With a remote (the argument, else the spec's `remote`) the bench store's refs go to the remote first,
+each cell runs on its node's own store (stages/bench/node_store.py), and a finished cell's refs are
+pulled back here before it counts as done, so `bench status` and `bench report` read this store.
 
 Order of submission: method by method, each over orderings and seeds. Cells of one method never
 share a fine-tune (they differ in ordering or seed), so the cells running at the same time rarely
@@ -44,7 +49,9 @@ def default_logs_dir(spec: BenchSpec) -> Path:
     return Path("runs") / "bench" / spec.name / "logs"
 
 
-def make_job(spec: BenchSpec, store: Store, cell: Cell, logs: Path) -> CellJob:
+def make_job(
+    spec: BenchSpec, store: Store, cell: Cell, logs: Path, remote: dict | None = None, node_store: str | None = None
+) -> CellJob:
     return CellJob(
         store=str(Path(store.root).resolve()),
         workflow=workflow_data(cell),
@@ -52,6 +59,8 @@ def make_job(spec: BenchSpec, store: Store, cell: Cell, logs: Path) -> CellJob:
         log=str((logs / f"{cell.name}.log").resolve()),
         cwd=os.getcwd(),
         env=job_env(),
+        remote=remote,
+        node_store=node_store,
     )
 
 
@@ -66,9 +75,12 @@ def run_bench(
     logs_dir: Path | None = None,
     console=None,
     cells: list[Cell] | None = None,
+    remote: str | None = None,
+    node_store: str | None = None,
 ) -> list[CellResult]:
     if executor not in EXECUTORS:
         raise StageError(f"--executor: must be one of {', '.join(EXECUTORS)} (got {executor!r})")
+    remote = remote or spec.remote
     tries_allowed = 1 + (spec.retries if retries is None else retries)
     logs = Path(logs_dir) if logs_dir is not None else default_logs_dir(spec)
     cells = list(spec.cells if cells is None else cells)  # the spec's order: method-major
@@ -79,10 +91,25 @@ def run_bench(
             results[c.name] = CellResult(c, "skipped")
         else:
             todo.append(c)
+    target = None
+    if remote is not None and todo:
+        from stages.bench.node_store import collect, remote_target, share
+
+        target = remote_target(store, remote)
+        share(store, remote)  # the nodes find this store's demos, policies and earlier cells there
+
+    def job(cell: Cell) -> CellJob:
+        return make_job(spec, store, cell, logs, target, node_store)
+
     progress = BenchProgress(spec, store, cells, console=console, skipped=len(cells) - len(todo))
 
     def finish(cell: Cell, tries: int, out: dict) -> bool:
         """Record a try's result; True when the cell is settled (done, or out of tries)."""
+        if out["ok"] and target is not None:
+            try:  # its results come back here before it counts as done
+                collect(store, remote, cell.name)
+            except Exception as exc:  # noqa: BLE001 - like any failed try: retried, then reported
+                out = {**out, "ok": False, "error": f"pulling its results: {one_line(exc)}"}
         if out["ok"]:
             record_outcome(store, spec, cell, "done", tries=tries, seconds=out["seconds"])
             results[cell.name] = CellResult(
@@ -106,20 +133,20 @@ def run_bench(
             _check_feasible(ray, todo)
         with progress.live():
             if use_ray:
-                _run_ray(ray, spec, store, todo, logs, finish, progress)
+                _run_ray(ray, todo, job, finish, progress)
             elif todo:
-                _run_serial(spec, store, todo, logs, finish, progress)
+                _run_serial(todo, job, finish, progress)
     return [results[c.name] for c in cells]
 
 
 # ------------------------------------------------------------------------- in this process
-def _run_serial(spec, store, todo, logs, finish, progress) -> None:
+def _run_serial(todo, job, finish, progress) -> None:
     for cell in todo:
         tries = 0
         while True:
             tries += 1
             progress.started(cell)
-            out = run_cell(make_job(spec, store, cell, logs))
+            out = run_cell(job(cell))
             if finish(cell, tries, out):
                 break
 
@@ -204,12 +231,12 @@ def _check_feasible(ray, todo: list[Cell]) -> None:
                 )
 
 
-def _run_ray(ray, spec, store, todo, logs, finish, progress) -> None:
+def _run_ray(ray, todo, job, finish, progress) -> None:
     remote = ray.remote(max_retries=0)(run_cell)
     flight: dict = {}
 
     def submit(cell: Cell, tries: int) -> None:
-        ref = remote.options(**cell.resources.ray_options()).remote(make_job(spec, store, cell, logs))
+        ref = remote.options(**cell.resources.ray_options()).remote(job(cell))
         flight[ref] = (cell, tries, time.monotonic())
         progress.submitted(cell)
 
