@@ -123,3 +123,17 @@ def test_an_unknown_remote_is_one_line_before_anything_starts(tmp_path):
     line = one_line_error(accrue("bench", "run", str(spec), "--remote", "team", "--store", str(store)))
     assert "no remote named 'team'" in line
     assert not (store / "refs" / "bench").exists()
+
+
+def test_a_node_that_cannot_write_the_bench_logs_directory_keeps_the_log_in_its_temp_dir(tmp_path, monkeypatch):
+    import tempfile
+
+    from stages.bench.cell import CellJob, run_cell
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))  # the node's temporary directory
+    blocked = tmp_path / "not-a-dir"
+    blocked.write_text("a file where the bench's logs directory would be")
+    job = CellJob(store=str(tmp_path / "none"), workflow={}, source="t", log=str(blocked / "c.log"), cwd=str(tmp_path))
+    out = run_cell(job)
+    assert not out["ok"]  # an empty workflow: the cell fails, and says why in its log
+    assert "Traceback" in (tmp_path / "tmp" / "accrue-bench-logs" / "c.log").read_text()

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import tempfile
 import time
 import traceback
 from dataclasses import dataclass, field
@@ -53,8 +54,11 @@ def one_line(exc: BaseException) -> str:
 
 def run_cell(job: CellJob) -> dict:
     started = time.monotonic()
-    Path(job.log).parent.mkdir(parents=True, exist_ok=True)
-    with open(job.log, "a", encoding="utf-8") as log, contextlib.redirect_stdout(log), contextlib.redirect_stderr(log):
+    with (
+        open(log_path(job), "a", encoding="utf-8") as log,
+        contextlib.redirect_stdout(log),
+        contextlib.redirect_stderr(log),
+    ):
         try:
             run, cached = _run_stages(job, log)
             return {
@@ -75,6 +79,21 @@ def run_cell(job: CellJob) -> dict:
                 "steps_run": 0,
                 "steps_cached": 0,
             }
+
+
+def log_path(job: CellJob) -> Path:
+    """The bench's log path, or, on a node that cannot write there (no shared filesystem), the same
+    name in the node's temporary directory."""
+    path = Path(job.log)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if os.access(path.parent, os.W_OK):
+            return path
+    except OSError:
+        pass
+    fallback = Path(tempfile.gettempdir()) / "accrue-bench-logs" / path.name
+    fallback.parent.mkdir(parents=True, exist_ok=True)
+    return fallback
 
 
 def _run_stages(job: CellJob, log) -> tuple[int, int]:
