@@ -1,13 +1,13 @@
 """Bench cells on nodes that share only a remote with the bench's store (issue 22): each node runs its
 cells on a store of its own, filled from the remote and emptied back into it.
 
+    share(store, "team")                                 # the bench's store, first: its refs on the remote
     target = remote_target(store, "team")               # {"name", "url", "settings"} for the cell's job
-    node = open_node_store("~/.cache/accrue/bench-node-{host}", target)   # made on first use
+    node = open_node_store("~/.cache/accrue/bench-node-{host}", target)   # on the node; made on first use
     sync_in(node, target)                                # refs, manifests, step records; no data
     ...run the cell...                                   # inputs' data fetched when a step reads them
     sync_out(node, target, cell_name)                    # push workflow/<cell>/... and what it reaches
-    share(store, "team")                                 # on the head, first: its refs on the remote
-    collect(store, "team", cell_name)                    # on the head: pull the cell's refs
+    collect(store, "team", cell_name)                    # the bench's store: pull the cell's refs
 
 The node's store pulls every ref's manifests and step records, not their data, so a step another
 cell committed anywhere is a cache hit here (the pulled step index) and only the data a step reads
