@@ -137,3 +137,24 @@ def test_a_node_that_cannot_write_the_bench_logs_directory_keeps_the_log_in_its_
     out = run_cell(job)
     assert not out["ok"]  # an empty workflow: the cell fails, and says why in its log
     assert "Traceback" in (tmp_path / "tmp" / "accrue-bench-logs" / "c.log").read_text()
+
+
+def test_a_store_that_ran_a_bench_verifies_pushes_and_pulls(tmp_path):
+    """A cell's outcome (ref bench/<spec>/<cell>) names a JSON record that is no artifact manifest:
+    verify, push and pull take it as a leaf instead of refusing the whole store."""
+    from test_cli_store import accrue
+
+    from stages.bench.state import outcome_ref, record_outcome
+
+    a, b = tmp_path / "a", tmp_path / "b"
+    store = Store.init(a)[0]
+    spec = load_spec(write_spec(tmp_path, "shared", [0]))
+    record_outcome(store, spec, spec.cells[0], "failed", tries=1, seconds=0.5, error="x")
+    assert accrue("verify", "--store", str(a)).returncode == 0
+    assert accrue("remote", "add", "nas", str(tmp_path / "nas"), "--store", str(a)).returncode == 0
+    assert accrue("push", "--store", str(a)).returncode == 0
+    assert accrue("clone", str(tmp_path / "nas"), str(b)).returncode == 0
+    assert read_ref(Store.open(b), outcome_ref(spec, spec.cells[0])) == read_ref(
+        store, outcome_ref(spec, spec.cells[0])
+    )
+    assert accrue("verify", "--remote", "nas", "--store", str(a)).returncode == 0

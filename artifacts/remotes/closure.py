@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from artifacts.errors import StoreError
+from artifacts.reachability import LEAF_RECORDS
 
 
 def children(oid: str, obj: dict) -> list[tuple[str, int | None]]:
@@ -18,6 +19,8 @@ def children(oid: str, obj: dict) -> list[tuple[str, int | None]]:
         return [(i, None) for i in obj.get("inputs", {}).values()] + [
             (i, None) for i in obj.get("outputs", {}).values()
         ]
+    if kind in LEAF_RECORDS:  # e.g. a bench cell's outcome: travels, names nothing
+        return []
     raise StoreError(f"object {oid[:12]} is not a manifest")
 
 
