@@ -75,6 +75,15 @@ def _init_source(wf: Workflow, store) -> str | None:
     return init
 
 
+def stage_records_demos(wf: Workflow, k: int) -> bool:
+    """Stage k records its task's demos when the workflow gives none for it and the base policy is
+    fine-tuned (the scripted stand-in reference never is): the one rule plan and status both read."""
+    from accrue.scripted_reference import parse_spec
+
+    bp = wf.base_policy
+    return wf.task(k) not in bp.demos and parse_spec(bp.init) is None
+
+
 def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
     from stages.steps import STEPS
 
@@ -107,7 +116,7 @@ def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
             demos[f"demos-{i}"] = FromStep("record-demos", "demos")
         else:
             demos[f"demos-{i}"] = output_ref(wf, i, "record-demos", "demos")
-    if task not in bp.demos and not scripted:
+    if stage_records_demos(wf, k):
         demo_config = {
             "task": task,
             "episodes": bp.demos_per_task,

@@ -52,12 +52,10 @@ def workflow_status(store: Store, wf: Workflow) -> list[dict]:
 
 
 def stage_step_names(wf: Workflow, stage: int) -> list[str]:
-    """The steps stage k runs, in run order (stages/plan.py): record-demos first, when the stage
-    records its task's demos (none given for it, and a base policy that is fine-tuned)."""
-    from accrue.scripted_reference import parse_spec
+    """The steps stage k runs, in run order (stages/plan.py): record-demos first when it records demos."""
+    from stages.plan import stage_records_demos
 
-    bp = wf.base_policy
-    records = wf.task(stage) not in bp.demos and parse_spec(bp.init) is None
+    records = stage_records_demos(wf, stage)
     return (["record-demos"] if records else []) + list(STEP_NAMES)
 
 
