@@ -157,34 +157,18 @@ def _contact_randomisation(**kw) -> Randomisation:
 
 
 def _builtin_specs() -> list[TaskSpec]:
-    def spec(name, instruction, symmetry, bias, **kw):
-        family, _shape, clearance, depth, chamfer, _length = PART_TABLE[name]
-        b = (bias[0] * MM, bias[1] * MM, bias[2] * DEG)
+    def from_table(table, name, instruction, symmetry, **kw):
+        family, _shape, clearance, depth, chamfer, _length = table[name]
         return _builtin(
-            name,
-            family,
-            instruction,
-            depth=depth,
-            clearance=clearance,
-            yaw_symmetry=symmetry,
-            estimate_bias=b,
-            chamfer=chamfer,
-            **kw,
+            name, family, instruction, depth=depth, clearance=clearance, yaw_symmetry=symmetry, chamfer=chamfer, **kw
         )
 
+    def spec(name, instruction, symmetry, bias, **kw):
+        b = (bias[0] * MM, bias[1] * MM, bias[2] * DEG)
+        return from_table(PART_TABLE, name, instruction, symmetry, estimate_bias=b, **kw)
+
     def contact(name, instruction, symmetry, frac, **kw):
-        family, _shape, clearance, depth, chamfer, _length = CONTACT_PART_TABLE[name]
-        return _builtin(
-            name,
-            family,
-            instruction,
-            depth=depth,
-            clearance=clearance,
-            yaw_symmetry=symmetry,
-            chamfer=chamfer,
-            success_depth_frac=frac,
-            **kw,
-        )
+        return from_table(CONTACT_PART_TABLE, name, instruction, symmetry, success_depth_frac=frac, **kw)
 
     return [
         spec("rect_peg", "insert the rectangular peg into its hole", 2, (1.2, -0.6, 2.0)),
