@@ -23,3 +23,15 @@ def one_torch_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(before)
+
+
+@pytest.fixture(autouse=True)
+def cwd_is_left_as_found():
+    """A test that changes directory without monkeypatch breaks every later test that uses a
+    relative path (CI failed this way once); this puts it back and names the test that did it."""
+    before = os.getcwd()
+    yield
+    after = os.getcwd()
+    if after != before:
+        os.chdir(before)
+        pytest.fail(f"the test left the working directory at {after}", pytrace=False)

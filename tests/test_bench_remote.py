@@ -131,6 +131,7 @@ def test_a_node_that_cannot_write_the_bench_logs_directory_keeps_the_log_in_its_
     from stages.bench.cell import CellJob, run_cell
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))  # the node's temporary directory
+    monkeypatch.chdir(tmp_path)  # run_cell changes directory to job.cwd; monkeypatch restores it
     blocked = tmp_path / "not-a-dir"
     blocked.write_text("a file where the bench's logs directory would be")
     job = CellJob(store=str(tmp_path / "none"), workflow={}, source="t", log=str(blocked / "c.log"), cwd=str(tmp_path))

@@ -1,5 +1,7 @@
 """USD parts: committed assets match the generator, user parts round-trip into runnable tasks, bad files fail cleanly."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -24,7 +26,7 @@ def test_task_catalogue():
 def test_committed_assets_match_the_generator(tmp_path):
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location("make_parts", "scripts/make_parts.py")
+    spec = importlib.util.spec_from_file_location("make_parts", Path(__file__).parents[1] / "scripts" / "make_parts.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     for path in mod.build_all(tmp_path):
