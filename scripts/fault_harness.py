@@ -15,7 +15,12 @@ with `accrue run WORKFLOW --continue`, and check again. A trial passes when
     (an artifact's id is a function of its kind, content, inputs, config and code version, so
     this compares every output byte, in another store at another path).
 
-Prints one line per trial and a summary; --out writes them as JSON (with the command line).
+Prints one line per trial and a summary; --out writes them as JSON (with the command line, the code
+version and the machine's load). --runs-file adds the run to a file of several runs (chunks with other
+seeds, so a long measurement survives an interruption) and keeps its top-level summary over all of them:
+
+    .venv/bin/python scripts/fault_harness.py --base embedded-mlp --trials 20 --seed 2 \
+        --runs-file benchmarks/results/fault_harness_embedded_mlp.json --machine "shared 2-core machine"
 """
 
 from __future__ import annotations
@@ -31,6 +36,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from datetime import datetime, timezone
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -133,8 +139,6 @@ def verify_problems(store: Path) -> list[str]:
 
 def step_windows(store: Path) -> list[tuple[str, float]]:
     """(stage/step, seconds until the next step started) for every step-started event of a run."""
-    from datetime import datetime
-
     events = [json.loads(line) for line in (store / "log" / "events.jsonl").read_bytes().splitlines()]
     starts = [
         (f"{e.get('stage')}/{e['step']}", datetime.fromisoformat(e["ts"]).timestamp())
@@ -254,7 +258,29 @@ def main() -> int:
     )
     parser.add_argument("--out", type=Path, help="write the results as JSON here")
     parser.add_argument("--workdir", type=Path, help="keep the stores here (default: a temp dir, removed)")
+    parser.add_argument(
+        "--runs-file", type=Path, help="add this run to a JSON file of runs whose top-level summary covers them all"
+    )
+    parser.add_argument(
+        "--add-run",
+        type=Path,
+        metavar="OUT_JSON",
+        help="with --runs-file: add a run an earlier --out wrote, run no trials",
+    )
+    parser.add_argument("--machine", default="", help="the machine's state, recorded with the run (e.g. other jobs)")
     args = parser.parse_args()
+    if args.add_run:
+        if not args.runs_file:
+            parser.error("--add-run needs --runs-file")
+        add_run(args.runs_file, json.loads(args.add_run.read_text()))
+        print(f"{args.add_run} added to {args.runs_file}: {json.dumps(read_runs(args.runs_file)['summary'])}")
+        return 0
+    run_info = {
+        "run_id": datetime.now(timezone.utc).strftime("%Y%m%dT%H%M%SZ") + f"-seed{args.seed}",
+        "compares": COMPARES,
+        "code": {"head_at_start": git_head(), "modified_at_start": git_modified()},
+        "machine": {"cpus": os.cpu_count(), "loadavg_at_start": rounded_load(), "note": args.machine},
+    }
     rng = random.Random(args.seed)
     with tempfile.TemporaryDirectory(prefix="accrue-faults-") as tmp:
         workdir = args.workdir or Path(tmp)
@@ -269,8 +295,8 @@ def main() -> int:
         for n in range(args.trials):
             r = trial(n, workdir, wf, reference, windows, rng)
             results.append(r)
-            if args.out:  # after every trial: an interrupted harness still reports what it saw
-                write_results(args, workflow, results, span, t0)
+            if args.out or args.runs_file:  # after every trial: an interrupted harness still reports what it saw
+                write_results(args, run_info, workflow, results, span, t0)
             print(
                 f"trial {n:3d}: {'ok  ' if r['ok'] else 'FAIL'} killed after {r['killed_after_s']:6.1f} s in "
                 f"{r['killed_in']}" + ("" if r["ok"] else f" — {json.dumps(r)}"),
@@ -280,17 +306,15 @@ def main() -> int:
                 import shutil
 
                 shutil.rmtree(workdir / f"trial-{n:03d}", ignore_errors=True)
-    summary = write_results(args, workflow, results, span, t0)
+    summary = write_results(args, run_info, workflow, results, span, t0)
     print(f"fault harness: {summary['passed']}/{len(results)} trials passed; kills landed in {summary['killed_in']}")
     return 0 if summary["passed"] == len(results) else 1
 
 
-def write_results(args: argparse.Namespace, workflow: str, results: list[dict], span: float, t0: float) -> dict:
+def write_results(
+    args: argparse.Namespace, run_info: dict, workflow: str, results: list[dict], span: float, t0: float
+) -> dict:
     passed = sum(r["ok"] for r in results)
-    steps_hit: dict[str, int] = {}
-    for r in results:
-        for step in r["killed_in"].split(", "):
-            steps_hit[step] = steps_hit.get(step, 0) + 1
     summary = {
         "trials": len(results),
         "requested": args.trials,
@@ -298,18 +322,101 @@ def write_results(args: argparse.Namespace, workflow: str, results: list[dict], 
         "failed": len(results) - passed,
         "reference_run_s": round(span, 1),
         "wall_s": round(time.monotonic() - t0, 1),
-        "killed_in": dict(sorted(steps_hit.items())),
+        "killed_in": kill_points(results),
     }
-    if args.out:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
+    if args.out or args.runs_file:
         command = "python scripts/fault_harness.py " + " ".join(shlex.quote(a) for a in sys.argv[1:])
-        args.out.write_text(
-            json.dumps(
-                {"command": command, "workflow": workflow.strip(), "summary": summary, "results": results}, indent=1
-            )
-            + "\n"
-        )
+        run = {
+            "command": command,
+            **run_info,
+            "code": {**run_info["code"], "head_at_end": git_head()},
+            "machine": {**run_info["machine"], "loadavg_at_end": rounded_load()},
+            "workflow": workflow.strip(),
+            "summary": summary,
+            "results": results,
+        }
+        if args.out:
+            args.out.parent.mkdir(parents=True, exist_ok=True)
+            args.out.write_text(json.dumps(run, indent=1) + "\n")
+        if args.runs_file:
+            add_run(args.runs_file, run)
     return summary
+
+
+# What a trial's "same outputs" means; runs measured with another comparison are summed apart.
+COMPARES = "artifact ids of every output, every file (manifest format 2)"
+
+
+def kill_points(results: list[dict]) -> dict[str, int]:
+    """How many trials' kills landed in each step ('between steps', 'after it finished')."""
+    hit: dict[str, int] = {}
+    for r in results:
+        for step in r["killed_in"].split(", "):
+            hit[step] = hit.get(step, 0) + 1
+    return dict(sorted(hit.items()))
+
+
+def read_runs(path: Path) -> dict:
+    return json.loads(path.read_text()) if path.exists() else {"runs": []}
+
+
+def add_run(path: Path, run: dict) -> None:
+    """Put RUN into PATH's runs (replacing the one with its run_id: a run rewrites itself after every
+    trial) and recompute the top-level summaries; written whole to a temp file, then renamed."""
+    doc = read_runs(path)
+    runs = [r for r in doc["runs"] if not run.get("run_id") or r.get("run_id") != run["run_id"]]
+    runs.append(run)
+    groups: dict[str, list[dict]] = {}
+    for r in runs:
+        groups.setdefault(r.get("compares", "not recorded"), []).append(r)
+    doc = {
+        **{k: v for k, v in doc.items() if k not in ("summary", "other_comparisons", "runs")},
+        "summary": aggregate(groups.pop(COMPARES, [])),
+        "other_comparisons": {c: aggregate(rs) for c, rs in groups.items()},
+        "runs": runs,
+    }
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(doc, indent=1) + "\n")
+    os.replace(tmp, path)
+
+
+def aggregate(runs: list[dict]) -> dict:
+    results = [t for r in runs for t in r["results"]]
+    passed = sum(t["ok"] for t in results)
+    return {
+        "compares": COMPARES if not runs else runs[0].get("compares", "not recorded"),
+        "runs": len(runs),
+        "trials": len(results),
+        "passed": passed,
+        "failed": len(results) - passed,
+        "killed_in": kill_points(results),
+        "failed_trials": [
+            {"command": r["command"], "trial": t["trial"]} for r in runs for t in r["results"] if not t["ok"]
+        ],
+        "commands": [r["command"] for r in runs],
+        "code": sorted(
+            {h for r in runs for h in (r.get("code", {}).get(k) for k in ("head_at_start", "head_at_end")) if h}
+        ),
+        "machine": sorted({r["machine"]["note"] for r in runs if r.get("machine", {}).get("note")}),
+    }
+
+
+def git_head() -> str | None:
+    proc = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True)
+    return proc.stdout.strip() if proc.returncode == 0 else None
+
+
+def git_modified() -> list[str]:
+    """Tracked files that differ from HEAD (the trials ran this working tree, not only HEAD)."""
+    proc = subprocess.run(
+        ["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT, capture_output=True, text=True
+    )
+    return [line[3:] for line in proc.stdout.splitlines()] if proc.returncode == 0 else []
+
+
+def rounded_load() -> list[float]:
+    return [round(x, 2) for x in os.getloadavg()]
 
 
 if __name__ == "__main__":
