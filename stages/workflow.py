@@ -81,6 +81,15 @@ class Budgets(_Strict):
         return self
 
 
+class HoldSpec(_Strict):
+    """When the actor stops acting for want of a learner (stages.steps.hw_session.LearnerHold)."""
+
+    # robot time (s) the actor may act while the learner does not answer; past it the episode in progress
+    # is discarded and the robot held (no commands)
+    staleness_s: float = Field(30.0, gt=0)
+    wait_s: float = Field(300.0, ge=0)  # wall time (s) held for the learner to come back before the step ends
+
+
 class RobotSpec(_Strict):
     """A lerobot robot runs warmup, train and evaluate-all (paper Sec. V-C; accrue/robot, stages/steps/hw_*).
     The fields from `operator` down are session settings: they do not enter any cache key."""
@@ -109,10 +118,14 @@ class RobotSpec(_Strict):
     retention_trials: int = Field(20, ge=0)  # evaluate-all: operator-labelled trials per earlier task
     checkpoint_every: int = Field(200, gt=0)  # learner updates between sealed learner checkpoints
     publish_every: int = Field(20, gt=0)  # learner updates between weight snapshots for the actor
-    operator: Literal["terminal", "scripted"] = "terminal"
+    operator: Literal["terminal", "scripted", "page"] = "terminal"
     operator_name: str = ""
     scripted: dict[str, Any] = {}  # scripted operator: delay_s, mistakes [episode], corrects, abort_before
+    operator_page: dict[str, Any] = {}  # page operator: listen HOST:PORT (default 127.0.0.1:0, loopback)
     learner_address: Optional[str] = None  # host:port of `accrue robot learner` (two hosts); none: local process
+    link: Optional[dict[str, Any]] = None  # token_file, tls {cert, key, ca} (accrue.robot.link_auth)
+    hold: HoldSpec = HoldSpec()
+    handoff_wait_s: float = Field(120.0, ge=0)  # train: wait for the learner's updates before the handoff
     clock: float = Field(1.0, ge=0)  # accrue_sim only: k times real time (0 = as fast as it goes)
     faults: dict[str, Any] = {}  # accrue_sim only: disconnect_after_steps, late_observation_steps...
     timeouts: dict[str, float] = {}  # connect_s, observation_s, action_s, reconnect_attempts
@@ -229,7 +242,29 @@ def parse_workflow(data: Any, source: str, default_name: str = "workflow") -> Wo
         more = f" (and {len(errors) - 1} more)" if len(errors) > 1 else ""
         raise StageError(f"{source}: {_format_error(errors[0])}{more}") from None
     _check_learner(wf, source)
+    _check_robot(wf, source)
     return wf
+
+
+def _check_robot(wf: Workflow, source: str) -> None:
+    """The learner's address and the page's listen address are refused at load, in one line, when malformed."""
+    if wf.robot is None:
+        return
+    from accrue.errors import AccrueError
+    from accrue.robot.link_auth import parse_address, validate_link_section
+
+    r = wf.robot
+    try:
+        if r.learner_address is not None:
+            parse_address(r.learner_address, "robot.learner_address")
+        unknown = sorted(set(r.operator_page) - {"listen"})
+        if unknown:
+            raise AccrueError(f"robot.operator_page: unknown key {unknown[0]!r} (known: listen)")
+        if "listen" in r.operator_page:
+            parse_address(r.operator_page["listen"], "robot.operator_page.listen", allow_zero=True)
+        validate_link_section(r.link, "robot.link")
+    except AccrueError as exc:
+        raise StageError(f"{source}: {exc}") from None
 
 
 def _check_learner(wf: Workflow, source: str) -> None:

@@ -30,12 +30,17 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
     act = rl_loop.actor_act(learner)  # the deterministic actor the method deploys
     features = per_task_features(c, tasks)
     session = HardwareSession(ctx, settings)
+    current = _Current()  # one operator (one page) for every task's bridge
+    operator = None
     for i, task in enumerate(tasks[:-1]):
         mine = lambda t=task: [e for e in session.ordered() if e["task"] == t]  # noqa: E731
         if len(mine()) >= n:
             continue
-        bridge = make_bridge(c, settings, task, lambda line: ctx.log_event("robot-fault", message=line, stage=k))
-        operator = make_operator(settings, bridge, ctx.console)
+        bridge = current.bridge = make_bridge(
+            c, settings, task, lambda line: ctx.log_event("robot-fault", message=line, stage=k)
+        )
+        if operator is None:
+            operator = make_operator(settings, current, ctx.console, store_root=ctx.store.root, audit=session.audit)
         operator.tell(f"retention trials on task {i + 1} ({task}): set up its parts")
         try:
             episode_loop(
@@ -53,9 +58,13 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
                 index_base=0,
                 metadata={"task_id": task, "stage": k, "phase": "evaluate", "policy": "base+actor"},
             )
+        except BaseException:
+            operator.close()
+            raise
         finally:
             bridge.disconnect()
-            operator.close()
+    if operator is not None:
+        operator.close()
     session.close("retention trials done")
     trials = {t: [bool(e["label"]["success"]) for e in session.ordered() if e["task"] == t] for t in tasks[:-1]}
     success = {t: sum(v) / len(v) for t, v in trials.items() if v}
@@ -78,6 +87,15 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
     episodes_output(ctx, session)
     for t, v in trials.items():
         ctx.console.print(f"evaluate-all: {t}: {sum(v)}/{len(v)} retention trials succeeded")
+
+
+class _Current:
+    """The bridge of the task being evaluated, for an operator that outlives each task's bridge."""
+
+    bridge = None
+
+    def hook(self, name: str):
+        return self.bridge.hook(name) if self.bridge is not None else None
 
 
 STEP = StepDef(

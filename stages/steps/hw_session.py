@@ -30,16 +30,22 @@ from stages.steps.common import copy_tree, read_json, write_json
 
 SESSIONS_FILE = "sessions.json"
 EPISODES_DIR = "episodes"
+SHOW_EVERY_S = 0.2  # robot time between live-state updates to the operator during an episode (at chunk ends)
 
 
 @dataclass
 class SessionSettings:
     """The unkeyed part of a workflow's robot section (see stages.workflow.RobotSpec)."""
 
-    operator: str = "terminal"  # terminal | scripted
+    operator: str = "terminal"  # terminal | scripted | page
     operator_name: str = ""
     scripted: dict = field(default_factory=dict)  # delay_s, mistakes, corrects, abort_before
+    operator_page: dict = field(default_factory=dict)  # listen HOST:PORT
     learner_address: str | None = None  # host:port of `accrue robot learner`; None: a local process
+    link: dict | None = None  # robot.link: token_file, tls
+    hold_staleness_s: float = 30.0  # robot time acted without an answering learner before the robot is held
+    hold_wait_s: float = 300.0  # wall time held for the learner before the step ends
+    handoff_wait_s: float = 120.0  # wall time train waits for the learner's update target at the end
     clock: float = 1.0
     faults: dict = field(default_factory=dict)  # accrue_sim fault fields
     timeouts: dict = field(default_factory=dict)
@@ -68,10 +74,33 @@ def make_bridge(c: dict, settings: SessionSettings, task: str, report):
     )
 
 
-def make_operator(settings: SessionSettings, bridge, console):
+def make_operator(settings: SessionSettings, bridge, console, *, store_root: Path | None = None, audit=None):
+    """The workflow's operator. `bridge` is asked for the simulated robot's success when a label is due
+    (anything with the bridge's hook(), so one operator can outlive several bridges); `audit(event,
+    fields)` records each of a page operator's actions, `store_root` gives its link token."""
     from accrue.robot.operator import ScriptedOperator, TerminalOperator
 
     name = settings.operator_name or os.environ.get("USER", "operator")
+    if settings.operator == "page":
+        from accrue.errors import AccrueError
+        from accrue.robot.link_auth import store_token
+
+        try:
+            from accrue.robot.operator_page import PageOperator
+        except ImportError as exc:
+            raise AccrueError(f"robot.operator: page needs accrue.robot.operator_page ({exc})") from None
+        if store_root is None:
+            raise AccrueError("robot.operator: page needs the store (its link token is the page's token)")
+        op = PageOperator(
+            name,
+            console=console,
+            listen=settings.operator_page.get("listen", "127.0.0.1:0"),
+            token=store_token(store_root),
+            audit=audit,
+        )
+        # the token is never printed: it is the store's link token, read from its file
+        console.print(f"operator page: {op.url} (token: {Path(store_root) / 'robot' / 'link-token'})")
+        return op
     if settings.operator == "scripted":
         s = settings.scripted
         return ScriptedOperator(
@@ -257,6 +286,10 @@ class HardwareSession:
     def _log(self, event: str, **fields: Any) -> None:
         self.ctx.log_event(event, **self.where, **fields)
 
+    def audit(self, event: str, fields: dict) -> None:
+        """An operator's action (the page operator's audit callback), under this session's workflow/stage."""
+        self._log(event, session=self.session["id"], **fields)
+
     def _events(self, name: str) -> list[dict]:
         from artifacts.auditlog import iter_events
 
@@ -305,12 +338,15 @@ def episode_loop(
     metadata: dict,
     on_sealed=lambda index, arrays, relabel=False: None,
     between=lambda: None,
+    learner_state=lambda: {},
 ) -> None:
     """Operator-labelled episodes on `task` until done() says enough; each sealed at once.
 
     policy_now() -> (policy(s, ref, fresh) -> chunk, weights version or None), asked at each episode start
     (the actor acts with the newest weights it has). A robot fault ends the episode as a failure labelled
-    by "system"; the robot is reconnected, or the step stops with one line (everything sealed stays)."""
+    by "system"; the robot is reconnected, or the step stops with one line (everything sealed stays).
+    The operator is shown the live state (operator.show) at each episode's start and end and every
+    SHOW_EVERY_S of robot time in between; learner_state() adds the learner's version and health."""
     import tempfile
 
     from accrue.logs.mcap_episodes import EpisodeRecorder
@@ -333,6 +369,39 @@ def episode_loop(
     sealed = session.ordered()
     last = sealed[-1]["index"] if sealed else None
     logs = Path(tempfile.mkdtemp(dir=ctx.scratch_dir("mcap")))
+    phase = ctx.config["phase"]
+    chunk_s = settings.horizon / settings.control_hz  # robot time of one chunk
+    live = {"index": None, "step": 0, "acted_s": 0.0, "shown_s": 0.0}
+
+    def show(**state) -> None:
+        fn = getattr(operator, "show", None)  # an operator without a view has nothing to update
+        if fn is None:
+            return
+        frames = bridge.frames() if bridge.mapping.camera_keys and bridge.robot is not None else []
+        window = [bool(e["label"]["success"]) for e in session.ordered(phase)][-ctx.config.get("stop_window", 20) :]
+        fn(
+            {
+                "task": task,
+                "phase": phase,
+                "episode": live["index"],
+                "step": live["step"],
+                "window": window,
+                "robot_time_s": round(session.robot_time_s() + live["acted_s"], 2),
+                "frame": frames[0] if frames else None,
+                **learner_state(),
+                **state,
+            }
+        )
+
+    def poll() -> str | None:
+        command = operator.poll()
+        live["step"] += settings.horizon
+        live["acted_s"] += chunk_s
+        if live["acted_s"] - live["shown_s"] >= SHOW_EVERY_S - 1e-9:
+            live["shown_s"] = live["acted_s"]
+            show(status=f"episode {live['index']} running")
+        return command
+
     while not done():
         between()
         if done():
@@ -352,9 +421,12 @@ def episode_loop(
             reset_scene()
         policy, version = policy_now()
         session.started(index)
+        live.update(index=index, step=0, acted_s=0.0, shown_s=0.0)
+        show(status=f"episode {index} started")
         recorder = EpisodeRecorder(logs, control_hz=settings.control_hz, state_names=list(bridge.mapping.state_keys))
         meta = {**metadata, "index": index, "weights_version": version, "session": session.session["id"]}
-        out = run_episode(bridge, settings, reference, policy, features, recorder, meta, poll=operator.poll)
+        out = run_episode(bridge, settings, reference, policy, features, recorder, meta, poll=poll)
+        live.update(step=out.control_steps, acted_s=0.0)
         if out.end == "abort":
             recorder.abort(0)
             session.discard(index, "aborted by the operator")
@@ -395,6 +467,7 @@ def episode_loop(
         session.seal_episode(index, record, arrays, mcap)
         on_sealed(index, arrays, relabel=False)
         last = index
+        show(status=f"episode {index} sealed: {'success' if label.success else 'failure'} ({out.end})")
         if out.end == "fault":
             if not bridge.reconnect():
                 lost(out.reason)

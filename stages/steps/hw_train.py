@@ -49,6 +49,16 @@ def episode_settings(c: dict, task: str, clock: float):
     )
 
 
+def link_healthy(link) -> bool:
+    """The learner answered a heartbeat within the link's dead_after_s (LearnerLink.healthy())."""
+    import time
+
+    healthy = getattr(link, "healthy", None)
+    if healthy is not None:
+        return bool(healthy())
+    return bool(link.ready) and time.monotonic() - link.last_ok < link.dead_after_s
+
+
 def stop_state(session: HardwareSession, c: dict) -> tuple[bool, str]:
     succ, n = session.window(c["stop_window"])
     rl_time = sum(e["robot_time_s"] for e in session.ordered("train"))
@@ -151,7 +161,7 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
     )
     link.start()
     bridge = make_bridge(c, settings, task, lambda line: report(line, {"event": "robot-fault"}))
-    operator = make_operator(settings, bridge, ctx.console)
+    operator = make_operator(settings, bridge, ctx.console, store_root=ctx.store.root, audit=session.audit)
 
     def between():
         with lock:
@@ -192,6 +202,10 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
             metadata={"task_id": task, "stage": k, "phase": "train", "policy": "base+actor"},
             on_sealed=on_sealed,
             between=between,
+            learner_state=lambda: {
+                "learner_version": acting["version"],
+                "learner_health": "ok" if link_healthy(link) else "lost",
+            },
         )
         done, why = stop_state(session, c)
         snap = link.tmp / f"v{link.version}"

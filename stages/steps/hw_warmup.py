@@ -34,7 +34,7 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
     features = per_task_features(c, [task])[task]
     session = HardwareSession(ctx, settings)
     bridge = make_bridge(c, settings, task, lambda line: ctx.log_event("robot-fault", message=line, stage=k))
-    operator = make_operator(settings, bridge, ctx.console)
+    operator = make_operator(settings, bridge, ctx.console, store_root=ctx.store.root, audit=session.audit)
     try:
         episode_loop(
             ctx,
