@@ -1,17 +1,24 @@
 """The operator: labels each episode's success, says when the scene is reset, can pause, abort, end an
-episode early and re-label the last one. Labels carry who gave them and when (they are sealed with the
-episode, so an audit finds every one).
+episode early and re-label the last one. Labels carry who gave them, when and through what (they are
+sealed with the episode, so an audit finds every one).
 
     TerminalOperator(name)            single keys on a terminal (rich): s/f label, r reset done, p pause,
                                       e end the episode now, l re-label the last episode, a abort
+    PageOperator(name, ...)           the same keys as buttons on a local web page with the live state
+                                      (accrue.robot.operator_page), and on the terminal too when there is one
     ScriptedOperator(name, ...)       for tests and unattended dry runs: labels what the simulated robot
                                       reports, with an optional delay and deliberate mistakes
+
+The terminal and the page share one state machine (KeyOperator): a key means the same from either, an
+unknown key gets one line naming the keys that work at that moment, and every action is audited with
+the view it came from (`via`).
 """
 
 from __future__ import annotations
 
 import datetime as _dt
 import os
+import threading
 import time
 from dataclasses import asdict, dataclass, field
 from typing import Callable
@@ -29,6 +36,7 @@ class Label:
     by: str  # the operator's name, or "system" for an episode a fault ended
     at: str  # ISO time the label was given
     note: str = ""
+    via: str = ""  # "terminal" | "page" | "scripted" | "system": the view the label came through
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -46,6 +54,11 @@ class Operator:
     def tell(self, line: str) -> None:
         """Show the operator something (a safety stop, a fault, the running success)."""
 
+    def show(self, state: dict) -> None:
+        """The live state for a view that can show it (the page): task, phase, episode, step, window,
+        robot_time_s, learner_version, learner_health, interventions, status, frame. Thread-safe where
+        implemented; the terminal and the scripted operator have nothing to show it on."""
+
     def wait_reset(self, episode: int, task: str, last: int | None) -> ResetAnswer:
         raise NotImplementedError
 
@@ -58,7 +71,7 @@ class Operator:
         return None
 
     def close(self) -> None:
-        """Release what the operator holds (the terminal's mode)."""
+        """Release what the operator holds (the terminal's mode, the page's server)."""
 
 
 @dataclass
@@ -98,94 +111,261 @@ class ScriptedOperator(Operator):
         truth = bool(self.oracle())
         wrong = episode in self.mistakes
         label = Label(
-            success=truth != wrong, by=self.name, at=now_iso(), note="deliberate mistake (scripted)" if wrong else ""
+            success=truth != wrong,
+            by=self.name,
+            at=now_iso(),
+            note="deliberate mistake (scripted)" if wrong else "",
+            via="scripted",
         )
         if wrong and episode in self.corrects:
-            self._pending = Label(success=truth, by=self.name, at=now_iso(), note=f"corrects episode {episode}")
+            self._pending = Label(
+                success=truth, by=self.name, at=now_iso(), note=f"corrects episode {episode}", via="scripted"
+            )
         return label
 
 
-class TerminalOperator(Operator):
-    """Single keys on the terminal the stage runs in (stdin in cbreak mode while waiting)."""
+# what each key does; the prompts name the ones that work at that moment
+KEYS = {
+    "r": "reset done",
+    "s": "success",
+    "f": "failure",
+    "e": "end episode",
+    "p": "pause/resume",
+    "l": "re-label last",
+    "a": "abort",
+}
+RESET_KEYS, LABEL_KEYS, RELABEL_KEYS, EPISODE_KEYS = "rpla", "sfpa", "sfa", "epa"
+AUDIT_EVENT = "robot-operator-action"
 
-    KEYS = "s=success  f=failure  r=reset done  p=pause/resume  e=end episode  l=re-label last  a=abort"
 
-    def __init__(self, name: str, console=None):
+def keys_line(keys: str) -> str:
+    return "  ".join(f"{k}={KEYS[k]}" for k in keys)
+
+
+class KeyOperator(Operator):
+    """The operator's single keys, from whichever view they come (`_next` gives (via, key)): what each
+    key does at each moment, the lines that say so, and the audit of every action."""
+
+    # class defaults too: a subclass that replaces __init__ (a test's keyed terminal) still works
+    _audit: Callable[[str, dict], None] | None = None
+    _audit_lock = threading.Lock()
+    paused = False
+    _episode: int | None = None
+
+    def __init__(self, name: str, audit: Callable[[str, dict], None] | None = None):
+        self.name = name
+        self._audit = audit
+        self._audit_lock = threading.Lock()  # the page's server threads audit refusals too
+        self.paused = False
+        self._episode: int | None = None  # the episode in progress (poll's actions name it)
+
+    # ------------------------------------------------------------------ what a view provides
+    def _next(self, timeout: float | None) -> tuple[str, str] | None:
+        """The next key as (via, key); None when none came within `timeout` (0: only one already there)."""
+        raise NotImplementedError
+
+    def _say(self, line: str) -> None:
+        raise NotImplementedError
+
+    def _expect(self, what: str, episode: int | None, keys: str, line: str) -> None:
+        """What the operator is asked now (the page enables those buttons); nothing for a terminal."""
+
+    def _acted(self, via: str, action: str, fields: dict) -> None:
+        """An action was taken (the page counts them); nothing for a terminal."""
+
+    # ------------------------------------------------------------------ shared
+    def audit(self, event: str, fields: dict) -> None:
+        if self._audit is not None:
+            with self._audit_lock:
+                self._audit(event, fields)
+
+    def _action(self, via: str, action: str, **fields) -> None:
+        fields = {"via": via, "action": action, "operator": self.name, **fields}
+        self.audit(AUDIT_EVENT, fields)
+        self._acted(via, action, fields)
+
+    def _unknown(self, key: str, keys: str) -> None:
+        shown = {"\x1b": "Esc", "\x7f": "Backspace", "\t": "Tab"}.get(key, key if key.isprintable() else repr(key))
+        self._say(f"key {shown!r} does nothing here; keys now: {keys_line(keys)}")
+
+    def _pause(self, via: str, during_episode: bool = False) -> None:
+        self.paused = not self.paused
+        self._action(via, "pause" if self.paused else "resume", episode=self._episode)
+        if not self.paused:
+            self._say("resumed: press r when the scene is reset")
+        elif during_episode:
+            self._say("paused: this episode runs to its end, then the robot waits until p resumes")
+        else:
+            self._say("paused: press p to resume")
+
+    def _keys(self):
+        """Keys as they come; whitespace is skipped (Enter after a key is habit, not a mistake)."""
+        while True:
+            got = self._next(None)
+            if got is not None and not got[1].isspace():
+                yield got
+
+    def wait_reset(self, episode: int, task: str, last: int | None) -> ResetAnswer:
+        self._episode = None
+        line = f"episode {episode} ({task}): reset the scene, then press r"
+        self._expect("reset", episode, RESET_KEYS, line)
+        self._say(f"{line}  ({keys_line(RESET_KEYS)})")
+        relabel = None
+        for via, key in self._keys():
+            if key == "a":
+                self._action(via, "abort", episode=episode)
+                return ResetAnswer(go=False, relabel=relabel)
+            if key == "p":
+                self._pause(via)
+            elif key == "l":
+                if last is None:
+                    self._say("no episode to re-label yet")
+                    continue
+                got = self._relabel(last)
+                if got is None:  # aborted while re-labelling
+                    return ResetAnswer(go=False, relabel=relabel)
+                relabel = got
+                self._expect("reset", episode, RESET_KEYS, line)
+            elif key == "r":
+                if self.paused:
+                    self._say("paused: press p to resume, then r")
+                    continue
+                self._action(via, "reset", episode=episode)
+                self._episode = episode
+                self._expect("episode", episode, EPISODE_KEYS, f"episode {episode} running: e ends it now")
+                return ResetAnswer(go=True, relabel=relabel)
+            else:
+                self._unknown(key, RESET_KEYS)
+        raise AssertionError("unreachable")  # _keys never ends
+
+    def _relabel(self, last: int) -> Label | None:
+        line = f"re-label episode {last}: s=success  f=failure"
+        self._expect("relabel", last, RELABEL_KEYS, line)
+        self._say(line)
+        for via, key in self._keys():
+            if key in ("s", "f"):
+                label = Label(
+                    success=key == "s", by=self.name, at=now_iso(), note=f"re-label of episode {last}", via=via
+                )
+                self._action(via, "relabel", episode=last, success=label.success)
+                self._say(f"episode {last} re-labelled {'success' if label.success else 'failure'}")
+                return label
+            if key == "a":
+                self._action(via, "abort", episode=last)
+                return None
+            self._unknown(key, RELABEL_KEYS)
+        raise AssertionError("unreachable")
+
+    def label(self, episode: int, summary: str) -> Label | None:
+        self._episode = None
+        line = f"episode {episode} ended ({summary}): s=success  f=failure"
+        self._expect("label", episode, LABEL_KEYS, line)
+        self._say(f"{line}  a=abort")
+        for via, key in self._keys():
+            if key in ("s", "f"):
+                label = Label(success=key == "s", by=self.name, at=now_iso(), via=via)
+                self._action(via, "label", episode=episode, success=label.success)
+                self._expect("idle", episode, "p", f"episode {episode} labelled")
+                return label
+            if key == "a":
+                self._action(via, "abort", episode=episode)
+                return None
+            if key == "p":
+                self._pause(via)
+            else:
+                self._unknown(key, LABEL_KEYS)
+        raise AssertionError("unreachable")
+
+    def poll(self) -> str | None:
+        while (got := self._next(0)) is not None:
+            via, key = got
+            if key == "e":
+                self._action(via, "end", episode=self._episode)
+                return "end"
+            if key == "a":
+                self._action(via, "abort", episode=self._episode)
+                return "abort"
+            if key == "p":
+                self._pause(via, during_episode=True)
+            elif not key.isspace():
+                self._unknown(key, EPISODE_KEYS)
+        return None
+
+
+class TtyKeys:
+    """stdin in cbreak mode for the operator's whole session: keys typed at any moment are read one by one."""
+
+    def __init__(self, what: str):
         import sys
-
-        from rich.console import Console
 
         if not sys.stdin.isatty():
             raise AccrueError(
-                "robot.operator: terminal needs an interactive terminal (stdin is not a tty); "
+                f"{what} needs an interactive terminal (stdin is not a tty); "
                 "use robot.operator: scripted for an unattended run on the simulated robot"
             )
-        import atexit
         import termios
         import tty
 
-        self.name = name
-        self.console = console or Console(stderr=True)
-        # cbreak for the operator's whole session: keys typed at any moment are read one by one
-        self._fd = sys.stdin.fileno()
-        self._saved = termios.tcgetattr(self._fd)
-        tty.setcbreak(self._fd, termios.TCSANOW)
-        atexit.register(self.close)
+        self.fd = sys.stdin.fileno()
+        self._saved = termios.tcgetattr(self.fd)
+        tty.setcbreak(self.fd, termios.TCSANOW)
 
-    def close(self) -> None:
+    def key(self, timeout: float | None, wake: int | None = None) -> str | None:
+        """One key within `timeout`; None on timeout or when `wake` (a pipe's read end) becomes readable."""
+        import select
+
+        ready, _, _ = select.select([self.fd] + ([wake] if wake is not None else []), [], [], timeout)
+        if self.fd not in ready:
+            return None
+        # os.read, not sys.stdin.read: a buffered read would swallow keys typed together, and the next
+        # select() would wait for keys already read
+        key = os.read(self.fd, 1).decode(errors="replace").lower()
+        if key == "\x1b":  # an arrow or function key is an escape sequence: one key, not three
+            while select.select([self.fd], [], [], 0)[0]:
+                os.read(self.fd, 16)
+        return key
+
+    def restore(self) -> None:
         """Give the terminal back as it was."""
         import termios
 
         if self._saved is not None:
             try:
-                termios.tcsetattr(self._fd, termios.TCSADRAIN, self._saved)
+                termios.tcsetattr(self.fd, termios.TCSADRAIN, self._saved)
             except termios.error:
                 pass
             self._saved = None
 
-    def _key(self, timeout: float | None) -> str | None:
-        import select
 
-        ready, _, _ = select.select([self._fd], [], [], timeout)
-        # os.read, not sys.stdin.read: a buffered read would swallow keys typed together, and the next
-        # select() would wait for keys already read
-        return os.read(self._fd, 1).decode(errors="replace").lower() if ready else None
+class TerminalOperator(KeyOperator):
+    """Single keys on the terminal the stage runs in (stdin in cbreak mode while the operator lives)."""
+
+    KEYS = keys_line("sfrpela")
+    _tty: TtyKeys | None = None
+
+    def __init__(self, name: str, console=None, audit: Callable[[str, dict], None] | None = None):
+        import atexit
+
+        from rich.console import Console
+
+        self._tty = TtyKeys("robot.operator: terminal")
+        super().__init__(name, audit)
+        self.console = console or Console(stderr=True)
+        atexit.register(self.close)
+
+    def close(self) -> None:
+        if self._tty is not None:
+            self._tty.restore()
+
+    def _key(self, timeout: float | None) -> str | None:
+        return self._tty.key(timeout)
+
+    def _next(self, timeout: float | None) -> tuple[str, str] | None:
+        key = self._key(timeout)
+        return None if key is None else ("terminal", key)
+
+    def _say(self, line: str) -> None:
+        self.console.print(line, markup=False, highlight=False)
 
     def tell(self, line: str) -> None:
         self.console.print(f"[bold yellow]robot:[/] {line}")
-
-    def wait_reset(self, episode: int, task: str, last: int | None) -> ResetAnswer:
-        self.console.print(
-            f"[bold]episode {episode}[/] ({task}): reset the scene, then press [bold]r[/]  ({self.KEYS})"
-        )
-        relabel = None
-        paused = False
-        while True:
-            key = self._key(None)
-            if key == "a":
-                return ResetAnswer(go=False, relabel=relabel)
-            if key == "p":
-                paused = not paused
-                self.console.print("paused: press p to resume" if paused else "resumed: press r when reset")
-            elif key == "l" and last is not None:
-                self.console.print(f"re-label episode {last}: s=success f=failure")
-                k = None
-                while k not in ("s", "f"):
-                    k = self._key(None)
-                relabel = Label(success=k == "s", by=self.name, at=now_iso(), note=f"re-label of episode {last}")
-                self.console.print(f"episode {last} re-labelled {'success' if k == 's' else 'failure'}")
-            elif key == "r" and not paused:
-                return ResetAnswer(go=True, relabel=relabel)
-
-    def label(self, episode: int, summary: str) -> Label | None:
-        self.console.print(f"[bold]episode {episode}[/] ended ({summary}): s=success  f=failure  a=abort")
-        while True:
-            key = self._key(None)
-            if key in ("s", "f"):
-                return Label(success=key == "s", by=self.name, at=now_iso())
-            if key == "a":
-                return None
-
-    def poll(self) -> str | None:
-        key = self._key(0)
-        return {"e": "end", "a": "abort"}.get(key or "")
