@@ -1,26 +1,153 @@
-"""`accrue robot learner`: the learner process of a hardware stage on another host (the GPU box).
+"""`accrue robot learner`: the learner process of a hardware stage on another host (the GPU box), and
+`accrue robot certs`: a self-signed TLS pair for that link on a lab LAN.
 
 The actor (`accrue stage run` beside the robot, with `robot.learner_address: HOST:PORT`) sends it what it
 needs and every sealed episode; this process holds nothing durable and may be restarted at any time.
+Every call must carry the store's link token (docs/ROBOT_LINK.md).
 """
 
 from __future__ import annotations
 
-from typing import Annotated
+from pathlib import Path
+from typing import Annotated, Optional
 
 import typer
 
 robot_app = typer.Typer(help="Robot sessions: the learner process for a second host.", no_args_is_help=True)
 
+CERT_FILE, KEY_FILE = "learner.crt", "learner.key"
+
+
+def store_audit(store_dir: Path):
+    """audit(event, fields) appending to the store's audit log (refused link calls)."""
+    from artifacts.auditlog import append_event
+    from artifacts.store import Store
+
+    store = Store.open(store_dir)
+
+    def audit(event: str, fields: dict) -> None:
+        append_event(store, event, **fields)
+
+    return audit
+
 
 @robot_app.command("learner")
 def learner(
-    listen: Annotated[str, typer.Option("--listen", help="HOST:PORT to serve the actor on.")] = "0.0.0.0:50051",
+    listen: Annotated[
+        str, typer.Option("--listen", help="HOST:PORT to serve the actor on (another host: needs TLS).")
+    ] = "127.0.0.1:50051",
+    store: Annotated[
+        Optional[Path],
+        typer.Option("--store", help="The actor's store (shared filesystem): its link token and audit log."),
+    ] = None,
+    token_file: Annotated[
+        Optional[Path], typer.Option("--token-file", help="A copy of the store's robot/link-token (mode 0600).")
+    ] = None,
+    tls_cert: Annotated[
+        Optional[Path], typer.Option("--tls-cert", help="PEM certificate (accrue robot certs).")
+    ] = None,
+    tls_key: Annotated[Optional[Path], typer.Option("--tls-key", help="PEM private key of --tls-cert.")] = None,
+    insecure: Annotated[
+        bool, typer.Option("--insecure", help="Allow a non-loopback address without TLS (a trusted LAN only).")
+    ] = False,
 ) -> None:
-    """Serve an actor's learner over gRPC until interrupted (insecure channel: a trusted LAN only)."""
-    from accrue.robot.learner_service import main
+    """Serve an actor's learner over gRPC until interrupted; only callers with the link token get in."""
+    from accrue.errors import AccrueError
+    from accrue.robot.learner_service import check_listen, main
 
-    raise typer.Exit(main(["--listen", listen]))
+    argv = ["--listen", listen]
+    for flag, value in (("--tls-cert", tls_cert), ("--tls-key", tls_key)):
+        if value is not None:
+            argv += [flag, str(value)]
+    if insecure:
+        argv.append("--insecure")
+    # the address first: a mistake there is one line before anything touches the store
+    check_listen(listen, tls_cert is not None, insecure, prog="accrue robot learner")
+    audit = None
+    if store is not None:
+        from accrue.robot.link_auth import TOKEN_ENV, store_token
+
+        if token_file is not None:
+            raise AccrueError("accrue robot learner: give --store or --token-file, not both")
+        import os
+
+        audit = store_audit(store)
+        os.environ[TOKEN_ENV] = store_token(store)  # the learner pops it: not in argv, not inherited
+    elif token_file is not None:
+        argv += ["--token-file", str(token_file)]
+    raise typer.Exit(main(argv, audit=audit))
+
+
+@robot_app.command("certs")
+def certs(
+    directory: Annotated[Path, typer.Argument(help="Where to write learner.crt and learner.key.")],
+    host: Annotated[
+        Optional[list[str]],
+        typer.Option("--host", help="Name or IP the actor dials (repeatable; default: this machine's name)."),
+    ] = None,
+    days: Annotated[int, typer.Option("--days", min=1, help="Validity.")] = 825,
+) -> None:
+    """Make a self-signed certificate and key for the learner link on a lab LAN.
+
+    The learner uses both (--tls-cert/--tls-key); the actor trusts the certificate (robot.link.tls.ca)."""
+    import datetime
+    import ipaddress
+    import os
+    import socket
+
+    from accrue.errors import AccrueError
+
+    try:
+        from cryptography import x509
+        from cryptography.hazmat.primitives import hashes, serialization
+        from cryptography.hazmat.primitives.asymmetric import ec
+        from cryptography.x509.oid import NameOID
+    except ImportError:
+        raise AccrueError(
+            "accrue robot certs needs the `cryptography` package; or make a pair with openssl (docs/ROBOT_LINK.md)"
+        ) from None
+    names = list(dict.fromkeys([*(host or [socket.gethostname()]), "localhost", "127.0.0.1"]))
+    directory = Path(directory)
+    cert_path, key_path = directory / CERT_FILE, directory / KEY_FILE
+    for p in (cert_path, key_path):
+        if p.exists():
+            raise AccrueError(f"accrue robot certs: {p} exists; remove it or choose another directory")
+    sans: list[x509.GeneralName] = []
+    for name in names:
+        try:
+            sans.append(x509.IPAddress(ipaddress.ip_address(name)))
+        except ValueError:
+            sans.append(x509.DNSName(name))
+    key = ec.generate_private_key(ec.SECP256R1())
+    subject = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, f"accrue learner {names[0]}")])
+    now = datetime.datetime.now(datetime.timezone.utc)
+    cert = (
+        x509.CertificateBuilder()
+        .subject_name(subject)
+        .issuer_name(subject)
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now - datetime.timedelta(minutes=5))
+        .not_valid_after(now + datetime.timedelta(days=days))
+        .add_extension(x509.SubjectAlternativeName(sans), critical=False)
+        # its own CA: the actor trusts exactly this certificate
+        .add_extension(x509.BasicConstraints(ca=True, path_length=0), critical=True)
+        .sign(key, hashes.SHA256())
+    )
+    directory.mkdir(parents=True, exist_ok=True)
+    fd = os.open(key_path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "wb") as f:
+        f.write(
+            key.private_bytes(
+                serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
+            )
+        )
+    cert_path.write_bytes(cert.public_bytes(serialization.Encoding.PEM))
+    print(f"wrote {cert_path} and {key_path} (0600) for {', '.join(names)}, valid {days} days")
+    print(
+        f"learner: accrue robot learner --listen 0.0.0.0:50051 --tls-cert {cert_path} --tls-key {key_path} ...; "
+        f"actor: robot.link.tls.ca: {cert_path} (copy the .crt only)"
+    )
 
 
 def register(app: typer.Typer) -> None:

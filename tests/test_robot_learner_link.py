@@ -12,24 +12,20 @@ import numpy as np
 import pytest
 
 from accrue.errors import AccrueError
+from accrue.robot.link_auth import LinkAuth
 from accrue.robot.transport import Peer, serve
+
+TOKEN = "test-link-token"
 
 pytestmark = pytest.mark.timeout(300)
 
 
-def start_learner(port: int = 0):
+def start_learner(port: int = 0, audit=None, **tls):
+    """A standalone learner in this process (as on a second host), checking TOKEN."""
     from accrue.robot.learner_service import LearnerService
 
-    service = LearnerService()
-    handlers = {
-        "Hello": service.hello,
-        "Init": service.init,
-        "Episode": service.episode,
-        "Pull": service.pull,
-        "Heartbeat": service.heartbeat,
-        "Shutdown": service.shutdown,
-    }
-    server, port = serve(handlers, f"127.0.0.1:{port}")
+    service = LearnerService(audit=audit)
+    server, port = serve(service.handlers(), f"127.0.0.1:{port}", token=TOKEN, on_refused=service.on_refused, **tls)
     threading.Thread(target=service.train_forever, daemon=True).start()
     return service, server, port
 
@@ -114,7 +110,7 @@ def test_link_trains_serves_weights_and_survives_a_learner_restart(tmp_path, one
 
     service, server, port = start_learner()
     with pytest.raises(AccrueError, match="protocol mismatch: actor speaks 99"):
-        Peer(f"127.0.0.1:{port}").call("Hello", {"protocol": 99})
+        Peer(f"127.0.0.1:{port}", TOKEN).call("Hello", {"protocol": 99})
     sealed: list[tuple[dict, bytes]] = []
     snapshots, reports = [], []
     link = LearnerLink(
@@ -125,6 +121,7 @@ def test_link_trains_serves_weights_and_survives_a_learner_restart(tmp_path, one
         address=f"127.0.0.1:{port}",
         heartbeat_s=0.1,
         dead_after_s=1.0,
+        auth=LinkAuth(TOKEN),
     )
     link.start()
     for i in range(3):

@@ -5,11 +5,20 @@ The actor's control loop never waits on it: `latest()` returns the newest weight
 the loss is reported (once) and, for a learner this actor started itself, the process is started again
 and re-initialised from the last sealed checkpoint and every sealed episode - so a killed learner loses
 only the updates since its last checkpoint.
+
+A restarted learner resumes from the newest checkpoint of this run (the one this link received, when it is
+newer than what `init_payload` holds), so its update count continues; it numbers its weights above every
+version this link has exposed (`version_floor` at Init), so a version names one set of weights per run.
+Every call carries `auth.token`; a learner this actor starts itself gets it in its environment (an
+ephemeral token when no `auth` is given). Refusals the learner reports in its Heartbeat answers are
+reported here (event robot-link-refused), so they reach the actor's audit log.
 """
 
 from __future__ import annotations
 
+import json
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -19,7 +28,8 @@ import uuid
 from pathlib import Path
 from typing import Callable
 
-from accrue.robot.transport import PROTOCOL, Peer, PeerDown, untar
+from accrue.robot.link_auth import TOKEN_ENV, LinkAuth
+from accrue.robot.transport import PROTOCOL, Peer, PeerDown, tar_dir, untar
 
 
 class LearnerLink:
@@ -33,12 +43,22 @@ class LearnerLink:
         heartbeat_s: float = 0.5,
         dead_after_s: float = 3.0,
         start_timeout_s: float = 120.0,
+        auth: LinkAuth | None = None,
+        version_floor: int = -1,
     ):
         self.init_payload, self.sealed_episodes = init_payload, sealed_episodes
         self.on_snapshot, self.report = on_snapshot, report
         self.address, self.local = address, address is None
         self.heartbeat_s, self.dead_after_s, self.start_timeout_s = heartbeat_s, dead_after_s, start_timeout_s
         self.run_id = uuid.uuid4().hex
+        self.auth = auth if auth is not None else LinkAuth.ephemeral()
+        # the newest weights version the run used before this link (e.g. in episodes of an earlier session)
+        self.version_floor = version_floor
+        self.checkpoint: Path | None = None  # the newest checkpoint snapshot received
+        self.weights_received_at: float | None = None
+        self.last_heartbeat: float | None = None
+        self.learner_pid: int | None = None
+        self.refused_seen = 0  # refusals the current learner process has reported so far
         self.proc: subprocess.Popen | None = None
         self.peer: Peer | None = None
         self.ready = False
@@ -115,7 +135,8 @@ class LearnerLink:
             "--orphan-after",
             str(max(10.0, 4 * self.dead_after_s)),
         ]
-        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=None, text=True)
+        env = dict(os.environ, **{TOKEN_ENV: self.auth.token})  # never on the command line
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=None, text=True, env=env)
         deadline = time.monotonic() + self.start_timeout_s
         line = ""
         while time.monotonic() < deadline and not self.stop.is_set():
@@ -148,32 +169,85 @@ class LearnerLink:
                 self.peer = None
             self._spawn()
         if self.peer is None:
-            self.peer = Peer(self.address)
+            # a learner this actor started is on loopback: TLS only for one on another host
+            self.peer = Peer(self.address, self.auth.token, tls_ca=None if self.local else self.auth.tls_ca)
         hello, _ = self.peer.call("Hello", {"protocol": PROTOCOL}, timeout=3.0)
+        if hello.get("pid") != self.learner_pid:
+            self.learner_pid, self.refused_seen = hello.get("pid"), 0
         if hello.get("run_id") != self.run_id:
-            header, blob = self.init_payload()
-            self.peer.call("Init", dict(header, run_id=self.run_id), blob, timeout=120.0)
+            header, blob = self.resume_payload()
+            floor = max(self.version, self.version_floor)
+            self.peer.call("Init", dict(header, run_id=self.run_id, version_floor=floor), blob, timeout=120.0)
             sealed = self.sealed_episodes()
             with self.lock:  # everything sealed so far, then what is queued
                 queued = [q for q in self.queue if not any(q[0]["index"] == s[0]["index"] for s in sealed)]
                 self.queue = [(dict(h, run_id=self.run_id), b) for h, b in sealed] + queued
-            self.version = -1
+            # self.version stays: the actor acts with those weights until newer ones (above the floor) come
         self.ready = True
         if self.lost_reported:
             self.report("learner is back", {"event": "robot-learner-back"})
         self.lost_reported = False
 
+    def resume_payload(self) -> tuple[dict, bytes]:
+        """`init_payload()`, with the learner replaced by this link's newest checkpoint when that is newer
+        (it may not be sealed yet): a restarted learner loses only the updates since that checkpoint."""
+        header, blob = self.init_payload()
+        if self.checkpoint is None:
+            return header, blob
+        d = untar(blob, Path(tempfile.mkdtemp(dir=self.tmp, prefix="init-")))
+        try:
+            info = json.loads((d / "init.json").read_text())
+            ck = json.loads((self.checkpoint / "learner.json").read_text())
+            if int(ck["updates"]) <= int(info["updates"]):
+                return header, blob
+            shutil.rmtree(d / "learner")
+            shutil.copytree(self.checkpoint / "learner", d / "learner")
+            info.update(updates=int(ck["updates"]), version=int(ck["version"]))
+            (d / "init.json").write_text(json.dumps(info))
+            return header, tar_dir(d)
+        finally:
+            shutil.rmtree(d, ignore_errors=True)
+
     def _take(self, h: dict, blob: bytes) -> None:
         d = untar(blob, self.tmp / f"v{h['version']}")
         self.version, self.updates = int(h["version"]), int(h["updates"])
+        self.weights_received_at = time.monotonic()
+        if h.get("checkpoint"):
+            self.checkpoint = d
         self.on_snapshot(h, d)
+
+    def healthy(self) -> bool:
+        """The learner answered a heartbeat within dead_after_s."""
+        return self.last_heartbeat is not None and time.monotonic() - self.last_heartbeat < self.dead_after_s
+
+    def _refusals(self, hb: dict) -> None:
+        """Report each call the learner refused since the last heartbeat (it keeps the newest few)."""
+        total = int(hb.get("refused", 0))
+        if total <= self.refused_seen:
+            return
+        new = [r for r in hb.get("refusals", []) if int(r["seq"]) > self.refused_seen]
+        for r in new:
+            self.report(
+                f"learner at {self.address} refused {r['method']} from {r['peer']} at {r['at']}: "
+                "no or wrong link token",
+                {"event": "robot-link-refused", "peer": r["peer"], "method": r["method"], "at": r["at"]},
+            )
+        if total - self.refused_seen > len(new):
+            missed = total - self.refused_seen - len(new)
+            self.report(
+                f"learner at {self.address} refused {missed} more call(s) without the link token",
+                {"event": "robot-link-refused", "count": missed},
+            )
+        self.refused_seen = total
 
     def _run(self) -> None:
         while not self.stop.is_set():
             try:
                 if not self.ready:
                     self._connect()
-                self.peer.call("Heartbeat", {}, timeout=2.0)
+                hb, _ = self.peer.call("Heartbeat", {}, timeout=2.0)
+                self.last_heartbeat = time.monotonic()
+                self._refusals(hb)
                 while self.queue and not self.stop.is_set():
                     with self.lock:
                         header, blob = self.queue[0]

@@ -1,7 +1,7 @@
 """The asynchronous learner: a process that trains from the episodes the actor seals and serves weights.
 
-    python -m accrue.robot.learner_service --listen 127.0.0.1:0 [--parent-pid PID]
-    accrue robot learner --listen 0.0.0.0:50051               (the GPU box of a two-host setup)
+    python -m accrue.robot.learner_service --listen 127.0.0.1:0 [--parent-pid PID]   (token: $ACCRUE_LINK_TOKEN)
+    accrue robot learner --listen 0.0.0.0:50051 --tls-cert F --tls-key F --token-file F   (a GPU box)
 
 It holds nothing durable: the actor (which owns the store) sends it everything at `Init` - the learner
 to start from (the last sealed checkpoint), the warmup buffer, the prior memory and teacher targets - and
@@ -11,12 +11,20 @@ per chunk step), publishes a snapshot every `publish_every` updates and marks on
 `checkpoint_every` updates; the actor pulls them (`Pull`). Started by an actor (--parent-pid), it exits
 when that actor dies or stops calling for `orphan_after_s`; started by hand it waits for the next actor.
 
-RPCs (accrue.robot.transport): Hello, Init, Episode, Pull, Heartbeat, Shutdown.
+RPCs (accrue.robot.transport): Hello, Init, Episode, Pull, Heartbeat, Shutdown; each needs the link token.
+A refused call is counted, printed (peer, method, time) and passed to `audit` (the store's audit log when
+the learner has one); the actor also hears of refusals in every Heartbeat answer.
+
+A re-initialised learner continues the run: it starts from the update count of the checkpoint it is sent
+and numbers its weights above `version_floor` (the newest version the actor has seen), so one version
+number never names two different weights within a run.
 """
 
 from __future__ import annotations
 
 import argparse
+import collections
+import datetime
 import io
 import json
 import os
@@ -25,8 +33,13 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+from typing import Callable
 
+from accrue.errors import AccrueError
+from accrue.robot.link_auth import TOKEN_ENV, is_loopback, parse_address, read_token_file
 from accrue.robot.transport import PROTOCOL, serve, tar_dir, untar
+
+RECENT_REFUSALS = 50  # the refusals a Heartbeat answer carries (the count covers all of them)
 
 
 def accrue_version() -> str:
@@ -54,7 +67,7 @@ def read_npz(blob: bytes) -> dict:
 
 
 class LearnerService:
-    def __init__(self, orphan_after_s: float = 0.0):
+    def __init__(self, orphan_after_s: float = 0.0, audit: Callable[[str, dict], None] | None = None):
         self.lock = threading.Lock()
         self.run_id: str | None = None
         self.learner = None
@@ -68,6 +81,36 @@ class LearnerService:
         self.orphan_after_s = orphan_after_s
         self.stop = threading.Event()
         self.busy = False
+        self.last_publish = self.last_ckpt = None  # update counts at the last snapshot and checkpoint
+        self.audit = audit
+        self.refused = 0
+        self.refusals: collections.deque[dict] = collections.deque(maxlen=RECENT_REFUSALS)
+        self.refusal_lock = threading.Lock()
+
+    def handlers(self) -> dict:
+        return {
+            "Hello": self.hello,
+            "Init": self.init,
+            "Episode": self.episode,
+            "Pull": self.pull,
+            "Heartbeat": self.heartbeat,
+            "Shutdown": self.shutdown,
+        }
+
+    def on_refused(self, peer: str, method: str) -> None:
+        """A call without the link token: counted, one line in this learner's log, the audit log."""
+        at = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+        with self.refusal_lock:
+            self.refused += 1
+            entry = {"seq": self.refused, "peer": peer, "method": method, "at": at}
+            self.refusals.append(entry)
+        print(
+            f"accrue learner: refused {method} from {peer} at {at}: no or wrong link token "
+            f"({entry['seq']} refused so far)",
+            flush=True,
+        )
+        if self.audit is not None:
+            self.audit("robot-link-refused", {"peer": peer, "method": method, "at": at, "by": "learner"})
 
     # ------------------------------------------------------------------ RPCs
     def hello(self, h: dict, blob: bytes):
@@ -106,7 +149,10 @@ class LearnerService:
                 tensors = load_file(str(d / "teacher.safetensors"))
                 self.teacher, self.fresh_ref = tensors["targets"], tensors.get("fresh_ref")
             self.info = info
-            self.updates, self.version = int(info["updates"]), int(info["version"])
+            # the version floor keeps a restarted learner's versions above every one the run has used
+            floor = int(h.get("version_floor", -1))
+            self.updates, self.version = int(info["updates"]), max(int(info["version"]), floor)
+            self.last_publish = self.last_ckpt = None
             self.episodes, self.dirty, self.snapshot = {}, True, None
             self.buffer = None
             self.run_id = h["run_id"]
@@ -143,6 +189,8 @@ class LearnerService:
             "version": self.version,
             "episodes": len(self.episodes),
             "busy": self.busy,
+            "refused": self.refused,
+            "refusals": list(self.refusals),
         }, b""
 
     def shutdown(self, h: dict, blob: bytes):
@@ -171,7 +219,6 @@ class LearnerService:
         self.snapshot = (self.version, self.updates, checkpoint, tar_dir(d))
 
     def train_forever(self):
-        last_publish = last_ckpt = None
         while not self.stop.is_set():
             if self.learner is None:
                 time.sleep(0.05)
@@ -180,8 +227,8 @@ class LearnerService:
                 if self.dirty:
                     self._rebuild()
                     self.dirty = False
-                if last_publish is None:
-                    last_publish = last_ckpt = self.updates
+                if self.last_publish is None:
+                    self.last_publish = self.last_ckpt = self.updates
                 target = self.rl_rows * self.learner.cfg.utd
                 work = self.updates < target and len(self.buffer) > 0
                 if work:
@@ -193,28 +240,69 @@ class LearnerService:
                     self.updates += self.learner.cfg.utd
                     self.busy = False
                 every, ck = int(self.info["publish_every"]), int(self.info["checkpoint_every"])
-                checkpoint = self.updates - last_ckpt >= ck
+                checkpoint = self.updates - self.last_ckpt >= ck
                 if (
-                    self.updates - last_publish >= every
+                    self.updates - self.last_publish >= every
                     or checkpoint
                     or self.want_snapshot.is_set()
                     or self.snapshot is None
                 ):
                     self._snapshot(checkpoint)
-                    last_publish = self.updates
+                    self.last_publish = self.updates
                     if checkpoint:
-                        last_ckpt = self.updates
+                        self.last_ckpt = self.updates
                     self.want_snapshot.clear()
             if not work:
                 time.sleep(0.02)
 
 
-def main(argv: list[str] | None = None) -> int:
+def link_token(token_file: str | None) -> str:
+    """The token from an inherited environment variable (an actor's own learner) or a 0600 file."""
+    token = os.environ.pop(TOKEN_ENV, "")  # popped: nothing this process starts inherits it
+    if token:
+        return token
+    if token_file:
+        return read_token_file(token_file, "accrue learner --token-file")
+    raise AccrueError(
+        "accrue learner: no link token; give --store DIR (the actor's store, or a copy of its "
+        "robot/link-token) or --token-file FILE"
+    )
+
+
+def check_listen(listen: str, tls: bool, insecure: bool, prog: str = "accrue learner") -> None:
+    host, _ = parse_address(listen, f"{prog} --listen", allow_zero=True)
+    if not is_loopback(host) and not tls and not insecure:
+        raise AccrueError(
+            f"{prog}: listening on {listen} without TLS sends the token and the weights in the clear; "
+            "give --tls-cert/--tls-key (`accrue robot certs DIR --host NAME` makes a pair) or --insecure"
+        )
+
+
+def main(argv: list[str] | None = None, audit: Callable[[str, dict], None] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="accrue-learner")
     parser.add_argument("--listen", default="127.0.0.1:0")
     parser.add_argument("--parent-pid", type=int, default=0)
     parser.add_argument("--orphan-after", type=float, default=10.0)
+    parser.add_argument("--token-file", default=None)
+    parser.add_argument("--tls-cert", default=None)
+    parser.add_argument("--tls-key", default=None)
+    parser.add_argument("--insecure", action="store_true")
     args = parser.parse_args(argv)
+    if (args.tls_cert is None) != (args.tls_key is None):
+        raise AccrueError("accrue learner: give --tls-cert and --tls-key together")
+    check_listen(args.listen, args.tls_cert is not None, args.insecure)
+    token = link_token(args.token_file)
+
+    # the port is bound (and a port in use refused) before the slow imports below
+    service = LearnerService(args.orphan_after, audit=audit)
+    server, port = serve(
+        service.handlers(),
+        args.listen,
+        token=token,
+        tls_cert=args.tls_cert and Path(args.tls_cert),
+        tls_key=args.tls_key and Path(args.tls_key),
+        on_refused=service.on_refused,
+    )
     import torch
 
     import accrue.learner  # noqa: F401
@@ -223,16 +311,6 @@ def main(argv: list[str] | None = None) -> int:
     # the port is announced, so that Init answers at once
     torch.optim.AdamW([torch.nn.Parameter(torch.zeros(1))])
 
-    service = LearnerService(args.orphan_after)
-    handlers = {
-        "Hello": service.hello,
-        "Init": service.init,
-        "Episode": service.episode,
-        "Pull": service.pull,
-        "Heartbeat": service.heartbeat,
-        "Shutdown": service.shutdown,
-    }
-    server, port = serve(handlers, args.listen)
     print(f"accrue learner listening on port {port} (pid {os.getpid()})", flush=True)
     trainer = threading.Thread(target=service.train_forever, daemon=True)
     trainer.start()
@@ -259,4 +337,8 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    try:
+        sys.exit(main())
+    except AccrueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        sys.exit(2)

@@ -4,10 +4,15 @@ Every call is unary: request and response are `pack(header: dict, blob: bytes)` 
 opaque blob (a tar of a saved learner, an npz of transitions). Every call has a deadline; a handler that
 raises answers {"error": ...} instead of killing the server. The first call of a connection is `Hello`,
 which compares PROTOCOL (a mismatch is refused with both versions named).
+
+Every call carries the link token (accrue.robot.link_auth) as metadata; the server compares it in constant
+time before any handler runs and answers a call without it, or with another, UNAUTHENTICATED. With a
+certificate and key the server speaks TLS; a Peer given a CA file verifies the learner's certificate.
 """
 
 from __future__ import annotations
 
+import hmac
 import io
 import json
 import struct
@@ -16,11 +21,14 @@ from pathlib import Path
 from typing import Callable
 
 from accrue.errors import AccrueError
+from accrue.robot.link_auth import METADATA_KEY, parse_address
 
-PROTOCOL = 1
+PROTOCOL = 2  # 2: the link token on every call, version_floor at Init
 SERVICE = "accrue.robot.Learner"
 MAX_MESSAGE = 512 * 1024 * 1024
 _OPTIONS = [("grpc.max_send_message_length", MAX_MESSAGE), ("grpc.max_receive_message_length", MAX_MESSAGE)]
+# gRPC binds with SO_REUSEPORT by default, so a second learner on a port in use would start and share it
+_SERVER_OPTIONS = [*_OPTIONS, ("grpc.so_reuseport", 0)]
 
 Handler = Callable[[dict, bytes], tuple[dict, bytes]]
 
@@ -37,6 +45,10 @@ def _grpc():
 
 class PeerDown(Exception):
     """The peer did not answer in time, or is not there."""
+
+
+class LinkRefused(PeerDown):
+    """The learner answered UNAUTHENTICATED: this actor's link token is not the learner's."""
 
 
 def pack(header: dict, blob: bytes = b"") -> bytes:
@@ -68,14 +80,47 @@ def untar(blob: bytes, dest: Path) -> Path:
     return dest
 
 
-def serve(handlers: dict[str, Handler], address: str, workers: int = 8):
-    """Start a gRPC server; returns (server, bound port). Workers leave headroom for a reconnecting actor."""
+def _read(path: Path, what: str) -> bytes:
+    try:
+        return Path(path).read_bytes()
+    except OSError as exc:
+        raise AccrueError(f"learner link: cannot read the TLS {what} {path} ({exc.strerror})") from None
+
+
+def serve(
+    handlers: dict[str, Handler],
+    address: str,
+    workers: int = 8,
+    *,
+    token: str,
+    tls_cert: Path | None = None,
+    tls_key: Path | None = None,
+    on_refused: Callable[[str, str], None] | None = None,
+):
+    """Start a gRPC server; returns (server, bound port). Workers leave headroom for a reconnecting actor.
+
+    Only calls carrying `token` reach a handler; each other call is answered UNAUTHENTICATED and passed to
+    `on_refused(peer, method)`. A port in use is an AccrueError, not a shared port."""
     from concurrent import futures
 
     grpc = _grpc()
+    parse_address(address, "learner listen address", allow_zero=True)
+    if not token:
+        raise AccrueError("learner link: no token to check callers against")
+    if (tls_cert is None) != (tls_key is None):
+        raise AccrueError("learner link: TLS needs both a certificate and its key")
+    expected = token.encode()
 
-    def wrap(fn: Handler):
+    def wrap(name: str, fn: Handler):
         def call(request: bytes, context) -> bytes:
+            given = dict(context.invocation_metadata()).get(METADATA_KEY, "")
+            if not hmac.compare_digest(str(given).encode(), expected):
+                if on_refused is not None:
+                    try:
+                        on_refused(context.peer(), name)
+                    except Exception:  # noqa: BLE001 - recording a refusal must not let the call in
+                        pass
+                context.abort(grpc.StatusCode.UNAUTHENTICATED, "link token missing or wrong")
             try:
                 header, blob = unpack(request)
                 out, out_blob = fn(header, blob)
@@ -85,34 +130,52 @@ def serve(handlers: dict[str, Handler], address: str, workers: int = 8):
 
         return grpc.unary_unary_rpc_method_handler(call)
 
-    server = grpc.server(futures.ThreadPoolExecutor(max_workers=workers), options=_OPTIONS)
+    server = grpc.server(futures.ThreadPoolExecutor(max_workers=workers), options=_SERVER_OPTIONS)
     server.add_generic_rpc_handlers(
-        (grpc.method_handlers_generic_handler(SERVICE, {name: wrap(fn) for name, fn in handlers.items()}),)
+        (grpc.method_handlers_generic_handler(SERVICE, {name: wrap(name, fn) for name, fn in handlers.items()}),)
     )
     try:
-        port = server.add_insecure_port(address)
+        if tls_cert is not None:
+            creds = grpc.ssl_server_credentials([(_read(tls_key, "key"), _read(tls_cert, "certificate"))])
+            port = server.add_secure_port(address, creds)
+        else:
+            port = server.add_insecure_port(address)
     except RuntimeError:
         port = 0
     if port == 0:
-        raise AccrueError(f"learner: cannot listen on {address!r} (expected HOST:PORT with a free port)")
+        raise AccrueError(
+            f"learner: cannot listen on {address!r} (the port is in use or the host is not this machine's)"
+        )
     server.start()
     return server, port
 
 
 class Peer:
-    def __init__(self, address: str):
+    """The actor's end of the link: `token` goes with every call; `tls_ca` (a PEM file) turns on TLS and
+    is the certificate authority the learner's certificate must be signed by."""
+
+    def __init__(self, address: str, token: str | None = None, tls_ca: Path | None = None):
         grpc = _grpc()
         self.address = address
         self._grpc = grpc
-        self.channel = grpc.insecure_channel(address, options=_OPTIONS)
+        self._metadata = ((METADATA_KEY, token),) if token else None
+        if tls_ca is not None:
+            creds = grpc.ssl_channel_credentials(root_certificates=_read(tls_ca, "CA certificate"))
+            self.channel = grpc.secure_channel(address, creds, options=_OPTIONS)
+        else:
+            self.channel = grpc.insecure_channel(address, options=_OPTIONS)
 
     def call(self, method: str, header: dict, blob: bytes = b"", timeout: float = 5.0) -> tuple[dict, bytes]:
         fn = self.channel.unary_unary(f"/{SERVICE}/{method}")
         try:
-            data = fn(pack(header, blob), timeout=timeout)
+            data = fn(pack(header, blob), timeout=timeout, metadata=self._metadata)
         except self._grpc.RpcError as exc:
-            code = exc.code().name if hasattr(exc, "code") else "?"
-            raise PeerDown(f"{method} to {self.address}: {code}") from None
+            code = exc.code() if hasattr(exc, "code") else None
+            if code == self._grpc.StatusCode.UNAUTHENTICATED:
+                raise LinkRefused(
+                    f"{method} to {self.address}: UNAUTHENTICATED (the learner refused this actor's link token)"
+                ) from None
+            raise PeerDown(f"{method} to {self.address}: {code.name if code else '?'}") from None
         out, out_blob = unpack(data)
         if "error" in out:
             raise AccrueError(f"learner at {self.address} refused {method}: {out['error']}")
