@@ -14,7 +14,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from cli.stage_cmds import run_mode
+from cli.stage_cmds import run_mode, session_stops
 from cli.store_cmds import JsonOpt, StoreOpt, console, open_store, print_json
 
 WorkflowArg = Annotated[Path, typer.Argument(metavar="WORKFLOW", help="Workflow YAML file.", show_default=False)]
@@ -53,7 +53,7 @@ def run(
     out = console()
     runner = Runner(st, console=out if not as_json else None, wait=wait)
     started, summary = time.monotonic(), []
-    with contextlib.redirect_stdout(sys.stderr) if as_json else contextlib.nullcontext():
+    with contextlib.redirect_stdout(sys.stderr) if as_json else contextlib.nullcontext(), session_stops():
         for k in range(first, last + 1):  # with --json, stdout carries the JSON summary only
             if not as_json:
                 out.rule(f"workflow {wf.name} · stage {k}/{wf.num_stages} · {wf.task(k)}")

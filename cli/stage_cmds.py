@@ -6,6 +6,8 @@ hands them to the runner; until the step bodies are installed it says so and sto
 
 from __future__ import annotations
 
+import contextlib
+import sys
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -25,6 +27,19 @@ def run_mode(cont: bool, rerun: bool) -> str:
     if cont and rerun:
         raise StageError("--continue and --rerun exclude each other: continue resumes, rerun starts over")
     return "continue" if cont else "rerun" if rerun else "normal"
+
+
+@contextlib.contextmanager
+def session_stops():
+    """A hardware step stopped by Ctrl-C or SIGTERM (stages.steps.hw_session.SessionStop): its one line
+    on stderr and exit 130 / 143; the session is already closed and the robot disconnected."""
+    from stages.steps.hw_session import SessionStop
+
+    try:
+        yield
+    except SessionStop as stop:
+        print(str(stop), file=sys.stderr)
+        raise typer.Exit(stop.code) from None
 
 
 def load_plan_function():
@@ -75,7 +90,8 @@ def run(
     plan_stage = load_plan_function()
     plan = plan_stage(wf, stage, st)
     runner = Runner(st, console=console() if not as_json else None, wait=wait)
-    results = runner.run_plan(plan, only_step=step, mode=mode)
+    with session_stops():
+        results = runner.run_plan(plan, only_step=step, mode=mode)
     if as_json:
         print_json(
             [

@@ -10,26 +10,43 @@ from stages.steps.common import deterministic, load_base_policy, per_task_featur
 from stages.steps.hw_session import (
     HardwareSession,
     SessionSettings,
+    SessionStop,
+    StopSignals,
     episode_loop,
     episodes_output,
     make_bridge,
     make_operator,
+    release_robot,
 )
 from stages.steps.hw_train import episode_settings
 
 
 def run(ctx: StepContext, settings: SessionSettings) -> None:
+    with StopSignals():  # Ctrl-C / SIGTERM: a clean stop (SessionStop), a second one forces
+        _run(ctx, settings)
+
+
+def _run(ctx: StepContext, settings: SessionSettings) -> None:
     from accrue import rl_loop
     from accrue.learner import load_learner
 
     c = ctx.config
-    k, tasks, horizon, n = c["stage"], c["task_ids"], c["horizon"], c["trials"]
+    tasks = c["task_ids"]
     deterministic(c["seed"])
     policy = load_base_policy(ctx.input_path("base-policy"), c["seed"])
     learner = load_learner(ctx.input_path("checkpoint") / train_step.LEARNER_DIR, device="cpu")
     act = rl_loop.actor_act(learner)  # the deterministic actor the method deploys
     features = per_task_features(c, tasks)
     session = HardwareSession(ctx, settings)
+    try:
+        _session(ctx, settings, session, policy, act, features)
+    except SessionStop as stop:
+        raise session.stopped(stop) from None
+
+
+def _session(ctx, settings, session, policy, act, features) -> None:
+    c = ctx.config
+    k, tasks, horizon, n = c["stage"], c["task_ids"], c["horizon"], c["trials"]
     current = _Current()  # one operator (one page) for every task's bridge
     operator = None
     for i, task in enumerate(tasks[:-1]):
@@ -62,7 +79,7 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
             operator.close()
             raise
         finally:
-            bridge.disconnect()
+            release_robot(bridge, session)
     if operator is not None:
         operator.close()
     session.close("retention trials done")

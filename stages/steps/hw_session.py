@@ -16,9 +16,13 @@ may use another operator or host.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
+import signal
 import socket
+import threading
+import time
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,6 +55,160 @@ class SessionSettings:
     timeouts: dict = field(default_factory=dict)
     heartbeat_s: float = 0.5
     dead_after_s: float = 3.0
+
+
+class SessionStop(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM during a hardware session. A KeyboardInterrupt, so the runner records the attempt
+    as abandoned (resumable); `code` is the exit status (130 / 143), str() the one line to print."""
+
+    def __init__(self, line: str, how: str, code: int, forced: bool = False):
+        super().__init__(line)
+        self.how, self.code, self.forced = how, code, forced
+
+
+_STOPS = {signal.SIGINT: ("stopped by operator (Ctrl-C)", 130), signal.SIGTERM: ("stopped by signal (SIGTERM)", 143)}
+
+
+class StopSignals:
+    """While a hardware step runs: the first Ctrl-C or SIGTERM raises SessionStop in the main thread
+    (where a blocking wait is interrupted too), except inside a `critical()` section (a seal being
+    written), which finishes first; a second one forces - it is raised at once, wherever the clean stop
+    is. Outside the main thread (nothing can receive signals there) it does nothing."""
+
+    active: "StopSignals | None" = None
+
+    def __init__(self):
+        self.first: int | None = None
+        self.quiet = 0
+        self.pending = False
+        self.saved: dict = {}
+
+    def __enter__(self) -> "StopSignals":
+        if threading.current_thread() is threading.main_thread() and StopSignals.active is None:
+            self.saved = {sig: signal.signal(sig, self._handler) for sig in _STOPS}
+            StopSignals.active = self
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if StopSignals.active is self:
+            for sig, handler in self.saved.items():
+                signal.signal(sig, handler)
+            StopSignals.active = None
+
+    def stop(self, forced: bool = False) -> SessionStop:
+        how, code = _STOPS[self.first]
+        return SessionStop(how + (": forced, cleanup skipped" if forced else ""), how, code, forced)
+
+    def _handler(self, signum, frame) -> None:
+        if self.first is not None:
+            raise self.stop(forced=True)  # the second: no more waiting for the cleanup
+        self.first = signum
+        if self.quiet:
+            self.pending = True  # raised when the seal in progress is written
+            return
+        raise self.stop()
+
+    @classmethod
+    @contextlib.contextmanager
+    def critical(cls):
+        """A section a first stop does not cut (the store's checkpoint and the session record)."""
+        me = cls.active
+        if me is None:
+            yield
+            return
+        me.quiet += 1
+        try:
+            yield
+        finally:
+            me.quiet -= 1
+            if not me.quiet and me.pending:
+                me.pending = False
+                raise me.stop()
+
+
+@contextlib.contextmanager
+def children_keep_sigint():
+    """Threads started inside (the learner link's, which spawns the learner) have SIGINT blocked, and
+    so do the processes they start: a Ctrl-C at the terminal, sent to the whole process group, reaches
+    this actor only, which then shuts its learner down (no traceback from a learner killed mid-call)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
+class LearnerHold:
+    """The actor acts only on weights from a learner that answers (paper Sec. V-C's asynchrony, bounded).
+
+    `stale_s` is the robot time acted since the learner last answered (link.healthy()); once it reaches
+    `staleness_s` the episode in progress is discarded (as at a kill), no command is sent (the robot holds
+    its last target), the operator is told, and the actor waits up to `wait_s` of wall time for the learner:
+    back in time, the session goes on; else the step ends in one line, every sealed episode kept. A learner
+    that answers is training on every sealed episode, so its weights are as fresh as it can make them."""
+
+    def __init__(self, healthy, staleness_s: float, wait_s: float, step: str, poll_s: float = 0.1):
+        self.healthy, self.staleness_s, self.wait_s, self.step, self.poll_s = healthy, staleness_s, wait_s, step, poll_s
+        self.stale_s = 0.0
+        self.holding = False
+
+    def acted(self, robot_s: float) -> None:
+        self.stale_s = 0.0 if self.healthy() else self.stale_s + robot_s
+
+    def due(self) -> bool:
+        if self.healthy():
+            self.stale_s = 0.0
+            return False
+        return self.stale_s >= self.staleness_s - 1e-9
+
+    def wait(self, session: "HardwareSession", operator, show, console) -> None:
+        """Hold until the learner answers again, or end the step (StageError) after wait_s."""
+        why = (
+            f"the learner has not answered for {self.stale_s:.1f} s of robot time "
+            f"(robot.hold.staleness_s {self.staleness_s:g})"
+        )
+        line = f"robot held: {why}; waiting up to {self.wait_s:g} s for it"
+        self.holding = True
+        session._log("robot-hold-started", stale_s=round(self.stale_s, 3), staleness_s=self.staleness_s)
+        console.print(f"{self.step}: {line}", soft_wrap=True)
+        operator.tell(line)
+        show(learner_health="holding", status=line)
+        started = time.monotonic()
+        try:
+            while not self.healthy():
+                if time.monotonic() - started >= self.wait_s:
+                    session._log("robot-hold-ended", outcome="gave up", held_s=round(time.monotonic() - started, 3))
+                    session.close(f"held: learner unreachable for {self.wait_s:g} s")
+                    raise StageError(
+                        f"{self.step}: the learner did not come back within robot.hold.wait_s {self.wait_s:g} s "
+                        f"({why}); {len(session.episodes)} episodes are sealed: start the learner and resume "
+                        f"with `accrue stage run ... --step {self.step} --continue`"
+                    )
+                if operator.poll() == "abort":
+                    session.close("aborted by the operator")
+                    raise StageError(
+                        f"aborted by the operator while the robot was held; {len(session.episodes)} episodes "
+                        "are sealed (resume with --continue)"
+                    )
+                time.sleep(self.poll_s)
+        finally:
+            self.holding = False
+        held = time.monotonic() - started
+        session._log("robot-hold-ended", outcome="learner back", held_s=round(held, 3))
+        operator.tell(f"the learner is back after {held:.1f} s: going on")
+        console.print(f"{self.step}: the learner is back after {held:.1f} s; going on")
+        self.stale_s = 0.0
+
+
+def release_robot(bridge, session: "HardwareSession") -> None:
+    """Disconnect the robot (always, at any stop) and say so in the audit log."""
+    if bridge.robot is None:
+        return
+    bridge.disconnect()
+    session._log("robot-disconnected", session=session.session["id"])
 
 
 def make_bridge(c: dict, settings: SessionSettings, task: str, report):
@@ -148,6 +306,7 @@ class HardwareSession:
             "ended": "running",
         }
         self.sessions.append(self.session)
+        self.in_progress: int | None = None  # the episode started and not yet sealed or discarded
         self._log(
             "robot-session-started",
             session=self.session["id"],
@@ -186,6 +345,11 @@ class HardwareSession:
 
     # ------------------------------------------------------------------ sealing
     def seal_episode(self, index: int, record: dict, arrays: dict, mcap: Path | None) -> None:
+        with StopSignals.critical():
+            self._seal_episode(index, record, arrays, mcap)
+        self.in_progress = None
+
+    def _seal_episode(self, index: int, record: dict, arrays: dict, mcap: Path | None) -> None:
         import numpy as np
 
         d = self.dir / EPISODES_DIR / f"{index:06d}"
@@ -214,6 +378,10 @@ class HardwareSession:
         )
 
     def relabel(self, index: int, label: dict, gamma: float) -> dict:
+        with StopSignals.critical():
+            return self._relabel(index, label, gamma)
+
+    def _relabel(self, index: int, label: dict, gamma: float) -> dict:
         import numpy as np
 
         from accrue.robot.episode import relabelled
@@ -238,6 +406,10 @@ class HardwareSession:
         return arrays
 
     def seal_learner(self, snapshot: Path) -> None:
+        with StopSignals.critical():
+            self._seal_learner(snapshot)
+
+    def _seal_learner(self, snapshot: Path) -> None:
         if (self.dir / "learner").exists():
             shutil.rmtree(self.dir / "learner")
         copy_tree(snapshot / "learner", self.dir / "learner")
@@ -247,21 +419,43 @@ class HardwareSession:
         self._log("robot-learner-checkpoint", updates=info["updates"], version=info["version"], checkpoint=cid)
 
     def close(self, how: str) -> None:
-        self.session["ended"] = how
-        self._save()
-        self._log(
-            "robot-session-ended",
-            session=self.session["id"],
-            how=how,
-            episodes=self.session["episodes"],
-            robot_time_s=round(self.session["robot_time_s"], 3),
-        )
+        with StopSignals.critical():
+            self.session["ended"] = how
+            self._save()
+            self._log(
+                "robot-session-ended",
+                session=self.session["id"],
+                how=how,
+                episodes=self.session["episodes"],
+                robot_time_s=round(self.session["robot_time_s"], 3),
+            )
 
     def started(self, index: int) -> None:
         self._log("robot-episode-started", index=index, session=self.session["id"])
+        self.in_progress = index
 
     def discard(self, index: int, why: str) -> None:
         self._log("robot-episode-discarded", index=index, reason=why)
+        if self.in_progress == index:
+            self.in_progress = None
+
+    def stopped(self, stop: SessionStop) -> SessionStop:
+        """Ctrl-C or SIGTERM: the episode in progress is discarded (as at a kill), the session closed with
+        how it was stopped; the SessionStop to raise carries the one line to print."""
+        with StopSignals.critical():
+            index, dropped = self.in_progress, ""
+            if index is not None:
+                self.discard(index, f"{stop.how}: in progress, not sealed, so not counted")
+                dropped = f"episode {index} discarded, "
+            if self.session["ended"] == "running":
+                self.close(stop.how)
+        return SessionStop(
+            f"{self.ctx.step}: {stop.how}{' (forced)' if stop.forced else ''}; {dropped}{len(self.episodes)} "
+            f"episodes sealed (resume with `accrue stage run ... --step {self.ctx.step} --continue`)",
+            stop.how,
+            stop.code,
+            stop.forced,
+        )
 
     # ------------------------------------------------------------------ internals
     def _save(self) -> str:
@@ -339,6 +533,7 @@ def episode_loop(
     on_sealed=lambda index, arrays, relabel=False: None,
     between=lambda: None,
     learner_state=lambda: {},
+    hold: LearnerHold | None = None,
 ) -> None:
     """Operator-labelled episodes on `task` until done() says enough; each sealed at once.
 
@@ -346,7 +541,9 @@ def episode_loop(
     (the actor acts with the newest weights it has). A robot fault ends the episode as a failure labelled
     by "system"; the robot is reconnected, or the step stops with one line (everything sealed stays).
     The operator is shown the live state (operator.show) at each episode's start and end and every
-    SHOW_EVERY_S of robot time in between; learner_state() adds the learner's version and health."""
+    SHOW_EVERY_S of robot time in between; learner_state() adds the learner's version and health.
+    With a `hold` (train), the actor stops acting when the learner has not answered for its staleness
+    (checked at every chunk and before each episode) and waits for it (LearnerHold)."""
     import tempfile
 
     from accrue.logs.mcap_episodes import EpisodeRecorder
@@ -371,7 +568,7 @@ def episode_loop(
     logs = Path(tempfile.mkdtemp(dir=ctx.scratch_dir("mcap")))
     phase = ctx.config["phase"]
     chunk_s = settings.horizon / settings.control_hz  # robot time of one chunk
-    live = {"index": None, "step": 0, "acted_s": 0.0, "shown_s": 0.0}
+    live = {"index": None, "step": 0, "acted_s": 0.0, "shown_s": 0.0, "held": False}
 
     def show(**state) -> None:
         fn = getattr(operator, "show", None)  # an operator without a view has nothing to update
@@ -400,12 +597,20 @@ def episode_loop(
         if live["acted_s"] - live["shown_s"] >= SHOW_EVERY_S - 1e-9:
             live["shown_s"] = live["acted_s"]
             show(status=f"episode {live['index']} running")
+        if hold is not None and command is None:
+            hold.acted(chunk_s)
+            if hold.due():
+                live["held"] = True
+                return "abort"  # ends the episode now; discarded below, not an operator's abort
         return command
 
     while not done():
         between()
         if done():
             break
+        if hold is not None and hold.due():
+            hold.wait(session, operator, show, ctx.console)
+            continue
         index = session.next_index(index_base)
         answer = operator.wait_reset(index, task, last)
         if answer.relabel is not None and last is not None:
@@ -427,6 +632,12 @@ def episode_loop(
         meta = {**metadata, "index": index, "weights_version": version, "session": session.session["id"]}
         out = run_episode(bridge, settings, reference, policy, features, recorder, meta, poll=poll)
         live.update(step=out.control_steps, acted_s=0.0)
+        if out.end == "abort" and live["held"]:
+            live["held"] = False
+            recorder.abort(0)
+            session.discard(index, "the learner stopped answering: the robot was held, the episode not sealed")
+            hold.wait(session, operator, show, ctx.console)
+            continue
         if out.end == "abort":
             recorder.abort(0)
             session.discard(index, "aborted by the operator")

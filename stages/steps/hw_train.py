@@ -13,6 +13,7 @@ every episode's label and robot time, the stop rule and when it was reached) and
 
 from __future__ import annotations
 
+import contextlib
 import shutil
 import threading
 from pathlib import Path
@@ -25,11 +26,16 @@ from stages.steps import warmup as warmup_step
 from stages.steps.common import deterministic, load_base_policy, per_task_features, read_json, reference_fn, write_json
 from stages.steps.hw_session import (
     HardwareSession,
+    LearnerHold,
     SessionSettings,
+    SessionStop,
+    StopSignals,
+    children_keep_sigint,
     episode_loop,
     episodes_output,
     make_bridge,
     make_operator,
+    release_robot,
 )
 
 
@@ -47,6 +53,46 @@ def episode_settings(c: dict, task: str, clock: float):
         clock=clock,
         safety=SafetyEnvelope.from_dict(r.get("safety")),
     )
+
+
+def update_target(session: HardwareSession, cfg) -> int:
+    """The learner's update count once it has trained on every sealed episode: utd updates per chunk
+    transition of the current task (accrue.robot.learner_service's train_forever)."""
+    return int(sum(e["chunks"] for e in session.ordered("train")) * cfg.utd)
+
+
+def final_weights(link, target: int, publish_every: int, wait_s: float) -> None:
+    """Before the handoff: wait (up to wait_s of wall time) until the learner has made `target` updates,
+    then take its state as it is then. Snapshots come every publish_every updates, so the wait watches
+    them until the learner is within one of the target, then asks for a fresh one until it is reached."""
+    import time
+
+    deadline = time.monotonic() + wait_s
+    while link.updates + publish_every < target and time.monotonic() < deadline:
+        time.sleep(0.2)
+    while True:
+        left = deadline - time.monotonic()
+        link.final_snapshot(wait_s=max(1.0, min(15.0, left)))
+        if link.updates >= target or time.monotonic() >= deadline:
+            return
+        time.sleep(min(1.0, max(0.0, deadline - time.monotonic())))
+
+
+def shortfall(ctx: StepContext, session: HardwareSession, target: int, waited_s: float) -> None:
+    """The learner handed to the next stage, against the updates an uninterrupted learner makes: the
+    shortfall is recorded in learner.json (and so in the checkpoint), the audit log and printed."""
+    path = session.dir / "learner.json"
+    info = read_json(path)
+    short = max(0, target - int(info["updates"]))
+    info.update(update_target=target, updates_short=short)
+    write_json(path, info)
+    if short:
+        line = (
+            f"train: the learner made {info['updates']} of {target} updates before the handoff "
+            f"(waited up to robot.handoff_wait_s {waited_s:g} s); the next stage starts from it, short by {short}"
+        )
+        ctx.console.print(line, soft_wrap=True)
+        session._log("robot-learner-shortfall", updates=int(info["updates"]), target=target, short=short)
 
 
 def link_healthy(link) -> bool:
@@ -72,18 +118,16 @@ def stop_state(session: HardwareSession, c: dict) -> tuple[bool, str]:
 
 
 def run(ctx: StepContext, settings: SessionSettings) -> None:
-    import torch
+    with StopSignals():  # Ctrl-C / SIGTERM: a clean stop (SessionStop), a second one forces
+        _run(ctx, settings)
 
-    from accrue.learner import ReplayBuffer, begin_stage, end_stage, load_learner, save_learner
-    from accrue.robot.episode import replay_from_episodes
-    from accrue.robot.learner_client import LearnerLink
-    from accrue.robot.learner_service import episode_npz
-    from accrue.robot.transport import tar_dir
-    from stages.steps.common import copy_tree, learner_config
+
+def _run(ctx: StepContext, settings: SessionSettings) -> None:
+    from accrue.learner import ReplayBuffer
+    from stages.steps.common import learner_config
 
     c = ctx.config
-    k, tasks, horizon, seed = c["stage"], c["task_ids"], c["horizon"], c["seed"]
-    task = tasks[-1]
+    task, horizon, seed = c["task_ids"][-1], c["horizon"], c["seed"]
     deterministic(seed)
     cfg = learner_config(dict(c["learner"], device=c["learner"].get("device", "cpu")))
     policy = load_base_policy(ctx.input_path("base-policy"), seed)
@@ -94,7 +138,26 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
     warm_info = read_json(warm_dir / warmup_step.INFO_FILE)
     handoff = ctx.input_path("handoff") if ctx.has_input("handoff") else None
     session = HardwareSession(ctx, settings)
+    try:
+        _session(ctx, settings, session, cfg, reference, features, warm_dir, warm, warm_info, handoff)
+    except SessionStop as stop:
+        raise session.stopped(stop) from None
 
+
+def _session(ctx, settings, session, cfg, reference, features, warm_dir, warm, warm_info, handoff):
+    import torch
+
+    from accrue.learner import begin_stage, end_stage, load_learner, save_learner
+    from accrue.robot.episode import replay_from_episodes
+    from accrue.robot.learner_client import LearnerLink
+    from accrue.robot.learner_service import episode_npz
+    from accrue.robot.link_auth import link_auth_for
+    from accrue.robot.transport import tar_dir
+    from stages.steps.common import copy_tree
+
+    c = ctx.config
+    k, tasks, horizon, seed = c["stage"], c["task_ids"], c["horizon"], c["seed"]
+    task = tasks[-1]
     if not (session.dir / "learner.json").is_file():  # Algorithm 1 line 1, once per stage
         prev = load_learner(handoff / handoff_step.LEARNER_DIR, device=cfg.device) if handoff else None
         learner = begin_stage(prev, cfg, warm.state_dim, horizon)
@@ -150,6 +213,9 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
         if "event" in fields:
             ctx.log_event(fields.pop("event"), workflow=c["workflow"], stage=k, phase="train", message=line, **fields)
 
+    # a learner on another host is driven with the store's token (or robot.link's); one this actor starts
+    # gets a token of its own (LearnerLink's default)
+    remote = settings.learner_address is not None
     link = LearnerLink(
         init_payload,
         sealed_episodes,
@@ -158,10 +224,15 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
         address=settings.learner_address,
         heartbeat_s=settings.heartbeat_s,
         dead_after_s=settings.dead_after_s,
+        auth=link_auth_for({"link": settings.link}, ctx.store.root) if remote else None,
+        # weights versions stay unique across sessions: the newest one any sealed episode acted with
+        version_floor=max([sealed_info["version"], *(e.get("weights_version") or 0 for e in session.ordered())]),
     )
-    link.start()
+    with children_keep_sigint():  # the learner it spawns is stopped by this actor, not by the terminal
+        link.start()
     bridge = make_bridge(c, settings, task, lambda line: report(line, {"event": "robot-fault"}))
     operator = make_operator(settings, bridge, ctx.console, store_root=ctx.store.root, audit=session.audit)
+    hold = LearnerHold(lambda: link_healthy(link), settings.hold_staleness_s, settings.hold_wait_s, "train")
 
     def between():
         with lock:
@@ -206,17 +277,28 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
                 "learner_version": acting["version"],
                 "learner_health": "ok" if link_healthy(link) else "lost",
             },
+            hold=hold,
         )
         done, why = stop_state(session, c)
+        release_robot(bridge, session)  # nothing more to do on the robot while the learner catches up
+        operator.tell(f"stopped ({why}); waiting for the learner's last updates")
+        target = update_target(session, cfg)
+        final_weights(link, target, c["publish_every"], settings.handoff_wait_s)
         snap = link.tmp / f"v{link.version}"
-        if link.final_snapshot() and (link.tmp / f"v{link.version}").is_dir():
-            session.seal_learner(link.tmp / f"v{link.version}")
-        elif snap.is_dir():
-            session.seal_learner(snap)  # the learner is gone: the newest weights this actor received
+        if snap.is_dir():  # the final snapshot, or (the learner gone) the newest weights this actor received
+            session.seal_learner(snap)
+        shortfall(ctx, session, target, settings.handoff_wait_s)
         session.close(why or reached[1])
+    except BaseException as exc:
+        with lock:
+            todo = list(pending)
+        if todo and not getattr(exc, "forced", False):
+            with contextlib.suppress(Exception):  # the newest learner checkpoint received is kept too
+                session.seal_learner(todo[-1])
+        raise
     finally:
         link.close()
-        bridge.disconnect()
+        release_robot(bridge, session)
         operator.close()
     ctx.console.print(f"train: stopped - {why}")
 
@@ -235,6 +317,8 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
             "method": cfg.method,
             "per_task": [],
             "updates": info["updates"],
+            "update_target": info.get("update_target"),
+            "updates_short": info.get("updates_short", 0),
             "episodes": len(train_eps),
             "hardware": True,
         },
@@ -291,7 +375,7 @@ def curve_json(c: dict, session: HardwareSession, warm_info: dict, why: str, lea
 
 STEP = StepDef(
     name="train",
-    code_version="hw-train-1",
+    code_version="hw-train-2",
     run=lambda ctx: run(ctx, SessionSettings()),
     inputs=("base-policy", "replay"),
     optional_inputs=("handoff", "teacher"),

@@ -11,21 +11,23 @@ from stages.steps.common import deterministic, load_base_policy, per_task_featur
 from stages.steps.hw_session import (
     HardwareSession,
     SessionSettings,
+    SessionStop,
+    StopSignals,
     episode_loop,
     episodes_output,
     make_bridge,
     make_operator,
+    release_robot,
 )
 from stages.steps.hw_train import episode_settings
 
 
 def run(ctx: StepContext, settings: SessionSettings) -> None:
-    import numpy as np
+    with StopSignals():  # Ctrl-C / SIGTERM: a clean stop (SessionStop), a second one forces
+        _run(ctx, settings)
 
-    from accrue import rl_loop
-    from accrue.learner import ReplayBuffer
-    from accrue.robot.episode import replay_from_episodes
 
+def _run(ctx: StepContext, settings: SessionSettings) -> None:
     c = ctx.config
     task, k, horizon = c["task"], c["stage"], c["horizon"]
     deterministic(c["seed"])
@@ -33,6 +35,20 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
     reference = reference_fn(policy, task, horizon)
     features = per_task_features(c, [task])[task]
     session = HardwareSession(ctx, settings)
+    try:
+        _session(ctx, settings, session, c, task, k, reference, features)
+    except SessionStop as stop:
+        raise session.stopped(stop) from None
+
+
+def _session(ctx, settings, session, c, task, k, reference, features) -> None:
+    import numpy as np
+
+    from accrue import rl_loop
+    from accrue.learner import ReplayBuffer
+    from accrue.robot.episode import replay_from_episodes
+
+    horizon = c["horizon"]
     bridge = make_bridge(c, settings, task, lambda line: ctx.log_event("robot-fault", message=line, stage=k))
     operator = make_operator(settings, bridge, ctx.console, store_root=ctx.store.root, audit=session.audit)
     try:
@@ -53,7 +69,7 @@ def run(ctx: StepContext, settings: SessionSettings) -> None:
         )
         session.close(f"{c['episodes']} warmup episodes")
     finally:
-        bridge.disconnect()
+        release_robot(bridge, session)
         operator.close()
     eps = session.ordered()
     arrays = [session.arrays(e["index"]) for e in eps]
