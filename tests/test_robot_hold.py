@@ -27,7 +27,8 @@ CHUNK_S = 4 / 20.0  # horizon 4 at nist/rect_peg's 20 Hz: the robot time between
 
 def hold_workflow(path: Path, calib: Path, **robot) -> Path:
     """tests/hw_workflow's workflow, train limited to a few episodes, with extra robot.* keys."""
-    wf = write_hw_workflow(path, calib)
+    scripted = json.dumps(robot.pop("scripted", {}))
+    wf = write_hw_workflow(path, calib, scripted=scripted)
     extra = {"max_episodes": 3, "handoff_wait_s": 0, "hold": {"staleness_s": 1.0, "wait_s": 0}, **robot}
     lines = "".join(f"  {k}: {json.dumps(v)}\n" for k, v in extra.items())
     wf.write_text(wf.read_text().replace("  publish_every: 10\n", "  publish_every: 10\n" + lines))
