@@ -574,7 +574,14 @@ def episode_loop(
         fn = getattr(operator, "show", None)  # an operator without a view has nothing to update
         if fn is None:
             return
-        frames = bridge.frames() if bridge.mapping.camera_keys and bridge.robot is not None else []
+        from accrue.errors import AccrueError
+
+        frames = []
+        if bridge.mapping.camera_keys and bridge.robot is not None:
+            try:  # before the first observation there is no frame yet: show none rather than fail the episode
+                frames = bridge.frames()
+            except AccrueError:
+                frames = []
         window = [bool(e["label"]["success"]) for e in session.ordered(phase)][-ctx.config.get("stop_window", 20) :]
         fn(
             {
