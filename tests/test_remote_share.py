@@ -350,3 +350,66 @@ def test_two_nodes_that_share_only_the_remote_run_cells_and_push_their_results(t
         [result] = Runner(Store.open(a), console=Console(file=open(os.devnull, "w"))).run_plan(plan)
         assert result.cached and result.record_id == user_refs(a)[f"workflow/node{i}/stage/1/train"]
     assert cli(a, "verify", "--remote", "origin").returncode == 0
+
+
+def test_a_push_landing_while_push_delete_runs_keeps_the_pushed_ref(tmp_path, remote_url, monkeypatch):
+    """push --delete is a compare-and-swap on the ref's value: a push of the same ref that reaches the
+    remote just before the delete does (on S3: after the deleting store read the ref) survives."""
+    from artifacts.remotes.push import push
+    from artifacts.remotes.unshare import delete_remote_refs
+    from artifacts.store import Store
+
+    a, b = tmp_path / "robot", tmp_path / "workstation"
+    make_store(a)
+    with_remote(a, remote_url)
+    cli(a, "push")
+    cli(b, "init")
+    with_remote(b, remote_url)
+    cli(b, "pull")  # b saw team/replay where the robot put it
+    (tmp_path / "newer.bin").write_bytes(b"the robot's newer replay")
+    newer = cli(a, "add", str(tmp_path / "newer.bin"), "--kind", "replay", "--ref", "team/replay").stdout.strip()
+    landed = []
+
+    def robot_pushes() -> None:
+        if not landed:
+            landed.append(push(Store.open(a), "origin", ["team/replay"]).moved)
+
+    if remote_url.startswith("s3://"):
+        # the moto server runs in this process: the robot's push lands when b's request to delete
+        # the ref arrives (a DELETE of the key, or a bulk POST ?delete naming it), before it is handled
+        from moto.s3.responses import S3Response
+
+        one, bulk = S3Response._key_response_delete, S3Response._bucket_response_delete_keys
+
+        def key_delete(self, bucket_name, query, key_name):
+            if key_name.endswith("refs/team/replay"):
+                robot_pushes()
+            return one(self, bucket_name, query, key_name)
+
+        def keys_delete(self, bucket_name, *args, **kwargs):
+            body = self.body.decode() if isinstance(self.body, bytes) else str(self.body)
+            if "refs/team/replay" in body:
+                robot_pushes()
+            return bulk(self, bucket_name, *args, **kwargs)
+
+        monkeypatch.setattr(S3Response, "_key_response_delete", key_delete)
+        monkeypatch.setattr(S3Response, "_bucket_response_delete_keys", keys_delete)
+    else:
+        from artifacts.remotes.directory import DirBackend
+
+        real_delete = DirBackend.delete
+
+        def delete(self, key, expect):
+            robot_pushes()
+            return real_delete(self, key, expect)
+
+        monkeypatch.setattr(DirBackend, "delete", delete)
+    report = delete_remote_refs(Store.open(b), "origin", ["team/replay"])
+    assert landed and "team/replay" in landed[0]  # the push really ran in between
+    assert report.deleted == {} and report.conflicts == [
+        "ref team/replay: remote origin moved it meanwhile; fetch and try again"
+    ]
+    assert cli(b, "fetch").returncode == 0
+    assert user_refs(b)["team/replay"] != newer  # (b's own ref stays where it was)
+    fetched = json.loads(cli(b, "refs", "remotes/origin/", "--json").stdout)
+    assert fetched["remotes/origin/team/replay"] == newer

@@ -210,12 +210,22 @@ class S3Backend(Backend):
         return result["e_tag"] or ""
 
     def delete(self, key: str, expect: str) -> None:
-        # S3 has no conditional DELETE that every compatible service honours: compare, then
-        # delete; a push landing between the two is lost from the ref (its objects stay).
-        current = self.read_versioned(key)
-        if current is None or current[1] != expect:
-            raise RefMoved(key)
-        self.remove(key)
+        # One conditional request (DELETE If-Match, which obstore cannot send): the server compares
+        # and deletes at once, so a push that moved the ref meanwhile keeps it (412, RefMoved).
+        # A read-then-delete would lose a push landing between the two.
+        from botocore.exceptions import BotoCoreError, ClientError
+
+        base = f"{self.spec.prefix}/" if self.spec.prefix else ""
+        try:
+            self._boto3().delete_object(Bucket=self.spec.bucket, Key=base + key, IfMatch=expect)
+        except ClientError as exc:
+            err = exc.response.get("Error", {})
+            status = exc.response.get("ResponseMetadata", {}).get("HTTPStatusCode")
+            if err.get("Code") != "NoSuchBucket" and (status in (404, 412) or err.get("Code") == "PreconditionFailed"):
+                raise RefMoved(key) from None  # moved, or deleted by someone else
+            raise explain_s3_error(exc, self.describe(), endpoint_of(self.spec)) from None
+        except BotoCoreError as exc:
+            raise explain_s3_error(exc, self.describe(), endpoint_of(self.spec)) from None
 
     def remove(self, key: str) -> None:
         import obstore
@@ -232,10 +242,18 @@ class S3Backend(Backend):
 
     def _boto3(self):
         import boto3
+        from botocore.config import Config
 
         session = boto3.Session(profile_name=self.spec.settings.get("profile") or None)
         region = self.spec.settings.get("region") or session.region_name or os.environ.get("AWS_REGION")
-        return session.client("s3", endpoint_url=endpoint_of(self.spec), region_name=region or "us-east-1")
+        config = Config(  # the same limits as obstore's client: a silent endpoint ends in one line
+            connect_timeout=_seconds("ACCRUE_REMOTE_CONNECT_TIMEOUT", "5"),
+            read_timeout=_seconds("ACCRUE_REMOTE_READ_TIMEOUT", "10"),
+            retries={"max_attempts": int(os.environ.get("ACCRUE_REMOTE_RETRIES", "3")) + 1, "mode": "standard"},
+        )
+        return session.client(
+            "s3", endpoint_url=endpoint_of(self.spec), region_name=region or "us-east-1", config=config
+        )
 
     def unfinished_uploads(self) -> list[tuple[str, float, object]]:
         """Unfinished multipart uploads under this remote (obstore cannot list them; boto3 can)."""
