@@ -163,6 +163,7 @@ class LearnerLink:
                     f"learner process exited (code {self.proc.returncode}); starting it again",
                     {"event": "robot-learner-lost", "code": self.proc.returncode},
                 )
+                self.lost_reported = True  # so that "learner is back" follows once it answers
             self.ready = False
             if self.peer is not None:
                 self.peer.close()

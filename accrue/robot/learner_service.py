@@ -76,6 +76,7 @@ class LearnerService:
         self.dirty = False  # episodes changed since the buffer was built
         self.updates = self.version = 0
         self.snapshot: tuple[int, int, bool, bytes] | None = None  # version, updates, checkpoint, tar
+        self.checkpoint_version = -1  # the newest snapshot marked as a checkpoint
         self.want_snapshot = threading.Event()
         self.last_call = time.monotonic()
         self.orphan_after_s = orphan_after_s
@@ -153,7 +154,7 @@ class LearnerService:
             floor = int(h.get("version_floor", -1))
             self.updates, self.version = int(info["updates"]), max(int(info["version"]), floor)
             self.last_publish = self.last_ckpt = None
-            self.episodes, self.dirty, self.snapshot = {}, True, None
+            self.episodes, self.dirty, self.snapshot, self.checkpoint_version = {}, True, None, -1
             self.buffer = None
             self.run_id = h["run_id"]
         return {"ok": True}, b""
@@ -176,10 +177,11 @@ class LearnerService:
             deadline = time.monotonic() + float(h.get("wait_s", 10.0))
             while self.want_snapshot.is_set() and time.monotonic() < deadline:
                 time.sleep(0.02)
-        snap = self.snapshot
-        if snap is None or snap[0] <= int(h.get("have", -1)):
+        snap, have = self.snapshot, int(h.get("have", -1))
+        if snap is None or snap[0] <= have:
             return {"version": None, "updates": self.updates}, b""
-        return {"version": snap[0], "updates": snap[1], "checkpoint": snap[2]}, snap[3]
+        # a checkpoint the actor has not pulled was overtaken by newer weights: those are one too
+        return {"version": snap[0], "updates": snap[1], "checkpoint": self.checkpoint_version > have}, snap[3]
 
     def heartbeat(self, h: dict, blob: bytes):
         self.last_call = time.monotonic()
@@ -217,6 +219,8 @@ class LearnerService:
         )
         self.version += 1
         self.snapshot = (self.version, self.updates, checkpoint, tar_dir(d))
+        if checkpoint:
+            self.checkpoint_version = self.version
 
     def train_forever(self):
         while not self.stop.is_set():
@@ -311,6 +315,7 @@ def main(argv: list[str] | None = None, audit: Callable[[str, dict], None] | Non
     # the port is announced, so that Init answers at once
     torch.optim.AdamW([torch.nn.Parameter(torch.zeros(1))])
 
+    service.last_call = time.monotonic()  # the imports above are not the actor's silence
     print(f"accrue learner listening on port {port} (pid {os.getpid()})", flush=True)
     trainer = threading.Thread(target=service.train_forever, daemon=True)
     trainer.start()
