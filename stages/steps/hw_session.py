@@ -292,6 +292,7 @@ class HardwareSession:
         for s in self.sessions:
             if s["ended"] == "running":
                 s["ended"] = "interrupted (process ended without closing the session)"
+        self.in_progress: int | None = None  # the episode started and not yet sealed or discarded
         self._discard_unsealed()
         self.session = {
             "id": len(self.sessions) + 1,
@@ -306,7 +307,6 @@ class HardwareSession:
             "ended": "running",
         }
         self.sessions.append(self.session)
-        self.in_progress: int | None = None  # the episode started and not yet sealed or discarded
         self._log(
             "robot-session-started",
             session=self.session["id"],
