@@ -149,3 +149,19 @@ def test_a_port_in_use_is_refused(tmp_path):
         assert len(run.stderr.strip().splitlines()) == 1
     finally:
         server.stop(grace=0)
+
+
+def test_a_learner_whose_actor_is_gone_says_its_last_line_without_a_traceback():
+    """kill -9 of the actor closes the pipe the spawned learner prints to: its goodbye must not end in a
+    BrokenPipeError traceback (issue 21)."""
+    import os
+    import subprocess
+    import sys
+
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # the actor is gone: nobody reads the learner's stdout
+    code = "from accrue.robot.learner_service import say; say('the actor is gone'); say('exiting')"
+    out = subprocess.run([sys.executable, "-c", code], stdout=write_end, stderr=subprocess.PIPE, text=True)
+    os.close(write_end)
+    assert out.returncode == 0, out.stderr
+    assert "Traceback" not in out.stderr and "BrokenPipe" not in out.stderr

@@ -23,7 +23,7 @@ import pytest
 from accrue.errors import AccrueError
 
 CHROMIUM = "/usr/bin/chromium"
-CAMERA = False  # TEMP
+CAMERA = True  # the episode loop shows a frame only once the robot has observed one
 
 
 def request(url: str, path: str, token: str | None = None, data: dict | None = None, header: bool = True):
@@ -280,6 +280,10 @@ def test_a_whole_simulated_session_from_the_page(tmp_path, monkeypatch):
     from playwright.sync_api import expect, sync_playwright
 
     from accrue.robot.link_auth import store_token
+
+    # the page follows the session, which waits on nothing but the page: on a loaded machine (a cold first
+    # episode renders the camera) a state can take longer than playwright's 5 s default to appear
+    expect.set_options(timeout=60_000)
     from artifacts.manifests import materialize
     from artifacts.store import Store
     from stages.errors import StageError

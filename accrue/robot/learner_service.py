@@ -42,6 +42,17 @@ from accrue.robot.transport import PROTOCOL, serve, tar_dir, untar
 RECENT_REFUSALS = 50  # the refusals a Heartbeat answer carries (the count covers all of them)
 
 
+def say(line: str) -> None:
+    """One line to the learner's log. The actor that reads the spawned learner's stdout may be gone (a
+    kill -9): then the line goes nowhere instead of ending the learner in a BrokenPipeError traceback."""
+    try:
+        print(line, flush=True)
+    except BrokenPipeError:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # later writes, the interpreter's final flush too, go nowhere
+        os.close(devnull)
+
+
 def accrue_version() -> str:
     from importlib.metadata import PackageNotFoundError, version
 
@@ -105,10 +116,9 @@ class LearnerService:
             self.refused += 1
             entry = {"seq": self.refused, "peer": peer, "method": method, "at": at}
             self.refusals.append(entry)
-        print(
+        say(
             f"accrue learner: refused {method} from {peer} at {at}: no or wrong link token "
-            f"({entry['seq']} refused so far)",
-            flush=True,
+            f"({entry['seq']} refused so far)"
         )
         if self.audit is not None:
             self.audit("robot-link-refused", {"peer": peer, "method": method, "at": at, "by": "learner"})
@@ -316,7 +326,7 @@ def main(argv: list[str] | None = None, audit: Callable[[str, dict], None] | Non
     torch.optim.AdamW([torch.nn.Parameter(torch.zeros(1))])
 
     service.last_call = time.monotonic()  # the imports above are not the actor's silence
-    print(f"accrue learner listening on port {port} (pid {os.getpid()})", flush=True)
+    say(f"accrue learner listening on port {port} (pid {os.getpid()})")
     trainer = threading.Thread(target=service.train_forever, daemon=True)
     trainer.start()
     silent = False
@@ -324,17 +334,16 @@ def main(argv: list[str] | None = None, audit: Callable[[str, dict], None] | Non
         time.sleep(0.2)
         quiet = time.monotonic() - service.last_call > args.orphan_after
         if args.parent_pid and (os.getppid() != args.parent_pid or quiet):
-            print("accrue learner: the actor that started it is gone; exiting", flush=True)
+            say("accrue learner: the actor that started it is gone; exiting")
             break
         if quiet != silent and service.run_id is not None:  # a standalone learner waits for its actor
-            print(
+            say(
                 "accrue learner: "
                 + (
                     f"no call from the actor for {args.orphan_after:g} s; waiting for it"
                     if quiet
                     else "the actor is back"
-                ),
-                flush=True,
+                )
             )
             silent = quiet
     server.stop(grace=0.5)
