@@ -141,6 +141,23 @@ class RobotSpec(_Strict):
         return self
 
 
+class WandbSpec(_Strict):
+    """Weights & Biases, used only when asked for here (docs/TRACKING.md); offline needs no network."""
+
+    project: str = "accrue"
+    mode: Literal["offline", "online"] = "offline"
+    entity: Optional[str] = None
+
+
+class TrackingSpec(_Strict):
+    """Where train steps, robot sessions and bench cells write their scalars (accrue.tracking). Nothing
+    here enters a cache key: event files sit beside the store's audit log, never in its objects."""
+
+    tensorboard: bool = True
+    wandb: Optional[WandbSpec] = None
+    every: int = Field(20, gt=0)  # learner updates between two loss/Q points (eval points are all written)
+
+
 class Workflow(_Strict):
     name: str
     description: str = ""
@@ -162,6 +179,7 @@ class Workflow(_Strict):
     learner: dict[str, Any] = {}  # LearnerConfig fields (accrue.learner.config)
     budgets: Budgets
     robot: Optional[RobotSpec] = None  # a robot instead of the simulator (hardware steps)
+    tracking: TrackingSpec = TrackingSpec()  # TensorBoard / W&B scalars; outside every cache key
 
     @field_validator("name")
     @classmethod

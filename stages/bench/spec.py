@@ -281,7 +281,8 @@ def _check_tasks(orderings: dict[str, list[str]], where: str) -> None:
 def cell_name(spec_name: str, method: str, ordering: str, seed: int, wf_data: dict) -> str:
     from artifacts.hashing import hash_json
 
-    digest = hash_json({k: v for k, v in wf_data.items() if k not in ("name", "description")})[:8]
+    # tracking (where scalars are written) changes no result: cells keep their names with it on or off
+    digest = hash_json({k: v for k, v in wf_data.items() if k not in ("name", "description", "tracking")})[:8]
     label = f"{spec_name}.{method}.{ordering}.s{seed}"
     return f"{label[: MAX_NAME - 9]}.{digest}"
 
