@@ -370,8 +370,10 @@ class Runner:
                 record=record_id,
                 outputs=outputs,
             )
-        except KeyboardInterrupt:
-            self._close(attempt, "abandoned", "interrupted (Ctrl-C)")
+        except KeyboardInterrupt as exc:
+            # a hardware step's SessionStop names what stopped it (Ctrl-C or SIGTERM); a bare
+            # KeyboardInterrupt is Python's default SIGINT handler, i.e. Ctrl-C
+            self._close(attempt, "abandoned", getattr(exc, "how", None) or "interrupted (Ctrl-C)")
             raise
         except BaseException as exc:
             self._close(attempt, "failed", _one_line(exc))

@@ -25,6 +25,7 @@ import tempfile
 import threading
 import time
 import uuid
+import weakref
 from pathlib import Path
 from typing import Callable
 
@@ -69,7 +70,9 @@ class LearnerLink:
         self.stop = threading.Event()
         self.lost_reported = False
         self.last_ok = time.monotonic()
+        # every weights snapshot received lands here; removed at close(), or at exit if close() never ran
         self.tmp = Path(tempfile.mkdtemp(prefix="accrue-actor-"))
+        self._remove_tmp = weakref.finalize(self, shutil.rmtree, self.tmp, ignore_errors=True)
         self.thread = threading.Thread(target=self._run, name="learner-link", daemon=True)
 
     # ------------------------------------------------------------------ the actor's calls (never block)
@@ -119,6 +122,8 @@ class LearnerLink:
                 self.proc.wait(timeout=5)
         if self.peer is not None:
             self.peer.close()
+        if not self.thread.is_alive():  # a thread still in a call could write into it afterwards
+            self._remove_tmp()  # the caller has sealed what it keeps (session.seal_learner copies)
 
     # ------------------------------------------------------------------ the thread
     def _spawn(self) -> None:

@@ -143,11 +143,53 @@ def serve(
     except RuntimeError:
         port = 0
     if port == 0:
-        raise AccrueError(
-            f"learner: cannot listen on {address!r} (the port is in use or the host is not this machine's)"
-        )
+        raise AccrueError(f"learner: cannot listen on {address!r} ({_why_not_listening(address)})")
     server.start()
     return server, port
+
+
+def _why_not_listening(address: str) -> str:
+    """Why gRPC could not bind `address`, found by binding it with a plain socket; for a port in use, a
+    port that is free on that host now, to give as --listen (and to the actor as robot.learner_address)."""
+    import errno
+    import socket
+
+    host, port = parse_address(address, "learner listen address", allow_zero=True)
+    bare = host[1:-1] if host.startswith("[") else host
+    try:
+        family, kind, proto, _, sockaddr = socket.getaddrinfo(
+            bare, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE
+        )[0]
+    except socket.gaierror:
+        return f"{host} is not a name or address of this machine"
+
+    def bind(addr) -> int:
+        with socket.socket(family, kind, proto) as probe:
+            probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as gRPC binds
+            probe.bind(addr)
+            probe.listen(1)  # with SO_REUSEADDR a bind alone succeeds on a port a connection holds
+            return probe.getsockname()[1]
+
+    try:
+        bind(sockaddr)
+    except OSError as exc:
+        if exc.errno != errno.EADDRINUSE:
+            return f"{host} is not an address of this machine ({exc.strerror}); 0.0.0.0 listens on all of them"
+        free = None
+        # the next free port above it (one to write in both workflows), else one the kernel picks
+        for candidate in [*range(port + 1, min(port + 100, 65535) + 1), 0]:
+            try:
+                free = bind((sockaddr[0], candidate, *sockaddr[2:]))
+                break
+            except OSError:
+                continue
+        if free is None:
+            return "the port is in use"
+        return (
+            f"the port is in use, by another learner or program; port {free} is free now: "
+            f"--listen {host}:{free}, and robot.learner_address: <this host>:{free} in the actor's workflow"
+        )
+    return "gRPC refused the address; a plain socket could bind it, so try again"
 
 
 class Peer:
