@@ -1,0 +1,142 @@
+"""accrue.tracking (issue 21 item 7): TensorBoard event files read back with tensorboard's own reader,
+W&B offline, a missing wandb in one line, write failures that never end the run, and the hooks in
+the train step (tags written, artifact ids the same with tracking on and off)."""
+
+from __future__ import annotations
+
+import glob
+import importlib.util
+import sys
+from pathlib import Path
+
+import pytest
+
+from accrue.tracking import open_tracker, run_name, settings_of, tracking_dir
+
+
+def read_scalars(log_dir: Path) -> dict[str, list[tuple[int, float]]]:
+    """tag -> [(step, value)] from every event file under log_dir (tensorboard's EventAccumulator)."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    acc = EventAccumulator(str(log_dir), size_guidance={"scalars": 0})
+    acc.Reload()
+    return {tag: [(e.step, e.value) for e in acc.Scalars(tag)] for tag in acc.Tags()["scalars"]}
+
+
+def test_event_files_read_back_with_tags_and_values(tmp_path):
+    lines: list[str] = []
+    with open_tracker(None, tmp_path / "run", "wf/stage-1/train", warn=lines.append) as tracker:
+        assert tracker.sinks == ["tensorboard"]
+        tracker.scalar("train/critic_loss", 0.5, 10)
+        tracker.scalar("train/critic_loss", 0.25, 20)
+        tracker.scalars({"eval/success/a": 0.75, "eval/success/b": 1.0, "skipped": None}, 40)
+        tracker.scalar("nan_dropped", float("nan"), 41)
+    tracker.close()  # idempotent
+    tracker.scalar("after_close", 1.0, 1)  # a closed tracker writes nothing and does not raise
+    assert lines == []
+    assert read_scalars(tmp_path / "run") == {
+        "train/critic_loss": [(10, 0.5), (20, 0.25)],
+        "eval/success/a": [(40, 0.75)],
+        "eval/success/b": [(40, 1.0)],
+    }
+
+
+def test_settings_defaults_and_paths(tmp_path):
+    assert settings_of(None) == {"tensorboard": True, "wandb": None, "every": 20}
+    assert settings_of({"wandb": {"project": "p"}, "every": 5})["wandb"] == {
+        "project": "p",
+        "mode": "offline",
+        "entity": None,
+    }
+    name = run_name("quick", 2, "train")
+    assert name == "quick/stage-2/train"
+    assert tracking_dir(tmp_path, name) == tmp_path / "log" / "tracking" / "quick" / "stage-2" / "train"
+
+
+def test_tensorboard_off_writes_nothing(tmp_path):
+    with open_tracker({"tensorboard": False}, tmp_path / "run", "x") as tracker:
+        assert not tracker.enabled
+        tracker.scalar("a", 1.0, 1)
+    assert not (tmp_path / "run").exists()
+
+
+def test_thinning_due_every_n_updates(tmp_path):
+    with open_tracker({"every": 5}, tmp_path / "run", "x") as tracker:
+        assert [u for u in range(1, 16) if tracker.due(u)] == [5, 10, 15]
+
+
+def test_write_failure_is_one_warning_and_the_run_goes_on(tmp_path):
+    lines: list[str] = []
+    tracker = open_tracker(None, tmp_path / "run", "wf/stage-1/train", warn=lines.append)
+
+    class Broken:
+        name = "tensorboard"
+
+        def write(self, values, step):
+            raise OSError(28, "No space left on device")
+
+        def flush(self):
+            pass
+
+        def close(self):
+            pass
+
+    tracker._sinks[0].close()
+    tracker._sinks[0] = Broken()
+    for step in range(5):
+        tracker.scalar("train/critic_loss", 1.0, step)  # never raises
+    tracker.close()
+    assert len(lines) == 1, lines
+    assert "tensorboard stopped after a failed write" in lines[0] and "No space left" in lines[0]
+
+
+def test_unwritable_log_dir_is_one_warning(tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    lines: list[str] = []
+    with open_tracker(None, blocker / "run", "x", warn=lines.append) as tracker:
+        assert not tracker.enabled
+        tracker.scalar("a", 1.0, 1)
+    assert len(lines) == 1 and "cannot write TensorBoard event files" in lines[0]
+
+
+def test_wandb_asked_for_but_missing_is_one_line(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "wandb", None)  # `import wandb` raises ImportError
+    lines: list[str] = []
+    with open_tracker({"wandb": {"project": "p"}}, tmp_path / "run", "x", warn=lines.append) as tracker:
+        assert tracker.sinks == ["tensorboard"]
+        tracker.scalar("a", 1.0, 1)
+    assert lines == ["tracking.wandb: wandb is not installed (pip install wandb); not logging to W&B"]
+    assert read_scalars(tmp_path / "run") == {"a": [(1, 1.0)]}
+
+
+def test_workflow_cli_error_for_a_bad_wandb_mode():
+    from stages.errors import StageError
+    from stages.workflow import parse_workflow
+
+    data = {"tasks": ["a"], "method": "accrue", "budgets": {"env_steps": 10, "eval_every": 5}}
+    assert parse_workflow(data, "wf.yaml").tracking.tensorboard is True
+    with pytest.raises(StageError, match=r"^wf.yaml: tracking.wandb.mode: must be one of 'offline' or 'online'"):
+        parse_workflow({**data, "tracking": {"wandb": {"mode": "cloud"}}}, "wf.yaml")
+    with pytest.raises(StageError, match=r"^wf.yaml: tracking.tensorbord: unknown field"):
+        parse_workflow({**data, "tracking": {"tensorbord": False}}, "wf.yaml")
+
+
+@pytest.mark.skipif(
+    importlib.util.find_spec("wandb") is None, reason="wandb is not installed (it comes with lerobot 0.4.4)"
+)
+def test_wandb_offline_writes_its_run_without_a_network(tmp_path, monkeypatch):
+    # no network: offline mode must not try one; a proxy to nowhere makes any attempt fail
+    monkeypatch.setenv("HTTPS_PROXY", "http://127.0.0.1:9")
+    monkeypatch.setenv("WANDB_API_KEY", "")
+    lines: list[str] = []
+    spec = {"tensorboard": False, "wandb": {"project": "accrue-test", "mode": "offline"}}
+    with open_tracker(spec, tmp_path / "run", "wf/stage-1/train", warn=lines.append) as tracker:
+        assert tracker.sinks == ["wandb"], lines
+        tracker.scalar("train/critic_loss", 0.5, 10)
+        tracker.scalars({"eval/success/a": 0.75}, 20)
+    assert lines == []
+    runs = glob.glob(str(tmp_path / "run" / "wandb" / "offline-run-*" / "run-*.wandb"))
+    assert len(runs) == 1
+    data = Path(runs[0]).read_bytes()
+    assert b"train/critic_loss" in data and b"eval/success/a" in data
