@@ -265,8 +265,12 @@ def train_loop(
     frozen_acts: dict[str, ActFn] | None = None,
     on_checkpoint: Callable[[LoopState], None] | None = None,
     on_progress: Callable[[LoopState, dict], None] | None = None,
+    on_update: Callable[[LoopState, dict], None] | None = None,
 ) -> LoopState:
     """Algorithm 1 lines 4-10 with an evaluation on tasks 1..k at every grid point.
+
+    on_update(state, info) follows every learner update with its losses (tracking; it must not touch
+    the learner, the buffer or any random stream).
 
     frozen_acts overrides the actor used to evaluate some earlier tasks (the Isolated method keeps one
     checkpoint per task). A resumed run passes the LoopState of its checkpoint and a collector whose env
@@ -309,6 +313,8 @@ def train_loop(
         # lines 8-9: critic on B^k (Eq. 2), actor on B^k and B^{<k} (Eq. 5): `utd` updates per chunk step
         info = learner.train_step(collector.buffer, prior, teacher, fresh_ref)
         state.updates += learner.cfg.utd if info else 0  # {}: still before learning_starts
+        if on_update and info:
+            on_update(state, info)
         crossed = [p for p in ckpt_points if p <= state.env_steps and p not in state.checkpoints_done]
         if crossed and state.env_steps < settings.env_steps:
             evaluate_due()  # a grid point under the checkpoint is evaluated before it is saved

@@ -76,6 +76,7 @@ def train_stage(
     resume: tuple | None = None,
     on_checkpoint: Callable | None = None,
     on_progress: Callable | None = None,
+    on_update: Callable | None = None,
 ):
     """Lines 1 and 4-10 of stage k, returning (learner after its handoff rule, final LoopState).
 
@@ -107,6 +108,7 @@ def train_stage(
         state=state,
         frozen_acts=frozen_acts,
         on_progress=on_progress,
+        on_update=on_update,
         on_checkpoint=(lambda st: on_checkpoint(learner, st)) if on_checkpoint else None,
     )
     return end_stage(learner), state

@@ -140,3 +140,66 @@ def test_wandb_offline_writes_its_run_without_a_network(tmp_path, monkeypatch):
     assert len(runs) == 1
     data = Path(runs[0]).read_bytes()
     assert b"train/critic_loss" in data and b"eval/success/a" in data
+
+
+# ------------------------------------------------------------------------------ the train step
+TINY = """
+name: tracked
+tasks: [nist/rect_peg]
+method: accrue
+seed: 3
+horizon: 4
+base_policy: {init: "scripted-reference:0.5"}
+learner: {actor_hidden: [16, 16], critic_hidden: [16, 16], projector_dim: 8, batch_size: 16, num_atoms: 11, utd: 1,
+          learning_starts: 8}
+budgets: {env_steps: 48, eval_every: 24, eval_episodes: 2, num_envs: 2, warmup_episodes: 2,
+          retained_episodes: 2, checkpoint_every: 0, log_episodes: 0}
+"""
+
+
+def run_stage_one(tmp_path: Path, tracking: dict | None) -> tuple[dict, Path]:
+    """Stage 1 in-process with the train step's tracking bound as a plan would bind it; returns
+    step -> output ids and the store root."""
+    import dataclasses
+    import functools
+
+    import yaml
+    from rich.console import Console
+
+    from artifacts.store import Store
+    from stages.plan import plan_stage
+    from stages.runner import Runner
+    from stages.steps import train
+    from stages.workflow import parse_workflow
+
+    wf = parse_workflow({**yaml.safe_load(TINY), **({"tracking": tracking} if tracking else {})}, "tiny.yaml")
+    store = Store.init(tmp_path / "store")[0]
+    plan = plan_stage(wf, 1, store)
+    bound = {"spec": wf.tracking.model_dump(), "workflow": wf.name}
+    steps = tuple(
+        dataclasses.replace(inv, step=dataclasses.replace(inv.step, run=functools.partial(train.run, tracking=bound)))
+        if inv.step.name == "train"
+        else inv
+        for inv in plan.steps
+    )
+    results = Runner(store, console=Console(stderr=True, width=200)).run_plan(dataclasses.replace(plan, steps=steps))
+    return {r.step: r.outputs for r in results}, store.root
+
+
+def test_train_step_writes_losses_q_and_eval_success_and_keeps_artifact_ids(tmp_path, monkeypatch):
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    on, root = run_stage_one(tmp_path / "on", {"every": 4})
+    off, root_off = run_stage_one(tmp_path / "off", {"tensorboard": False})
+    assert on == off  # tracking changes no artifact, not even the train step's
+    assert not (root_off / "log" / "tracking").exists()
+    run_dir = root / "log" / "tracking" / "tracked" / "stage-1" / "train"
+    scalars = read_scalars(run_dir)
+    for tag in ("train/critic_loss", "train/q_mean", "train/updates", "train/episodes", "train/success_rate"):
+        assert tag in scalars, sorted(scalars)
+    updates = [v for _, v in scalars["train/updates"]]
+    assert updates and all(u % 4 == 0 for u in updates)  # thinned to one point in `every` updates
+    assert [s for s, _ in scalars["eval/success/nist/rect_peg"]] == [0, 24, 48]  # every grid point
+    assert all(0.0 <= v <= 1.0 for _, v in scalars["eval/success/nist/rect_peg"])
+    # nothing of it in the store's objects: the event files are only under log/tracking
+    objects = {p.name for p in (root / "objects").rglob("*") if p.is_file()}
+    assert not any("tfevents" in name for name in objects)

@@ -32,7 +32,47 @@ REPLAY_DIR, LOOP_FILE = "replay", "loop.json"  # intra-step checkpoints only
 CURVE_FILE = "curve.json"  # the `curve` output
 
 
-def run(ctx: StepContext) -> None:
+def open_step_tracker(ctx: StepContext, tracking: dict | None, stage: int, fallback_workflow: str):
+    """The step's tracker (accrue.tracking) at <store>/log/tracking/<workflow>/stage-<k>/<step>/.
+
+    `tracking` is bound by the plan, outside the cache key: {"spec": the workflow's tracking section,
+    "workflow": its name}. Unbound, the defaults apply (TensorBoard on) under `fallback_workflow`."""
+    from accrue.tracking import open_tracker, run_name, tracking_dir
+
+    tracking = tracking or {}
+    name = run_name(tracking.get("workflow") or fallback_workflow, stage, ctx.step)
+    return open_tracker(
+        tracking.get("spec"),
+        tracking_dir(ctx.store.root, name),
+        name,
+        warn=lambda line: ctx.console.print(f"warning: {line}", style="yellow", markup=False, soft_wrap=True),
+    )
+
+
+def loss_tracking(tracker, start_updates: int):
+    """on_update for rl_loop: the learner's losses and Q, and the running train success, once per
+    `tracking.every` updates, against env steps."""
+    mark = {"bucket": start_updates // tracker.every}
+
+    def on_update(st, info: dict) -> None:
+        bucket = st.updates // tracker.every
+        if not tracker.enabled or bucket <= mark["bucket"]:
+            return
+        mark["bucket"] = bucket
+        values = {f"train/{key}": value for key, value in info.items()}
+        values.update(
+            {
+                "train/updates": st.updates,
+                "train/episodes": st.episodes,
+                "train/success_rate": st.successes / max(st.episodes, 1),
+            }
+        )
+        tracker.scalars(values, st.env_steps)
+
+    return on_update
+
+
+def run(ctx: StepContext, tracking: dict | None = None) -> None:
     import time
 
     import torch
@@ -123,20 +163,27 @@ def run(ctx: StepContext) -> None:
         if "eval" in info:
             line += "  eval " + " ".join(f"{t}={r:.2f}" for t, r in info["eval"].items())
         ctx.console.print(line, soft_wrap=True)
+        if "eval" in info and st.grid_done:  # success on tasks 1..k at this grid point
+            values = {f"eval/success/{t}": r for t, r in info["eval"].items()}
+            values.update({f"eval/report_success/{t}": curve[-1] for t, curve in st.report_curve.items() if curve})
+            tracker.scalars(values, st.grid_done[-1])
 
-    learner, state = stage_rl.train_stage(
-        cfg,
-        previous,
-        memory,
-        teacher,
-        collector,
-        evaluator,
-        loop,
-        frozen_acts=frozen,
-        resume=resume,
-        on_checkpoint=save_checkpoint,
-        on_progress=show,
-    )
+    # event files beside the store's audit log, never in an artifact (docs/TRACKING.md)
+    with open_step_tracker(ctx, tracking, k, f"{cfg.method}-seed{seed}") as tracker:
+        learner, state = stage_rl.train_stage(
+            cfg,
+            previous,
+            memory,
+            teacher,
+            collector,
+            evaluator,
+            loop,
+            frozen_acts=frozen,
+            resume=resume,
+            on_checkpoint=save_checkpoint,
+            on_progress=show,
+            on_update=loss_tracking(tracker, clock["updates"]),
+        )
     env.close()
     evaluator.close()
 
