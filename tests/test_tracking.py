@@ -203,3 +203,25 @@ def test_train_step_writes_losses_q_and_eval_success_and_keeps_artifact_ids(tmp_
     # nothing of it in the store's objects: the event files are only under log/tracking
     objects = {p.name for p in (root / "objects").rglob("*") if p.is_file()}
     assert not any("tfevents" in name for name in objects)
+
+
+# ------------------------------------------------------------------------------ the robot learner
+@pytest.mark.slow
+def test_robot_learner_writes_losses_q_updates_and_version(tmp_path, monkeypatch):
+    """Stage 1 of the tiny hardware workflow on the simulated robot: the learner process the actor
+    starts writes its run beside the actor's, under the store's log directory."""
+    from hw_workflow import run_stage, write_hw_workflow
+
+    from artifacts.store import Store
+
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    Store.init(tmp_path / "store")
+    wf = write_hw_workflow(tmp_path / "hw.yaml", tmp_path / "calib")
+    run_stage(tmp_path / "store", wf, 1, step=None)
+    run_dir = tmp_path / "store" / "log" / "tracking" / "hw" / "stage-1" / "train" / "learner"
+    scalars = read_scalars(run_dir)
+    for tag in ("learner/critic_loss", "learner/q_mean", "learner/updates", "learner/version", "learner/episodes"):
+        assert tag in scalars, sorted(scalars)
+    steps = [s for s, _ in scalars["learner/updates"]]
+    assert steps == sorted(steps) and all(s % 20 == 0 for s in steps)  # one point per `every` (20) updates
+    assert [v for _, v in scalars["learner/updates"]] == [float(s) for s in steps]

@@ -15,6 +15,11 @@ RPCs (accrue.robot.transport): Hello, Init, Episode, Pull, Heartbeat, Shutdown; 
 A refused call is counted, printed (peer, method, time) and passed to `audit` (the store's audit log when
 the learner has one); the actor also hears of refusals in every Heartbeat answer.
 
+Tracking (accrue.tracking, docs/TRACKING.md): when `Init` carries a `tracking` section the learner writes
+learner/<losses, q_mean>, learner/updates, learner/version and learner/episodes against its update count,
+one point per `every` updates: under the actor's log directory when the actor started it (same host),
+under ./accrue-tracking/<run> of a learner started by hand on another host.
+
 A re-initialised learner continues the run: it starts from the update count of the checkpoint it is sent
 and numbers its weights above `version_floor` (the newest version the actor has seen), so one version
 number never names two different weights within a run.
@@ -78,8 +83,16 @@ def read_npz(blob: bytes) -> dict:
 
 
 class LearnerService:
-    def __init__(self, orphan_after_s: float = 0.0, audit: Callable[[str, dict], None] | None = None):
+    def __init__(
+        self,
+        orphan_after_s: float = 0.0,
+        audit: Callable[[str, dict], None] | None = None,
+        spawned: bool = False,
+    ):
         self.lock = threading.Lock()
+        self.spawned = spawned  # started by its actor, on the actor's host: the actor's log dir is ours
+        self.tracker = None
+        self.track_mark = 0
         self.run_id: str | None = None
         self.learner = None
         self.tmp = Path(tempfile.mkdtemp(prefix="accrue-learner-"))
@@ -167,7 +180,47 @@ class LearnerService:
             self.episodes, self.dirty, self.snapshot, self.checkpoint_version = {}, True, None, -1
             self.buffer = None
             self.run_id = h["run_id"]
+            self._open_tracking(info.get("tracking"))
         return {"ok": True}, b""
+
+    def _open_tracking(self, tracking: dict | None) -> None:
+        """The learner's tracker for this Init (a re-Init closes the previous one). Never fails the Init."""
+        from accrue.tracking import open_tracker
+
+        self.close_tracking()
+        if not tracking:
+            return
+        name = str(tracking.get("run_name") or "learner")
+        log_dir = (
+            Path(tracking["log_dir"]) if self.spawned and tracking.get("log_dir") else Path("accrue-tracking") / name
+        )
+        try:
+            self.tracker = open_tracker(
+                tracking.get("spec"), log_dir, name, warn=lambda line: say(f"accrue learner: {line}")
+            )
+        except (TypeError, ValueError) as exc:  # a spec the actor's schema let through: no tracking, one line
+            say(f"accrue learner: tracking off ({exc})")
+            return
+        self.track_mark = self.updates // self.tracker.every
+        if self.tracker.enabled:
+            say(f"accrue learner: tracking {', '.join(self.tracker.sinks)} under {log_dir}")
+
+    def close_tracking(self) -> None:
+        if self.tracker is not None:
+            self.tracker.close()
+            self.tracker = None
+
+    def _track(self, info: dict) -> None:
+        """Losses and Q once per `every` updates, against the update count."""
+        tracker = self.tracker
+        if tracker is None or not info or self.updates // tracker.every <= self.track_mark:
+            return
+        self.track_mark = self.updates // tracker.every
+        values = {f"learner/{key}": value for key, value in info.items()}
+        values.update(
+            {"learner/updates": self.updates, "learner/version": self.version, "learner/episodes": len(self.episodes)}
+        )
+        tracker.scalars(values, self.updates)
 
     def episode(self, h: dict, blob: bytes):
         self.last_call = time.monotonic()
@@ -248,10 +301,11 @@ class LearnerService:
                 if work:
                     self.busy = True
                     if self.fresh_ref is not None:
-                        self.learner.train_step(self.buffer, self.prior, self.teacher, self.fresh_ref)
+                        info = self.learner.train_step(self.buffer, self.prior, self.teacher, self.fresh_ref)
                     else:
-                        self.learner.train_step(self.buffer, self.prior, self.teacher)
+                        info = self.learner.train_step(self.buffer, self.prior, self.teacher)
                     self.updates += self.learner.cfg.utd
+                    self._track(info)
                     self.busy = False
                 every, ck = int(self.info["publish_every"]), int(self.info["checkpoint_every"])
                 checkpoint = self.updates - self.last_ckpt >= ck
@@ -308,7 +362,7 @@ def main(argv: list[str] | None = None, audit: Callable[[str, dict], None] | Non
     token = link_token(args.token_file)
 
     # the port is bound (and a port in use refused) before the slow imports below
-    service = LearnerService(args.orphan_after, audit=audit)
+    service = LearnerService(args.orphan_after, audit=audit, spawned=bool(args.parent_pid))
     server, port = serve(
         service.handlers(),
         args.listen,
@@ -347,6 +401,8 @@ def main(argv: list[str] | None = None, audit: Callable[[str, dict], None] | Non
             )
             silent = quiet
     server.stop(grace=0.5)
+    with service.lock:  # the trainer thread writes under the lock
+        service.close_tracking()
     return 0
 
 

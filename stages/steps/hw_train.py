@@ -95,6 +95,17 @@ def shortfall(ctx: StepContext, session: HardwareSession, target: int, waited_s:
         session._log("robot-learner-shortfall", updates=int(info["updates"]), target=target, short=short)
 
 
+def learner_tracking(ctx: StepContext, settings: SessionSettings, stage: int) -> dict:
+    """What the learner needs to write its scalars (accrue.robot.learner_service): the workflow's
+    tracking section (SessionSettings.tracking where the plan binds it, else the defaults) and the
+    run .../stage-<k>/train/learner beside the actor's .../train/actor (docs/TRACKING.md)."""
+    from accrue.tracking import run_name, settings_of, tracking_dir
+
+    name = run_name(ctx.config["workflow"], stage, ctx.step) + "/learner"
+    spec = settings_of(getattr(settings, "tracking", None))
+    return {"spec": spec, "run_name": name, "log_dir": str(tracking_dir(ctx.store.root, name))}
+
+
 def link_healthy(link) -> bool:
     """The learner answered a heartbeat within the link's dead_after_s (LearnerLink.healthy())."""
     import time
@@ -191,6 +202,7 @@ def _session(ctx, settings, session, cfg, reference, features, warm_dir, warm, w
                 "task_index": k - 1,
                 "device": cfg.device,
                 "torch_threads": 1,
+                "tracking": learner_tracking(ctx, settings, k),
             },
         )
         return {}, tar_dir(tmp)
