@@ -270,7 +270,12 @@ class LearnerLink:
                 if gone >= self.dead_after_s and not self.lost_reported:
                     self.lost_reported = True
                     self.report(
-                        f"learner unreachable for {gone:.1f} s ({exc}); acting with weights version {self.version}",
+                        f"learner unreachable for {gone:.1f} s ({exc}); the actor goes on with "
+                        + (
+                            f"weights v{self.version}, the newest it received"
+                            if self.version >= 0  # -1: nothing received, not a version anyone acts with
+                            else "the stage's starting weights (none received from the learner yet)"
+                        ),
                         {"event": "robot-learner-lost", "error": str(exc)},
                     )
                 time.sleep(min(self.heartbeat_s, 0.5))
