@@ -5,6 +5,7 @@ that executed a step."""
 
 from __future__ import annotations
 
+import os
 import re
 import shlex
 import subprocess
@@ -141,3 +142,27 @@ def test_the_check_on_the_real_runs_of_a_transcript(tmp_path, kind):
         log = tmp_path / f"{machine}.log"
         log.write_text(runs[machine][0] + "\n")
         assert (script("--check-cached", str(log)).returncode == 0) == want, runs[machine][0]
+
+
+def test_the_script_stops_at_the_first_failing_command(tmp_path):
+    """A repository whose walk-through has a bad command: the script clones it, runs up to that
+    command and exits non-zero without running the next."""
+    repo = tmp_path / "repo"
+    (repo / "scripts").mkdir(parents=True)
+    (repo / "scripts" / SCRIPT.name).write_text(SCRIPT.read_text())
+    (repo / "README.md").write_text(
+        "<!-- walkthrough:share:start -->\n```bash\n# robot PC\naccrue version\naccrue no-such-command\n"
+        "accrue init\n```\n<!-- walkthrough:share:end -->\n"
+    )
+    (repo / ".venv").symlink_to(ROOT / ".venv")
+    (repo / ".gitignore").write_text(".venv\n")
+    for cmd in (["init", "-q"], ["add", "."], ["-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "x"]):
+        subprocess.run(["git", *cmd], cwd=repo, check=True)
+    env = {**os.environ, "WALKTHROUGH_DIR": str(tmp_path / "work")}
+    done = subprocess.run(
+        ["bash", str(repo / "scripts" / SCRIPT.name), "dir"], capture_output=True, text=True, env=env, timeout=120
+    )
+    assert done.returncode == 1, done.stdout + done.stderr
+    assert "+ [robot PC] accrue version" in done.stdout and "= rc 0" in done.stdout
+    assert "accrue no-such-command exited 2" in done.stderr
+    assert "accrue init" not in done.stdout and not (tmp_path / "work" / "robot-PC" / ".accrue").exists()
