@@ -1,3 +1,179 @@
 """Tests written to kill mutants of accrue/learner/agent.py, td3.py and sac.py that survived mutmut's second
 sweep (docs/MUTATION.md). Each test's docstring names the mutmut ids it kills.
+
+The expected values are the formulas of the module docstrings written out again, drawing the same random
+numbers from a copy of the learner's generator (all of a learner's randomness comes from `learner.gen`).
+Tiny networks from tests/test_method_wiring.py's config.
 """
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_method_wiring import BATCH, A, D, H, config, memory_buffer  # noqa: E402
+
+from accrue.learner import make_learner  # noqa: E402
+from accrue.learner.networks import tanh_gaussian_sample  # noqa: E402
+
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
+
+
+def gen_copy(learner) -> torch.Generator:
+    g = torch.Generator()
+    g.set_state(learner.gen.get_state())
+    return g
+
+
+def inputs(n: int, seed: int = 0):
+    g = torch.Generator().manual_seed(seed)
+    return torch.randn(n, D, generator=g) * 2, torch.rand(n, H, A, generator=g) * 2 - 1
+
+
+# ------------------------------------------------------------------------------------------- FastTD3
+def test_td3_exploration_std_per_env_redrawn_on_reset_and_clamped_noise_by_hand():
+    """Survivors td3._draw_std 6, 9 (the std from the learner's generator), td3._explore 29, 31, 34
+    (a + ε·σ_env with ε from the learner's generator), 47-53 (clamped to [-1, 1])."""
+    learner = make_learner(config("accrue", std_min=0.3, std_max=0.9), D, H, A)
+    s, ref = inputs(3)
+    g = gen_copy(learner)
+    with torch.no_grad():
+        mu = learner.actor(s, ref)
+    std = 0.3 + 0.6 * torch.rand(3, generator=g)
+    want = (mu + torch.randn(mu.shape, generator=g) * std.view(-1, 1, 1)).clamp(-1, 1)
+    got = learner.act(s, ref, explore=True)
+    torch.testing.assert_close(learner.noise_std, std)
+    torch.testing.assert_close(got, want)
+    # the noise is large enough to push some entries past both bounds
+    assert (got == 1.0).any() and (got == -1.0).any() and ((got > -1) & (got < 1)).any()
+    # env 1 resets: only its std is redrawn (a draw for every env, kept where the mask is set)
+    new = 0.3 + 0.6 * torch.rand(3, generator=g)
+    std = torch.stack([std[0], new[1], std[2]])
+    want = (mu + torch.randn(mu.shape, generator=g) * std.view(-1, 1, 1)).clamp(-1, 1)
+    got = learner.act(s, ref, explore=True, reset_mask=[False, True, False])
+    torch.testing.assert_close(learner.noise_std, std)
+    torch.testing.assert_close(got, want)
+
+
+def test_td3_target_smoothing_noise_and_next_action_by_hand():
+    """Survivors td3._target_noise 3 (ε·policy_noise, clipped to ±noise_clip), td3._next_action
+    (π_θ(s', ã') + noise, clamped to [-1, 1], no entropy bonus)."""
+    learner = make_learner(config("accrue", policy_noise=0.4, noise_clip=0.5), D, H, A)
+    g = gen_copy(learner)
+    want = (torch.randn(7, H, A, generator=g) * 0.4).clamp(-0.5, 0.5)
+    noise = learner._target_noise((7, H, A))
+    torch.testing.assert_close(noise, want)
+    assert (noise.abs() == 0.5).any() and (noise.abs() < 0.5).any()
+    s, ref = inputs(7, seed=1)
+    with torch.no_grad():
+        a, bonus = learner._next_action(s, ref, noise)
+        mu = learner.actor(s, ref)
+    assert bonus is None
+    torch.testing.assert_close(a, (mu + noise).clamp(-1, 1))
+
+
+def test_td3_actor_q_is_the_min_of_the_heads_with_cdq_else_their_mean():
+    """td3._actor_q: min over the two heads with clipped double-Q, their mean without."""
+    q = torch.tensor([[1.0, -2.0, 3.0], [0.5, 4.0, -1.0]])
+    cdq = make_learner(config("accrue", use_cdq=True), D, H, A)
+    plain = make_learner(config("accrue", use_cdq=False), D, H, A)
+    torch.testing.assert_close(cdq._actor_q(q), torch.tensor([0.5, -2.0, -1.0]))
+    torch.testing.assert_close(plain._actor_q(q), torch.tensor([0.75, 1.0, 1.0]))
+
+
+# ------------------------------------------------------------------------------------------- FastSAC
+def sac(**kw):
+    return make_learner(config("accrue", algo="fastsac", **kw), D, H, A)
+
+
+def test_sac_actor_bounds_temperature_and_optimizers_come_from_the_config():
+    """Survivors sac._make_actor 5, 6 (log σ bounds), sac.reset_optimizers 13, 15-17 (α's fused Adam at
+    alpha_lr), sac.optimizers 1-2 and agent.optimizers 1-4 (the names a checkpoint stores them under)."""
+    learner = sac(log_std_min=-3.0, log_std_max=0.5, alpha_init=0.2, alpha_lr=0.05)
+    assert (learner.actor.log_std_min, learner.actor.log_std_max) == (-3.0, 0.5)
+    assert learner.log_alpha.item() == pytest.approx(math.log(0.2))
+    group = learner.alpha_opt.param_groups[0]
+    assert group["lr"] == 0.05 and group["params"][0] is learner.log_alpha
+    assert learner.alpha_opt.defaults["fused"] is True
+    opts = learner.optimizers()
+    assert opts == {"actor": learner.actor_opt, "critic": learner.critic_opt, "alpha": learner.alpha_opt}
+    td3 = make_learner(config("accrue"), D, H, A)
+    assert td3.optimizers() == {"actor": td3.actor_opt, "critic": td3.critic_opt}
+
+
+def test_sac_exploration_samples_the_tanh_gaussian_with_the_learners_generator():
+    """Survivors sac._explore 8, 9 (tanh(μ + σ·ε)), sac._gauss 2, 5 (ε from the learner's generator)."""
+    learner = sac(log_std_min=-1.0, log_std_max=0.5)
+    s, ref = inputs(4)
+    g = gen_copy(learner)
+    with torch.no_grad():
+        mean, log_std = learner.actor.dist_params(s, ref)
+    want = torch.tanh(mean + log_std.exp() * torch.randn(mean.shape, generator=g)).view(-1, H, A)
+    torch.testing.assert_close(learner.act(s, ref, explore=True), want)
+
+
+def test_sac_next_action_carries_the_entropy_bonus_minus_alpha_log_pi():
+    """Survivors sac._next_action 13, 14: the bonus folded into Eq. 2's reward is −α·log π(a')."""
+    learner = sac(alpha_init=0.5)
+    s, ref = inputs(5)
+    eps = torch.randn(5, H * A, generator=torch.Generator().manual_seed(3))
+    with torch.no_grad():
+        a, bonus = learner._next_action(s, ref, eps)
+        mean, log_std = learner.actor.dist_params(s, ref)
+    want_a, log_prob = tanh_gaussian_sample(mean, log_std, eps)
+    torch.testing.assert_close(a, want_a.view(-1, H, A))
+    torch.testing.assert_close(bonus, -0.5 * log_prob)
+
+
+def test_sac_actor_q_is_the_mean_of_the_heads_per_row():
+    """Survivor sac._actor_q 1: the mean over the heads (dim 0), one value per row."""
+    q = torch.tensor([[1.0, -2.0, 3.0], [0.5, 4.0, -1.0]])
+    torch.testing.assert_close(sac()._actor_q(q), torch.tensor([0.75, 1.0, 1.0]))
+
+
+@pytest.mark.parametrize(
+    "log_prob, direction",
+    [
+        ([30.0, 20.0], +1),  # log π + H̄ = (6, −4): mean +1 -> α grows (1/(log π + H̄) would shrink it)
+        ([-10.0, -20.0], -1),  # (−34, −44): α shrinks (log π − H̄ = (14, 4) would grow it)
+    ],
+)
+def test_sac_temperature_step_by_hand(log_prob, direction):
+    """Survivors sac._after_actor_step 2-4 (loss −log α·(log π + H̄), H̄ = −1·H·d = −24), 7-11 (the reported
+    α and entropy −mean log π). Adam's first step moves log α by lr against the gradient's sign."""
+    learner = sac(alpha_init=0.2, alpha_lr=0.01)
+    assert learner.target_entropy == -24.0
+    before = learner.log_alpha.item()
+    info = learner._after_actor_step(torch.tensor(log_prob))
+    assert learner.log_alpha.item() == pytest.approx(before + direction * 0.01, abs=1e-6)
+    assert set(info) == {"alpha", "entropy"}
+    assert info["alpha"].item() == pytest.approx(math.exp(before + direction * 0.01), rel=1e-5)
+    assert info["entropy"].item() == pytest.approx(-sum(log_prob) / 2)
+
+
+# ------------------------------------------------------------------------------------------- ChunkLearner
+def test_retain_deploys_its_own_actor_before_a_previous_actor_exists():
+    """Survivor agent.deployed_actor 2: RETAIN at stage 1 (no θ_prev) deploys the training actor itself."""
+    learner = make_learner(config("retain"), D, H, A)
+    assert learner.retain_prev == {} and learner.deployed_actor() is learner.actor
+
+
+def test_update_is_one_update_of_the_given_batches_as_floats():
+    """Survivors agent.update 1-5: update(current, prior) is _update(current, prior) with float values
+    (ER's critic reads both batches, so dropping the prior changes the loss)."""
+    one, two = make_learner(config("er"), D, H, A), make_learner(config("er"), D, H, A)
+    mem = memory_buffer()
+    cur = one.sample(mem, BATCH)
+    prior = one.sample(mem, BATCH)
+    two.gen.set_state(one.gen.get_state())
+    got = one.update(cur, prior)
+    want = two._update(cur, prior)
+    assert set(got) == set(want) and all(type(v) is float for v in got.values())
+    assert got == {k: float(v) for k, v in want.items()}
+    alone = make_learner(config("er"), D, H, A)._update(cur, None)
+    assert float(alone["critic_loss"]) != got["critic_loss"]
