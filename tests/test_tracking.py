@@ -158,10 +158,9 @@ budgets: {env_steps: 48, eval_every: 24, eval_episodes: 2, num_envs: 2, warmup_e
 
 
 def run_stage_one(tmp_path: Path, tracking: dict | None) -> tuple[dict, Path]:
-    """Stage 1 in-process with the train step's tracking bound as a plan would bind it; returns
-    step -> output ids and the store root."""
+    """Stage 1 in-process with the train step's tracking bound (train.bind_tracking, as a plan binds
+    it); returns step -> output ids and the store root."""
     import dataclasses
-    import functools
 
     import yaml
     from rich.console import Console
@@ -175,14 +174,8 @@ def run_stage_one(tmp_path: Path, tracking: dict | None) -> tuple[dict, Path]:
     wf = parse_workflow({**yaml.safe_load(TINY), **({"tracking": tracking} if tracking else {})}, "tiny.yaml")
     store = Store.init(tmp_path / "store")[0]
     plan = plan_stage(wf, 1, store)
-    bound = {"spec": wf.tracking.model_dump(), "workflow": wf.name}
-    steps = tuple(
-        dataclasses.replace(inv, step=dataclasses.replace(inv.step, run=functools.partial(train.run, tracking=bound)))
-        if inv.step.name == "train"
-        else inv
-        for inv in plan.steps
-    )
-    results = Runner(store, console=Console(stderr=True, width=200)).run_plan(dataclasses.replace(plan, steps=steps))
+    plan = dataclasses.replace(plan, steps=train.bind_tracking(plan.steps, wf.tracking, wf.name))
+    results = Runner(store, console=Console(stderr=True, width=200)).run_plan(plan)
     return {r.step: r.outputs for r in results}, store.root
 
 
@@ -225,3 +218,43 @@ def test_robot_learner_writes_losses_q_updates_and_version(tmp_path, monkeypatch
     steps = [s for s, _ in scalars["learner/updates"]]
     assert steps == sorted(steps) and all(s % 20 == 0 for s in steps)  # one point per `every` (20) updates
     assert [v for _, v in scalars["learner/updates"]] == [float(s) for s in steps]
+
+
+# ------------------------------------------------------------------------------ bench cells
+@pytest.mark.slow
+def test_bench_cells_write_side_by_side_runs(tmp_path, monkeypatch):
+    """Two cells of a one-task bench, serially: each cell's train step and the cell itself write under
+    runs/bench/<spec>/tracking/<cell>/, so one `tensorboard --logdir` compares them."""
+    import yaml
+
+    from artifacts.store import Store
+    from stages.bench.execute import run_bench
+    from stages.bench.spec import load_spec
+
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    monkeypatch.chdir(tmp_path)
+    base = {**yaml.safe_load(TINY), "name": "tiny", "tracking": {"every": 2}}  # the section reaches the cells
+    (tmp_path / "tiny.yaml").write_text(yaml.safe_dump(base))
+    (tmp_path / "grid.yaml").write_text(
+        yaml.safe_dump(
+            {
+                "base": "tiny.yaml",
+                "methods": {"accrue": {}, "sequential": {}},
+                "orderings": {"A": base["tasks"]},
+                "seeds": [3],
+            }
+        )
+    )
+    spec = load_spec(tmp_path / "grid.yaml")
+    store = Store.init(tmp_path / "store")[0]
+    results = run_bench(spec, store, executor="serial")
+    assert [r.state for r in results] == ["done", "done"], [r.error for r in results]
+    root = tmp_path / "runs" / "bench" / "grid" / "tracking"
+    assert sorted(p.name for p in root.iterdir()) == sorted(c.name for c in spec.cells)
+    for cell in spec.cells:
+        train = read_scalars(root / cell.name / "stage-1" / "train")
+        assert [s for s, _ in train["eval/success/nist/rect_peg"]] == [0, 24, 48]
+        assert "train/critic_loss" in train
+        whole = read_scalars(root / cell.name / "cell")
+        assert set(whole) == {"cell/seconds", "cell/steps_run", "cell/steps_cached"}
+    assert not (store.root / "log" / "tracking").exists()  # a cell's runs are in the bench's directory

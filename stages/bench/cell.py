@@ -6,7 +6,9 @@ as `accrue run` — in a Ray worker or in the bench's own process.
 The runner waits (wait=True) when another cell holds a step's lock, so two cells that need the same
 fine-tune compute it once: the second finds the first's committed result when the lock frees. Steps
 run in `continue` mode: an attempt cut off by a killed bench resumes from its last checkpoint.
-The step output goes to the cell's log file, not to the bench's terminal.
+The step output goes to the cell's log file, not to the bench's terminal; its scalars (accrue.tracking)
+go to <tracking>/<cell>/ (beside the logs: runs/bench/<spec>/tracking/<cell>/stage-<k>/train and
+.../<cell>/cell), so `tensorboard --logdir runs/bench/<spec>/tracking` compares the cells.
 
 With a remote (`accrue bench run --remote NAME`) the cell runs on the node's own store instead
 (stages/bench/node_store.py): it pulls the remote's refs and step records first, fetches the data
@@ -20,7 +22,7 @@ import os
 import tempfile
 import time
 import traceback
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 # environment a worker takes over from the bench process (offline hubs, headless GL, thread counts)
@@ -37,6 +39,7 @@ class CellJob:
     env: dict = field(default_factory=dict)
     remote: dict | None = None  # node_store.remote_target: the cell runs on the node's own store
     node_store: str | None = None  # that store's path on the node ({host}, {node} filled in there)
+    tracking: str | None = None  # the bench's tracking directory (runs/bench/<spec>/tracking)
 
 
 def job_env() -> dict:
@@ -81,6 +84,20 @@ def run_cell(job: CellJob) -> dict:
             }
 
 
+def tracking_root(job: CellJob) -> Path | None:
+    """The bench's tracking directory, or, on a node that cannot write there, its temporary directory's."""
+    if job.tracking is None:
+        return None
+    path = Path(job.tracking)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        if os.access(path, os.W_OK):
+            return path
+    except OSError:
+        pass
+    return Path(tempfile.gettempdir()) / "accrue-bench-tracking" / path.parent.name
+
+
 def log_path(job: CellJob) -> Path:
     """The bench's log path, or, on a node that cannot write there (no shared filesystem), the same
     name in the node's temporary directory."""
@@ -99,9 +116,11 @@ def log_path(job: CellJob) -> Path:
 def _run_stages(job: CellJob, log) -> tuple[int, int]:
     from rich.console import Console
 
+    from accrue.tracking import open_tracker
     from artifacts.store import Store
     from stages.plan import plan_stage
     from stages.runner import Runner
+    from stages.steps.train import bind_tracking
     from stages.workflow import parse_workflow
 
     os.environ.update(job.env)
@@ -120,10 +139,23 @@ def _run_stages(job: CellJob, log) -> tuple[int, int]:
         console.print(f"node store {store.root}: refs and step records pulled from remote {job.remote['name']}")
     runner = Runner(store, console=console, wait=True)
     run = cached = 0
+    root = tracking_root(job)
+    started = time.monotonic()
     try:
         for k in range(1, wf.num_stages + 1):
-            for r in runner.run_plan(plan_stage(wf, k, store), mode="continue"):
+            plan = plan_stage(wf, k, store)
+            plan = replace(plan, steps=bind_tracking(plan.steps, wf.tracking, wf.name, root and str(root)))
+            for r in runner.run_plan(plan, mode="continue"):
                 run, cached = run + (not r.cached), cached + r.cached
+        if root is not None:  # the cell as a whole, one point: what it cost this try
+            with open_tracker(
+                wf.tracking,
+                root / wf.name / "cell",
+                f"{wf.name}/cell",
+                warn=lambda line: console.print(f"warning: {line}", markup=False),
+            ) as tracker:
+                seconds = time.monotonic() - started
+                tracker.scalars({"cell/seconds": seconds, "cell/steps_run": run, "cell/steps_cached": cached}, k)
     except BaseException:
         if job.remote is not None:  # what it committed lets a retry on any node go on from there
             with contextlib.suppress(Exception):

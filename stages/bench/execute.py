@@ -61,6 +61,7 @@ def make_job(
         env=job_env(),
         remote=remote,
         node_store=node_store,
+        tracking=str((logs.parent / "tracking").resolve()),  # beside logs/: runs/bench/<spec>/tracking
     )
 
 

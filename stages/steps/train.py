@@ -32,18 +32,37 @@ REPLAY_DIR, LOOP_FILE = "replay", "loop.json"  # intra-step checkpoints only
 CURVE_FILE = "curve.json"  # the `curve` output
 
 
-def open_step_tracker(ctx: StepContext, tracking: dict | None, stage: int, fallback_workflow: str):
-    """The step's tracker (accrue.tracking) at <store>/log/tracking/<workflow>/stage-<k>/<step>/.
+def bind_tracking(steps, spec, workflow: str, root: str | None = None) -> tuple:
+    """The stage's step invocations with the train step's tracking bound (outside its cache key):
+    spec is the workflow's tracking section, root where runs go (default <store>/log/tracking)."""
+    import dataclasses
+    import functools
 
-    `tracking` is bound by the plan, outside the cache key: {"spec": the workflow's tracking section,
-    "workflow": its name}. Unbound, the defaults apply (TensorBoard on) under `fallback_workflow`."""
+    bound = {"spec": spec.model_dump() if hasattr(spec, "model_dump") else spec, "workflow": workflow, "root": root}
+    return tuple(
+        dataclasses.replace(inv, step=dataclasses.replace(inv.step, run=functools.partial(run, tracking=bound)))
+        if inv.step.name == STEP.name and inv.step.run is run
+        else inv
+        for inv in steps
+    )
+
+
+def open_step_tracker(ctx: StepContext, tracking: dict | None, stage: int, fallback_workflow: str):
+    """The step's tracker (accrue.tracking) at <root>/<workflow>/stage-<k>/<step>/, root by default
+    <store>/log/tracking.
+
+    `tracking` is bound by bind_tracking: {"spec": the workflow's tracking section, "workflow": its name,
+    "root": None or a directory}. Unbound, the defaults apply (TensorBoard on) under `fallback_workflow`."""
+    from pathlib import Path
+
     from accrue.tracking import open_tracker, run_name, tracking_dir
 
     tracking = tracking or {}
     name = run_name(tracking.get("workflow") or fallback_workflow, stage, ctx.step)
+    root = tracking.get("root")
     return open_tracker(
         tracking.get("spec"),
-        tracking_dir(ctx.store.root, name),
+        Path(root) / name if root else tracking_dir(ctx.store.root, name),
         name,
         warn=lambda line: ctx.console.print(f"warning: {line}", style="yellow", markup=False, soft_wrap=True),
     )
