@@ -41,7 +41,7 @@ def bind_tracking(steps, spec, workflow: str, root: str | None = None) -> tuple:
     bound = {"spec": spec.model_dump() if hasattr(spec, "model_dump") else spec, "workflow": workflow, "root": root}
     return tuple(
         dataclasses.replace(inv, step=dataclasses.replace(inv.step, run=functools.partial(run, tracking=bound)))
-        if inv.step.name == STEP.name and inv.step.run is run
+        if inv.step.name == STEP.name and getattr(inv.step.run, "func", inv.step.run) is run  # rebinds a bound one
         else inv
         for inv in steps
     )
