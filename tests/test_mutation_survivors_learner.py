@@ -18,7 +18,8 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_method_wiring import BATCH, A, D, H, config, memory_buffer  # noqa: E402
 
-from accrue.learner import make_learner  # noqa: E402
+from accrue.errors import AccrueError  # noqa: E402
+from accrue.learner import ReplayBuffer, make_learner  # noqa: E402
 from accrue.learner.networks import tanh_gaussian_sample  # noqa: E402
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -61,8 +62,8 @@ def test_td3_exploration_std_per_env_redrawn_on_reset_and_clamped_noise_by_hand(
 
 
 def test_td3_target_smoothing_noise_and_next_action_by_hand():
-    """Survivors td3._target_noise 3 (ε·policy_noise, clipped to ±noise_clip), td3._next_action
-    (π_θ(s', ã') + noise, clamped to [-1, 1], no entropy bonus)."""
+    """Survivors td3._target_noise 3, 10-14 (ε·policy_noise, clipped to ±noise_clip), td3._next_action 1-5,
+    10-12 (π_θ(s', ã') + noise, clamped to [-1, 1], no entropy bonus)."""
     learner = make_learner(config("accrue", policy_noise=0.4, noise_clip=0.5), D, H, A)
     g = gen_copy(learner)
     want = (torch.randn(7, H, A, generator=g) * 0.4).clamp(-0.5, 0.5)
@@ -70,15 +71,18 @@ def test_td3_target_smoothing_noise_and_next_action_by_hand():
     torch.testing.assert_close(noise, want)
     assert (noise.abs() == 0.5).any() and (noise.abs() < 0.5).any()
     s, ref = inputs(7, seed=1)
+    big = torch.linspace(-1.5, 1.5, 7 * H * A).view(7, H, A)  # pushes π_θ + noise past both bounds
     with torch.no_grad():
-        a, bonus = learner._next_action(s, ref, noise)
+        a, bonus = learner._next_action(s, ref, big)
         mu = learner.actor(s, ref)
     assert bonus is None
-    torch.testing.assert_close(a, (mu + noise).clamp(-1, 1))
+    assert ((mu + big) > 1).any() and ((mu + big) < -1).any()
+    torch.testing.assert_close(a, (mu + big).clamp(-1, 1))
 
 
 def test_td3_actor_q_is_the_min_of_the_heads_with_cdq_else_their_mean():
-    """td3._actor_q: min over the two heads with clipped double-Q, their mean without."""
+    """Survivors td3._actor_q 1, 2, 5, 6: min over the two heads with clipped double-Q, else their mean
+    (over the heads, per row)."""
     q = torch.tensor([[1.0, -2.0, 3.0], [0.5, 4.0, -1.0]])
     cdq = make_learner(config("accrue", use_cdq=True), D, H, A)
     plain = make_learner(config("accrue", use_cdq=False), D, H, A)
@@ -177,3 +181,83 @@ def test_update_is_one_update_of_the_given_batches_as_floats():
     assert got == {k: float(v) for k, v in want.items()}
     alone = make_learner(config("er"), D, H, A)._update(cur, None)
     assert float(alone["critic_loss"]) != got["critic_loss"]
+
+
+def test_sample_uses_the_configured_n_step_return():
+    """Survivor agent.sample 7: the learner samples with cfg.n_step and cfg.gamma from its own generator."""
+    learner = make_learner(config("accrue", n_step=3, gamma=0.9), D, H, A)
+    mem = memory_buffer()
+    g = gen_copy(learner)
+    got = learner.sample(mem, BATCH)
+    want = mem.sample(BATCH, g, 3, 0.9)
+    one_step = mem.sample(BATCH, gen_copy(learner), 1, 0.9)
+    torch.testing.assert_close(got.next_state, want.next_state)
+    torch.testing.assert_close(got.discount, want.discount)  # γ^{(m+1)H} of the last chunk reached
+    assert one_step.discount is None and not torch.equal(want.next_state, one_step.next_state)
+
+
+def rows_buffer(n: int, seed: int) -> ReplayBuffer:
+    """n transitions of one task (episodes of 4 rows), rewards in [0, 1]."""
+    g = torch.Generator().manual_seed(seed)
+    buf = ReplayBuffer(D, H, A)
+    chunk = lambda: torch.rand(n, H, A, generator=g) * 1.6 - 0.8  # noqa: E731
+    buf.add(
+        torch.randn(n, D, generator=g),
+        chunk(),
+        chunk(),
+        torch.rand(n, generator=g),
+        torch.randn(n, D, generator=g),
+        chunk(),
+        torch.zeros(n, dtype=torch.bool),
+        0,
+        torch.arange(n) // 4,
+        ended=(torch.arange(n) % 4) == 3,
+    )
+    return buf
+
+
+def test_train_step_starts_at_exactly_learning_starts_transitions():
+    """Survivor agent.train_step 1: no update below learning_starts, updates from exactly that many on."""
+    buf = rows_buffer(12, seed=0)
+    assert make_learner(config("accrue", learning_starts=13), D, H, A).train_step(buf) == {}
+    learner = make_learner(config("accrue", learning_starts=12), D, H, A)
+    info = learner.train_step(buf)
+    assert "critic_loss" in info and learner.counters["updates"] == 1
+
+
+def test_train_step_uses_a_one_row_prior_memory_and_skips_an_empty_one():
+    """Survivors agent.train_step 6, 7: ER replays a prior memory of a single row; an empty one is no prior."""
+    buf = rows_buffer(12, seed=0)
+    alone = make_learner(config("er"), D, H, A).train_step(buf)
+    empty = make_learner(config("er"), D, H, A).train_step(buf, ReplayBuffer(D, H, A))
+    assert empty == alone
+    one_row = make_learner(config("er"), D, H, A).train_step(buf, rows_buffer(1, seed=5))
+    assert one_row["critic_loss"] != alone["critic_loss"]
+
+
+def test_train_step_without_teacher_targets_names_the_fix():
+    """Survivors agent.train_step 26-29: the exact message when ACCRUE's prior memory has no Eq. 3 targets."""
+    learner = make_learner(config("accrue"), D, H, A)
+    with pytest.raises(AccrueError) as exc:
+        learner.train_step(rows_buffer(12, seed=0), rows_buffer(8, seed=1))
+    assert str(exc.value) == (
+        "ACCRUE needs teacher targets for the prior memory (compute_teacher_targets at stage start)"
+    )
+
+
+def test_train_step_reports_the_mean_of_its_utd_updates():
+    """Survivor agent.train_step 40: with utd = 2 each figure is the mean over the two updates, the same
+    updates a second learner makes by hand (sample, feed the normaliser, _update)."""
+    buf = rows_buffer(12, seed=0)
+    learner = make_learner(config("accrue", utd=2), D, H, A)
+    twin = make_learner(config("accrue", utd=2), D, H, A)
+    got = learner.train_step(buf)
+    infos = []
+    for _ in range(2):
+        cur = twin.sample(buf, BATCH)
+        twin.actor.obs_norm.update(cur.state)
+        infos.append({k: float(v) for k, v in twin._update(cur, None).items()})
+    assert set(got) == set(infos[0])
+    for k in got:
+        assert got[k] == pytest.approx((infos[0][k] + infos[1][k]) / 2, rel=1e-6)
+    assert infos[0]["critic_loss"] > 0 and got["critic_loss"] > 0
