@@ -111,6 +111,16 @@ class _Wandb:
         self._run.finish()
 
 
+def _wandb_logged_in() -> bool:
+    """An API key from WANDB_API_KEY or wandb's netrc entry (read locally, no network)."""
+    import wandb
+
+    try:
+        return bool(wandb.api.api_key)
+    except Exception:  # noqa: BLE001 - an unreadable netrc: let wandb.init say what is wrong
+        return True
+
+
 class Tracker:
     """scalar/scalars/flush/close; a sink that fails is dropped with one warning line, never an exception."""
 
@@ -210,12 +220,17 @@ def open_tracker(
         except ImportError:
             warn("tracking.wandb: wandb is not installed (pip install wandb); not logging to W&B")
         else:
+            if s["wandb"]["mode"] == "online" and not _wandb_logged_in():  # else wandb.init would prompt
+                warn(
+                    "tracking.wandb: mode online needs a W&B login (`wandb login` or WANDB_API_KEY); not logging to W&B"
+                )
+                return Tracker(sinks, log_dir, run_name, s["every"], warn)
             try:
                 sinks.append(_Wandb(log_dir, run_name, s["wandb"]))
             except Exception as exc:  # noqa: BLE001 - e.g. online without a network or login
                 text = str(exc).strip().splitlines()
                 warn(
-                    f"tracking.wandb: cannot start a {s['wandb']['mode']} W&B run ({type(exc).__name__}: "
+                    f"tracking.wandb: cannot start an {s['wandb']['mode']} W&B run ({type(exc).__name__}: "
                     f"{text[0][:200] if text else ''}); not logging to W&B"
                 )
     return Tracker(sinks, log_dir, run_name, s["every"], warn)

@@ -258,3 +258,18 @@ def test_bench_cells_write_side_by_side_runs(tmp_path, monkeypatch):
         whole = read_scalars(root / cell.name / "cell")
         assert set(whole) == {"cell/seconds", "cell/steps_run", "cell/steps_cached"}
     assert not (store.root / "log" / "tracking").exists()  # a cell's runs are in the bench's directory
+
+
+@pytest.mark.skipif(
+    importlib.util.find_spec("wandb") is None, reason="wandb is not installed (it comes with lerobot 0.4.4)"
+)
+def test_wandb_online_without_a_login_is_one_line_not_a_prompt(tmp_path, monkeypatch):
+    monkeypatch.delenv("WANDB_API_KEY", raising=False)
+    monkeypatch.setenv("HOME", str(tmp_path))  # no ~/.netrc entry
+    monkeypatch.setenv("NETRC", str(tmp_path / "no-netrc"))
+    lines: list[str] = []
+    with open_tracker({"wandb": {"mode": "online"}}, tmp_path / "run", "x", warn=lines.append) as tracker:
+        assert tracker.sinks == ["tensorboard"]
+    assert lines == [
+        "tracking.wandb: mode online needs a W&B login (`wandb login` or WANDB_API_KEY); not logging to W&B"
+    ]
