@@ -19,7 +19,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from test_method_wiring import BATCH, A, D, H, config, memory_buffer  # noqa: E402
 
 from accrue.errors import AccrueError  # noqa: E402
-from accrue.learner import ReplayBuffer, make_learner  # noqa: E402
+from accrue.learner import ReplayBuffer, losses, make_learner  # noqa: E402
+from accrue.learner.distributional import expected_value  # noqa: E402
 from accrue.learner.networks import tanh_gaussian_sample  # noqa: E402
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
@@ -261,3 +262,177 @@ def test_train_step_reports_the_mean_of_its_utd_updates():
     for k in got:
         assert got[k] == pytest.approx((infos[0][k] + infos[1][k]) / 2, rel=1e-6)
     assert infos[0]["critic_loss"] > 0 and got["critic_loss"] > 0
+
+
+# ---------------------------------------------------------------------------- one update, written out
+def twin_learners(method, **kw):
+    cfg = config(method, **kw)
+    return make_learner(cfg, D, H, A), make_learner(cfg, D, H, A)
+
+
+def same_params(a: torch.nn.Module, b: torch.nn.Module):
+    for (na, pa), (nb, pb) in zip(a.named_parameters(), b.named_parameters()):
+        assert na == nb
+        torch.testing.assert_close(pa, pb, rtol=1e-5, atol=1e-6, msg=na)
+
+
+def clip_and_step(params, opt, max_norm):
+    if max_norm > 0:
+        total = torch.sqrt(sum(p.grad.square().sum() for p in params))
+        assert float(total) > max_norm  # the clip is active
+        scale = min(1.0, max_norm / (float(total) + 1e-6))
+        for p in params:
+            p.grad.mul_(scale)
+    opt.step()
+
+
+@pytest.mark.parametrize("algo", ["fasttd3", "fastsac"])
+@pytest.mark.parametrize("max_grad_norm", [0.0, 0.05])
+def test_critic_update_by_hand(algo, max_grad_norm):
+    """Survivors of agent._critic_update and agent._critic_loss: reference dropout drawn first from the
+    learner's generator and applied to ã and ã' alike, then the target noise; Eq. 2's target from the
+    target critic at π(s', ã'·keep) (+ noise, or SAC's −α log π bonus), the critics on normalised states,
+    the cross-entropy summed over heads, clipped to max_grad_norm when > 0, one AdamW step, and the
+    reported loss and mean Q."""
+    learner, twin = twin_learners("accrue", algo=algo, ref_dropout=0.5, max_grad_norm=max_grad_norm, gamma=0.9)
+    b = learner.sample(rows_buffer(16, seed=2), BATCH)
+    twin.gen.set_state(learner.gen.get_state())
+    for one in (learner, twin):
+        one.actor.obs_norm.update(b.state * 3 + 1)  # a normaliser that is not the identity
+    info = learner._critic_update(b)
+
+    g = gen_copy(twin)
+    n = len(b)
+    keep = (torch.rand(n, generator=g) >= 0.5).float().view(n, 1, 1)
+    assert 0 < keep.sum() < n
+    norm = twin.actor.obs_norm
+    with torch.no_grad():
+        ref_next = b.next_ref * keep
+        if algo == "fasttd3":
+            noise = (torch.randn(b.action.shape, generator=g) * twin.cfg.policy_noise).clamp(
+                -twin.cfg.noise_clip, twin.cfg.noise_clip
+            )
+            a_next, bonus = (twin.actor(b.next_state, ref_next) + noise).clamp(-1, 1), None
+        else:
+            eps = torch.randn(n, H * A, generator=g)
+            mean, log_std = twin.actor.dist_params(b.next_state, ref_next)
+            a_next, log_prob = tanh_gaussian_sample(mean, log_std, eps)
+            a_next, bonus = a_next.view(-1, H, A), -twin.alpha * log_prob
+        discount = 0.9**H * (1 - b.done)
+        target = losses.td_target(
+            twin.critic_target(norm(b.next_state), a_next, ref_next), b.reward, discount, twin.support, True, bonus
+        )
+    logits = twin.critic(norm(b.state), b.action, b.ref * keep)
+    loss = losses.critic_loss(logits, target)
+    twin.critic_opt.zero_grad()
+    loss.backward()
+    clip_and_step(list(twin.critic.parameters()), twin.critic_opt, max_grad_norm)
+
+    assert set(info) == {"critic_loss", "q_mean"}
+    assert float(info["critic_loss"]) == pytest.approx(loss.item(), rel=1e-5)
+    q = expected_value(torch.softmax(logits.detach(), -1), twin.support).mean()
+    assert float(info["q_mean"]) == pytest.approx(float(q), rel=1e-5)
+    same_params(learner.critic, twin.critic)
+    same_params(learner.actor, twin.actor)  # the critic update leaves θ alone
+    assert torch.equal(learner.gen.get_state(), g.get_state())  # and draws nothing else
+
+
+@pytest.mark.parametrize("algo", ["fasttd3", "fastsac"])
+@pytest.mark.parametrize("method, max_grad_norm", [("accrue", 0.0), ("accrue", 0.05), ("ewc", 0.0)])
+def test_actor_update_by_hand(algo, method, max_grad_norm):
+    """Survivors of agent._actor_update, agent._actor_loss and agent._distill_inputs: dropout drawn from the
+    learner's generator (then SAC's ε), Eq. 1 at π(s, ã·keep) with the critic frozen and β‖a − ã‖² to the
+    stored ã, Eq. 4 of π̄(s_j, ã_j) to the cached â_j weighted by λ (ACCRUE) or EWC's penalty weighted by
+    ewc_lambda, clipped to max_grad_norm when > 0, one AdamW step of θ only, SAC's α step after it, and the
+    reported figures."""
+    learner, twin = twin_learners(method, algo=algo, ref_dropout=0.5, max_grad_norm=max_grad_norm, ewc_lambda=3.0)
+    mem = rows_buffer(16, seed=2)
+    cur = learner.sample(mem, BATCH)
+    prior = None
+    if method == "accrue":
+        teacher = torch.rand(16, H, A, generator=torch.Generator().manual_seed(9)) * 2 - 1
+        prior = learner.sample(rows_buffer(16, seed=4), BATCH).with_teacher(teacher)
+    else:
+        for one in (learner, twin):
+            name, p = next(iter(one.actor.named_parameters()))
+            one.ewc_anchor, one.ewc_fisher = {name: p.detach() + 0.1}, {name: torch.full_like(p, 2.0)}
+    twin.gen.set_state(learner.gen.get_state())
+    for one in (learner, twin):
+        one.actor.obs_norm.update(cur.state * 3 + 1)
+    critic_before = {k: v.clone() for k, v in learner.critic.state_dict().items()}
+    info = learner._actor_update(cur, prior)
+
+    g = gen_copy(twin)
+    n = len(cur)
+    keep = (torch.rand(n, generator=g) >= 0.5).float().view(n, 1, 1)
+    assert 0 < keep.sum() < n
+    ref_in = cur.ref * keep
+    s_all = cur.state if prior is None else torch.cat([cur.state, prior.state])
+    ref_all = ref_in if prior is None else torch.cat([ref_in, prior.ref])
+    if algo == "fasttd3":
+        out = twin.actor(s_all, ref_all)
+        a, a_det, log_prob = out[:n], out[n:], None
+    else:
+        eps = torch.randn(n, H * A, generator=g)
+        mean, log_std = twin.actor.dist_params(s_all, ref_all)
+        a, log_prob = tanh_gaussian_sample(mean[:n], log_std[:n], eps)
+        a, a_det = a.view(-1, H, A), torch.tanh(mean[n:]).view(-1, H, A)
+    q_heads = expected_value(torch.softmax(twin.critic(twin.actor.obs_norm(cur.state), a, ref_in), -1), twin.support)
+    q = q_heads.min(0).values if algo == "fasttd3" else q_heads.mean(0)
+    loss_cur = -q + 0.23 * (a - cur.ref).flatten(1).square().sum(-1)
+    if log_prob is not None:
+        loss_cur = loss_cur + twin.alpha.detach() * log_prob
+    loss_cur = loss_cur.mean()
+    total = loss_cur
+    if prior is not None:
+        loss_prior = (a_det - prior.teacher).flatten(1).square().sum(-1).mean()
+        total = loss_cur + 0.37 * loss_prior
+    else:
+        (name, p), *_ = twin.actor.named_parameters()
+        penalty = (2.0 * (p - twin.ewc_anchor[name]).square()).sum()
+        total = loss_cur + 3.0 * penalty
+    twin.actor_opt.zero_grad()
+    twin.critic.zero_grad()
+    total.backward()
+    clip_and_step(list(twin.actor.parameters()), twin.actor_opt, max_grad_norm)
+
+    # the reported actor_loss is Eq. 5; EWC's penalty is reported beside it (and moved θ)
+    want = {"loss_cur": loss_cur, "actor_loss": total if prior is not None else loss_cur}
+    want.update({"loss_prior": loss_prior} if prior is not None else {"ewc_penalty": penalty})
+    if log_prob is not None:
+        log_alpha = twin.log_alpha
+        alpha_loss = -(log_alpha * (log_prob.detach() + twin.target_entropy)).mean()
+        twin.alpha_opt.zero_grad()
+        alpha_loss.backward()
+        twin.alpha_opt.step()
+        want.update(alpha=twin.alpha, entropy=-log_prob.mean())
+        assert learner.log_alpha.item() == pytest.approx(twin.log_alpha.item(), abs=1e-6)
+    assert set(info) == set(want)
+    for k, v in want.items():
+        assert float(info[k]) == pytest.approx(v.item(), rel=1e-5, abs=1e-7), k
+    same_params(learner.actor, twin.actor)
+    assert all(torch.equal(v, critic_before[k]) for k, v in learner.critic.state_dict().items())
+    assert all(p.requires_grad and p.grad is None for p in learner.critic.parameters())
+    assert torch.equal(learner.gen.get_state(), g.get_state())
+
+
+def test_update_polyak_policy_frequency_and_retain_interval_by_hand():
+    """Survivors of agent._update: the target critic moves by τ toward ψ after every update, the actor
+    every policy_frequency-th update only, RETAIN merges every retain_interval actor updates, and an
+    empty prior batch counts as none."""
+    learner = make_learner(config("retain", policy_frequency=2, tau=0.25, retain_interval=2), D, H, A)
+    learner.retain_prev = {k: torch.zeros_like(v) for k, v in learner.actor.named_parameters()}
+    b = learner.sample(rows_buffer(16, seed=2), BATCH)
+    empty = learner.sample(rows_buffer(16, seed=2), BATCH)
+    empty = type(empty)(**{k: (v[:0] if torch.is_tensor(v) else v) for k, v in vars(empty).items()})
+    for step in range(1, 5):
+        target = {k: v.clone() for k, v in learner.critic_target.state_dict().items()}
+        actor = {k: v.clone() for k, v in learner.actor.state_dict().items()}
+        info = learner._update(b, empty)
+        critic = learner.critic.state_dict()
+        for k, v in learner.critic_target.state_dict().items():
+            if v.is_floating_point():
+                torch.testing.assert_close(v, target[k] + 0.25 * (critic[k] - target[k]))
+        moved = any(not torch.equal(v, actor[k]) for k, v in learner.actor.state_dict().items())
+        assert moved == (step % 2 == 0) and ("actor_loss" in info) == (step % 2 == 0)
+        assert learner.counters == {"updates": step, "actor_updates": step // 2, "merges": step // 4}
