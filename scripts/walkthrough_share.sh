@@ -116,6 +116,7 @@ while IFS=$'\t' read -r machine _; do
 done <<<"$COMMANDS"
 
 n=0
+checked=0
 SUMMARY=
 total_start=$(date +%s.%N)
 while IFS=$'\t' read -r machine cmd; do
@@ -138,8 +139,11 @@ while IFS=$'\t' read -r machine cmd; do
   fi
   if [ "$machine" = workstation ] && [[ "$cmd" == "accrue run "* ]]; then
     check_cached "$log"
+    checked=$((checked + 1))
   fi
 done <<<"$COMMANDS"
+# a README that renamed the machine or dropped its run must not pass unchecked
+[ "$checked" -gt 0 ] || { echo "error: the walk-through has no workstation 'accrue run' to check for cache hits" >&2; exit 1; }
 
 total=$(awk -v a="$total_start" -v b="$(date +%s.%N)" 'BEGIN { printf "%.1f", b - a }')
 echo

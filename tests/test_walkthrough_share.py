@@ -144,25 +144,35 @@ def test_the_check_on_the_real_runs_of_a_transcript(tmp_path, kind):
         assert (script("--check-cached", str(log)).returncode == 0) == want, runs[machine][0]
 
 
-def test_the_script_stops_at_the_first_failing_command(tmp_path):
-    """A repository whose walk-through has a bad command: the script clones it, runs up to that
-    command and exits non-zero without running the next."""
+def run_in_repo(tmp_path, block: str) -> subprocess.CompletedProcess:
+    """The script on a throwaway repository whose README walk-through is `block`."""
     repo = tmp_path / "repo"
     (repo / "scripts").mkdir(parents=True)
     (repo / "scripts" / SCRIPT.name).write_text(SCRIPT.read_text())
     (repo / "README.md").write_text(
-        "<!-- walkthrough:share:start -->\n```bash\n# robot PC\naccrue version\naccrue no-such-command\n"
-        "accrue init\n```\n<!-- walkthrough:share:end -->\n"
+        f"<!-- walkthrough:share:start -->\n```bash\n{block}```\n<!-- walkthrough:share:end -->\n"
     )
     (repo / ".venv").symlink_to(ROOT / ".venv")
     (repo / ".gitignore").write_text(".venv\n")
     for cmd in (["init", "-q"], ["add", "."], ["-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "x"]):
         subprocess.run(["git", *cmd], cwd=repo, check=True)
     env = {**os.environ, "WALKTHROUGH_DIR": str(tmp_path / "work")}
-    done = subprocess.run(
+    return subprocess.run(
         ["bash", str(repo / "scripts" / SCRIPT.name), "dir"], capture_output=True, text=True, env=env, timeout=120
     )
+
+
+def test_the_script_stops_at_the_first_failing_command(tmp_path):
+    """A walk-through with a bad command: the script runs up to it and exits non-zero without
+    running the next."""
+    done = run_in_repo(tmp_path, "# robot PC\naccrue version\naccrue no-such-command\naccrue init\n")
     assert done.returncode == 1, done.stdout + done.stderr
     assert "+ [robot PC] accrue version" in done.stdout and "= rc 0" in done.stdout
     assert "accrue no-such-command exited 2" in done.stderr
     assert "accrue init" not in done.stdout and not (tmp_path / "work" / "robot-PC" / ".accrue").exists()
+
+
+def test_a_walkthrough_without_a_workstation_run_fails(tmp_path):
+    """Renaming the machine or dropping its run must not let the cache-hit check pass unchecked."""
+    done = run_in_repo(tmp_path, "# robot PC\naccrue version\n")
+    assert done.returncode == 1 and "no workstation 'accrue run'" in done.stderr, done.stdout + done.stderr
