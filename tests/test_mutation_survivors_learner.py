@@ -436,3 +436,18 @@ def test_update_polyak_policy_frequency_and_retain_interval_by_hand():
         moved = any(not torch.equal(v, actor[k]) for k, v in learner.actor.state_dict().items())
         assert moved == (step % 2 == 0) and ("actor_loss" in info) == (step % 2 == 0)
         assert learner.counters == {"updates": step, "actor_updates": step // 2, "merges": step // 4}
+
+
+def test_an_empty_prior_batch_is_no_prior_batch():
+    """Survivors agent._update 5, 6: ACCRUE given a prior batch of 0 rows updates exactly as without one
+    (Eq. 4 over no rows would be NaN)."""
+    learner, twin = twin_learners("accrue")
+    b = learner.sample(rows_buffer(16, seed=2), BATCH)
+    teacher = torch.zeros(16, H, A)
+    empty = learner.sample(rows_buffer(16, seed=3), BATCH).with_teacher(teacher)
+    empty = type(empty)(**{k: (v[:0] if torch.is_tensor(v) else v) for k, v in vars(empty).items()})
+    twin.gen.set_state(learner.gen.get_state())
+    got = {k: float(v) for k, v in learner._update(b, empty).items()}
+    want = {k: float(v) for k, v in twin._update(b, None).items()}
+    assert got == want and "loss_prior" not in got
+    same_params(learner.actor, twin.actor)
