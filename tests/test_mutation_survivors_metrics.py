@@ -199,7 +199,7 @@ def percentile(xs, q):
 
 
 def test_summarize_iqm_ci_by_hand_with_the_default_seed_resamples_and_confidence():
-    """Survivors summarize_iqm 1, 38 (seed 0), 43 (sorted per resample), 50 (indices from 0), 54 (n // 4),
+    """Survivors summarize_iqm 1, 38 (seed 0), 50 (indices from 0), 54 (n // 4),
     57 (v.size - cut), 60, 62, 63 (tails (1 − 0.95)/2), 87-88 ("undefined"): the same resamples (numpy
     seed 0, 4000 of n rows) reduced by hand."""
     values = [0.79, 0.013, 0.52, 0.171, 0.97, 0.29, 0.611, 0.377]  # n = 8: cut 2 (n // 5 would be 1)
@@ -217,7 +217,14 @@ def test_summarize_iqm_ci_by_hand_with_the_default_seed_resamples_and_confidence
 def test_summarize_iqm_of_nothing_and_of_identical_values():
     """Survivors summarize_iqm 8-18 (the all-undefined row), 21-22 (identical values: a degenerate interval)."""
     assert summarize_iqm([None, None]) == {"mean": None, "ci_low": None, "ci_high": None, "n": 0, "undefined": 2}
-    assert summarize_iqm([0.4, 0.4, None]) == {"mean": 0.4, "ci_low": 0.4, "ci_high": 0.4, "n": 2, "undefined": 1}
+    # identical values are reported as themselves: the mean of three 0.1s is 0.10000000000000002 in floats
+    assert summarize_iqm([0.1, 0.1, 0.1, None]) == {
+        "mean": 0.1,
+        "ci_low": 0.1,
+        "ci_high": 0.1,
+        "n": 3,
+        "undefined": 1,
+    }
     spread = summarize_iqm([0.0, 1.0])
     assert spread["ci_low"] < spread["ci_high"]
 
