@@ -2,7 +2,8 @@
 
 - a step stopped by SIGTERM is recorded as that, not as "interrupted (Ctrl-C)";
 - the actor's link removes its `accrue-actor-*` directory of weight snapshots when it closes, and at exit
-  when it never closed (58 were left in /tmp on the shared machine);
+  when it never closed, and the next link removes one whose process was killed (58 were left in /tmp on
+  the shared machine);
 - a learner port in use names a port that is free now, one the user can write into both workflows.
 """
 
@@ -147,3 +148,26 @@ def test_accrue_robot_learner_on_a_port_in_use_is_one_line_with_the_free_port(tm
         server.stop(grace=0)
     assert run.returncode != 0 and len(run.stderr.strip().splitlines()) == 1, run.stderr
     assert run.stderr.startswith("error: learner: cannot listen on") and free_port_named(run.stderr) != port
+
+
+def test_a_killed_actors_directory_is_removed_by_the_next_link(tmp_path, monkeypatch):
+    """kill -9 runs no cleanup: the next link on the machine removes dirs whose process is gone."""
+    import tempfile
+
+    from accrue.robot import learner_client
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()
+    dead = tmp_path / f"accrue-actor-{gone.pid}-abc"
+    (dead / "v2").mkdir(parents=True)
+    live = tmp_path / f"accrue-actor-{os.getppid()}-def"  # a running process's (pytest's parent)
+    live.mkdir()
+    old_style = tmp_path / "accrue-actor-q1w2e3"  # before the pid was in the name: whose, unknown
+    old_style.mkdir()
+    link = learner_client.LearnerLink(lambda: ({}, b""), list, lambda h, d: None, lambda line, f: None, address="h:1")
+    try:
+        assert not dead.exists() and live.is_dir() and old_style.is_dir()
+        assert link.tmp.parent == tmp_path and link.tmp.name.startswith(f"accrue-actor-{os.getpid()}-")
+    finally:
+        link.close()

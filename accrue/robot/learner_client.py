@@ -32,6 +32,30 @@ from typing import Callable
 from accrue.robot.link_auth import TOKEN_ENV, LinkAuth
 from accrue.robot.transport import PROTOCOL, Peer, PeerDown, tar_dir, untar
 
+TMP_PREFIX = "accrue-actor-"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
+
+
+def sweep_dead_actor_dirs() -> list[Path]:
+    """Remove `accrue-actor-<pid>-*` dirs in the temp dir whose process is gone (a kill -9 skips every
+    cleanup); dirs of live processes, and names without a pid, are left alone."""
+    removed = []
+    for d in Path(tempfile.gettempdir()).glob(f"{TMP_PREFIX}*-*"):
+        pid = d.name[len(TMP_PREFIX) :].split("-", 1)[0]
+        if pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)) and d.is_dir():
+            shutil.rmtree(d, ignore_errors=True)
+            removed.append(d)
+    return removed
+
 
 class LearnerLink:
     def __init__(
@@ -70,8 +94,10 @@ class LearnerLink:
         self.stop = threading.Event()
         self.lost_reported = False
         self.last_ok = time.monotonic()
-        # every weights snapshot received lands here; removed at close(), or at exit if close() never ran
-        self.tmp = Path(tempfile.mkdtemp(prefix="accrue-actor-"))
+        # every weights snapshot received lands here; removed at close(), or at exit if close() never ran,
+        # or by the next link on this machine when this process was killed (the pid is in the name)
+        sweep_dead_actor_dirs()
+        self.tmp = Path(tempfile.mkdtemp(prefix=f"{TMP_PREFIX}{os.getpid()}-"))
         self._remove_tmp = weakref.finalize(self, shutil.rmtree, self.tmp, ignore_errors=True)
         self.thread = threading.Thread(target=self._run, name="learner-link", daemon=True)
 
@@ -101,7 +127,8 @@ class LearnerLink:
 
     def close(self) -> None:
         self.stop.set()
-        self.thread.join(timeout=5)
+        if self.thread.ident is not None:  # started (a link that failed before start() is closed too)
+            self.thread.join(timeout=5)
         if self.local and self.proc is not None and self.proc.poll() is not None and not self.lost_reported:
             # died after the last heartbeat: still say so, the session's log must show it
             self.lost_reported = True
