@@ -90,6 +90,19 @@ class HoldSpec(_Strict):
     wait_s: float = Field(300.0, ge=0)  # wall time (s) held for the learner to come back before the step ends
 
 
+class InterventionSpec(_Strict):
+    """The operator takes over through a lerobot Teleoperator (beyond the paper; absent = off, the paper).
+    A session setting (accrue.robot.teleop): the steps it drives are marked and counted, never keyed."""
+
+    teleop: str  # a lerobot TeleoperatorConfig registry name: keyboard_ee, gamepad, so101_leader, accrue_sim_expert
+    config: dict[str, Any] = {}  # that teleoperator config's fields
+    imports: list[str] = []  # modules registering a third-party teleoperator type
+    # events: the teleop's own IS_INTERVENTION (a held button or key); key: the operator's `i` toggles it
+    signal: Literal["events", "key"] = "events"
+    action_map: dict[str, str] = {}  # robot action key -> teleop action key (default: the same names)
+    action_scale: dict[str, float] = {}  # robot action key -> factor on the teleop's value (robot units)
+
+
 class RobotSpec(_Strict):
     """A lerobot robot runs warmup, train and evaluate-all (paper Sec. V-C; accrue/robot, stages/steps/hw_*).
     The fields from `operator` down are session settings: they do not enter any cache key."""
@@ -125,6 +138,7 @@ class RobotSpec(_Strict):
     learner_address: Optional[str] = None  # host:port of `accrue robot learner` (two hosts); none: local process
     link: Optional[dict[str, Any]] = None  # token_file, tls {cert, key, ca} (accrue.robot.link_auth)
     hold: HoldSpec = HoldSpec()
+    intervention: Optional[InterventionSpec] = None  # operator takeover (beyond the paper); None: off
     handoff_wait_s: float = Field(120.0, ge=0)  # train: wait for the learner's updates before the handoff
     clock: float = Field(1.0, ge=0)  # accrue_sim only: k times real time (0 = as fast as it goes)
     faults: dict[str, Any] = {}  # accrue_sim only: disconnect_after_steps, late_observation_steps...
