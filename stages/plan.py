@@ -232,6 +232,9 @@ def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
         from stages.steps.hw_plan import hardware_steps
 
         steps = hardware_steps(wf, k, steps)
+    from stages.steps.train import bind_tracking  # the workflow's tracking: section, outside the cache key
+
+    steps = bind_tracking(steps, wf.tracking, wf.name)
     return StagePlan(workflow=wf.name, stage=k, steps=tuple(steps))
 
 

@@ -158,23 +158,19 @@ budgets: {env_steps: 48, eval_every: 24, eval_episodes: 2, num_envs: 2, warmup_e
 
 
 def run_stage_one(tmp_path: Path, tracking: dict | None) -> tuple[dict, Path]:
-    """Stage 1 in-process with the train step's tracking bound (train.bind_tracking, as a plan binds
-    it); returns step -> output ids and the store root."""
-    import dataclasses
-
+    """Stage 1 in-process as `accrue run` plans it (plan_stage binds the workflow's tracking section to
+    the train step); returns step -> output ids and the store root."""
     import yaml
     from rich.console import Console
 
     from artifacts.store import Store
     from stages.plan import plan_stage
     from stages.runner import Runner
-    from stages.steps import train
     from stages.workflow import parse_workflow
 
     wf = parse_workflow({**yaml.safe_load(TINY), **({"tracking": tracking} if tracking else {})}, "tiny.yaml")
     store = Store.init(tmp_path / "store")[0]
     plan = plan_stage(wf, 1, store)
-    plan = dataclasses.replace(plan, steps=train.bind_tracking(plan.steps, wf.tracking, wf.name))
     results = Runner(store, console=Console(stderr=True, width=200)).run_plan(plan)
     return {r.step: r.outputs for r in results}, store.root
 
