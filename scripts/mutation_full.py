@@ -6,6 +6,7 @@ working tree, so other work in the checkout is never touched.
     .venv/bin/python scripts/mutation_full.py --time-limit 1800     # stop after 30 min; resume later
     .venv/bin/python scripts/mutation_full.py --only 'accrue.learner.losses*'   # some mutants only
     .venv/bin/python scripts/mutation_full.py --report              # counts and survivors so far
+    .venv/bin/python scripts/mutation_full.py --names /tmp/accrue-mutmut/survivors.txt   # re-run the survivors
 
 mutmut keeps its results in WORKDIR/tree/mutants/, so a second call continues where the first stopped
 (and re-tests functions whose code changed). Survivors are written to WORKDIR/survivors.txt, one
@@ -91,6 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--children", type=int, default=max(1, (os.cpu_count() or 2) // 2))
     ap.add_argument("--time-limit", type=float, default=None, help="seconds, then stop (resumable)")
     ap.add_argument("--only", action="append", default=[], help="mutant name pattern (repeatable)")
+    ap.add_argument("--names", type=Path, help="file of mutant names or patterns, one a line (e.g. survivors.txt)")
     ap.add_argument("--source", choices=("worktree", "head"), default="worktree", help="head: the last commit")
     ap.add_argument("--deselect", action="append", default=[], help="test node id to leave out (repeatable)")
     ap.add_argument("--report", action="store_true", help="only print what is known so far")
@@ -98,6 +100,12 @@ def main(argv: list[str] | None = None) -> int:
     if not MUTMUT.exists():
         print("error: mutmut is not installed: run `bash scripts/setup.sh` (it is a dev dependency)", file=sys.stderr)
         return 2
+    if args.names is not None:
+        try:
+            args.only += [n.strip() for n in args.names.read_text().splitlines() if n.strip()]
+        except OSError as exc:
+            print(f"error: --names {args.names}: {exc.strerror}", file=sys.stderr)
+            return 2
     tree = args.workdir / "tree"
     if not args.report:
         if args.workdir.resolve().is_relative_to(ROOT):
