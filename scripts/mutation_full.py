@@ -107,6 +107,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"error: --names {args.names}: {exc.strerror}", file=sys.stderr)
             return 2
     tree = args.workdir / "tree"
+    if args.report and not (tree / "mutants").is_dir():
+        print(f"error: no sweep in {args.workdir} yet (run without --report first)", file=sys.stderr)
+        return 2
     if not args.report:
         if args.workdir.resolve().is_relative_to(ROOT):
             print("error: --workdir must be outside the working tree", file=sys.stderr)
