@@ -195,6 +195,10 @@ class RobotBridge:
             out["image"] = out["images"][0]
         return out
 
+    def last_observation(self) -> dict:
+        """The last observation as the robot gave it (a teleoperator's feedback, the takeover's held keys)."""
+        return self._last_obs
+
     def frames(self) -> list[np.ndarray]:
         """The last observation's camera frames, (h, w, 3) uint8 each, in camera_keys order."""
         return self.mapping.images(self._last_obs)

@@ -49,6 +49,7 @@ class EpisodeOutcome:
     wall_s: float = 0.0
     robot_time_s: float = 0.0  # control steps / control rate: the time the robot spent acting
     limited: int = 0  # commands the action envelope clipped (joint bounds, rate limits)
+    intervention: np.ndarray | None = None  # (T, H) control steps the teleop drove (None: interventions off)
 
     @property
     def can_succeed(self) -> bool:
@@ -80,19 +81,26 @@ def run_episode(
     recorder,
     metadata: dict,
     poll: Callable[[], str | None] = lambda: None,
+    intervene=None,
 ) -> EpisodeOutcome:
-    """Drive one episode; never raises for a robot fault (the outcome says so)."""
+    """Drive one episode; never raises for a robot fault (the outcome says so). With `intervene`
+    (accrue.robot.teleop.Intervention), a control step the operator takes over executes the teleop's action
+    in place of the chunk's, and that step is marked in the outcome's `intervention`; a poll answer
+    "intervene" toggles the takeover (signal: key) from the next control step."""
     from accrue.sim.observation import STATE_NAMES, decode_state
 
     H = settings.horizon
     period = 0.0 if settings.clock <= 0 else 1.0 / (settings.control_hz * settings.clock)
     late_after = settings.late_after_s or max(2.0 / settings.control_hz, 0.05)
     S, R, A, N, faults = [], [], [], [], []
+    marks: list[np.ndarray] = []  # per chunk: which control steps the teleop drove
     end, reason, t = "time-limit", "", 0
     started = time.monotonic()
     recorder.start(0, metadata)
     state = None
     bridge.new_episode()
+    if intervene is not None:
+        intervene.new_episode(int(metadata.get("index", -1)))
     limited_before = bridge.limited
     try:
         state, done = bridge.observe()
@@ -108,10 +116,17 @@ def run_episode(
                 break
             if t >= settings.max_steps:
                 break
-            chunk = np.asarray(policy(s, ref, np.array([t == 0])), dtype=np.float32)[0]
+            chunk = np.array(policy(s, ref, np.array([t == 0])), dtype=np.float32)[
+                0
+            ]  # a copy: steps may be the human's
+            mark = np.zeros(H, dtype=bool)
             executed = 0
             for h in range(H):
                 tick = time.monotonic()
+                if intervene is not None:
+                    human = intervene.step(bridge.last_observation(), bridge.mapping)
+                    if human is not None:  # the executed (and stored) action is the human's
+                        chunk[h], mark[h] = human, True
                 if not bridge.act(chunk[h]):
                     faults.append(f"command dropped at step {t}")
                 state, done = bridge.observe()
@@ -136,9 +151,12 @@ def run_episode(
                     time.sleep(wait)
             A.append(chunk)
             N.append(executed)
+            marks.append(mark)
             if end == "safety":
                 break
             command = poll()
+            if command == "intervene" and intervene is not None:
+                intervene.toggle()
             if command in ("end", "abort"):
                 end, reason = ("operator", "ended by the operator") if command == "end" else ("abort", "aborted")
                 break
@@ -161,6 +179,7 @@ def run_episode(
         wall_s=time.monotonic() - started,
         robot_time_s=t / settings.control_hz,
         limited=bridge.limited - limited_before,
+        intervention=None if intervene is None else np.asarray(marks, dtype=bool).reshape(len(marks), H),
     )
 
 
@@ -181,7 +200,7 @@ def transitions(out: EpisodeOutcome, success: bool, gamma: float, episode: int) 
         "done": done,
         "ended": ended,
         "episode": np.array(episode, dtype=np.int64),
-    }
+    } | ({} if out.intervention is None else {"intervention": out.intervention})
 
 
 def relabelled(arrays: dict, success: bool, gamma: float) -> dict:
@@ -193,6 +212,26 @@ def relabelled(arrays: dict, success: bool, gamma: float) -> dict:
         done[-1] = bool(success)
     out["done"] = done
     return out
+
+
+def intervention_count(arrays: dict) -> int:
+    """Control steps the teleop drove in one episode's transitions (0 where interventions were off)."""
+    marks = arrays.get("intervention")
+    if marks is None:
+        return 0
+    steps = np.asarray(arrays["steps"], dtype=np.int64)
+    return int(sum(np.asarray(marks[i][: steps[i]]).sum() for i in range(len(steps))))
+
+
+def intervention_rows(episodes: list[dict]) -> np.ndarray:
+    """Per chunk transition that replay_from_episodes appends after the warmup rows, in the same order:
+    whether the teleop drove any of its control steps (HIL-SERL's intervention flag, per chunk)."""
+    rows = [
+        np.asarray(e["intervention"]).any(axis=1) if "intervention" in e else np.zeros(len(e["action"]), dtype=bool)
+        for e in episodes
+        if len(e["action"])
+    ]
+    return np.concatenate(rows) if rows else np.zeros(0, dtype=bool)
 
 
 def replay_from_episodes(warm, episodes: list[dict], task_index: int):

@@ -133,6 +133,7 @@ KEYS = {
     "p": "pause/resume",
     "l": "re-label last",
     "a": "abort",
+    "i": "take over / give back",  # only while robot.intervention (signal: key) is on
 }
 RESET_KEYS, LABEL_KEYS, RELABEL_KEYS, EPISODE_KEYS = "rpla", "sfpa", "sfa", "epa"
 AUDIT_EVENT = "robot-operator-action"
@@ -151,6 +152,7 @@ class KeyOperator(Operator):
     _audit_lock = threading.Lock()
     paused = False
     _episode: int | None = None
+    takeover_key = False  # robot.intervention with signal: key - `i` hands the robot to the teleop and back
 
     def __init__(self, name: str, audit: Callable[[str, dict], None] | None = None):
         self.name = name
@@ -232,7 +234,8 @@ class KeyOperator(Operator):
                     continue
                 self._action(via, "reset", episode=episode)
                 self._episode = episode
-                self._expect("episode", episode, EPISODE_KEYS, f"episode {episode} running: e ends it now")
+                keys = EPISODE_KEYS + ("i" if self.takeover_key else "")
+                self._expect("episode", episode, keys, f"episode {episode} running: e ends it now")
                 return ResetAnswer(go=True, relabel=relabel)
             else:
                 self._unknown(key, RESET_KEYS)
@@ -285,10 +288,13 @@ class KeyOperator(Operator):
             if key == "a":
                 self._action(via, "abort", episode=self._episode)
                 return "abort"
+            if key == "i" and self.takeover_key:
+                self._action(via, "takeover", episode=self._episode)
+                return "intervene"
             if key == "p":
                 self._pause(via, during_episode=True)
             elif not key.isspace():
-                self._unknown(key, EPISODE_KEYS)
+                self._unknown(key, EPISODE_KEYS + ("i" if self.takeover_key else ""))
         return None
 
 

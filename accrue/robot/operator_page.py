@@ -46,6 +46,8 @@ SHOWN_KEYS = (
     "learner_version",
     "learner_health",
     "interventions",
+    "intervening",
+    "intervention_rate_window",
     "status",
 )
 
@@ -400,7 +402,8 @@ PAGE = r"""<!doctype html>
         <dt>success (last 20)</dt><dd><span id="window-text">-</span><div id="marks"></div></dd>
         <dt>robot time</dt><dd id="robot-time">-</dd>
         <dt>learner</dt><dd><span id="learner-version">-</span> <span id="learner-health"></span></dd>
-        <dt>interventions</dt><dd id="interventions">-</dd>
+        <dt>interventions</dt><dd><span id="interventions">-</span> <span id="intervening"></span>
+          <span id="intervention-rate"></span></dd>
         <dt>status</dt><dd id="status">-</dd>
       </dl>
     </div>
@@ -416,6 +419,7 @@ PAGE = r"""<!doctype html>
       <button id="btn-p" data-key="p" disabled>pause / resume<kbd>p</kbd></button>
       <button id="btn-l" data-key="l" disabled>re-label last<kbd>l</kbd></button>
       <button id="btn-a" data-key="a" disabled>abort<kbd>a</kbd></button>
+      <button id="btn-i" data-key="i" disabled>take over / give back<kbd>i</kbd></button>
     </div>
     <pre id="messages"></pre>
   </section>
@@ -467,7 +471,12 @@ function render(st) {
   const h = $("learner-health");
   h.textContent = s.learner_health || "";
   h.className = s.learner_health ? "health-" + s.learner_health : "";
-  text("interventions", s.interventions);
+  text("interventions", s.interventions, (v) => v + " steps this episode");
+  $("intervening").textContent = s.intervening ? "OPERATOR DRIVING" : "";
+  $("intervening").className = s.intervening ? "health-holding" : "";
+  const rate = s.intervention_rate_window;  // absent: interventions are off
+  $("intervention-rate").textContent = rate === undefined || rate === null ? ""
+    : "window rate " + (100 * Number(rate)).toFixed(1) + "% of steps";
   text("status", s.status);
   $("prompt").textContent = p.line || "";
   $("paused").style.display = st.paused ? "block" : "none";
@@ -517,7 +526,7 @@ for (const b of document.querySelectorAll("#buttons button")) b.addEventListener
 document.addEventListener("keydown", (ev) => {
   if (ev.ctrlKey || ev.metaKey || ev.altKey) return;
   const k = ev.key.toLowerCase();
-  if ("rsfepla".includes(k) && k.length === 1) { ev.preventDefault(); press(k); }
+  if ("rsfeplai".includes(k) && k.length === 1) { ev.preventDefault(); press(k); }
 });
 tick();
 </script>

@@ -1,4 +1,5 @@
-"""lerobot robot types by name: `so101_follower` finds lerobot.robots.so_follower without an `imports:` line.
+"""lerobot robot (and teleoperator) types by name: `so101_follower` finds lerobot.robots.so_follower without an
+`imports:` line, `keyboard_ee` lerobot.teleoperators.keyboard.
 
 lerobot registers a robot type when its config module is imported, and only its own scripts import them.
 `builtin_module(type)` reads lerobot/robots/*/ for `register_subclass("<type>")` (no import, so a robot
@@ -46,6 +47,19 @@ def builtin_types() -> dict[str, str]:
 
 def builtin_module(robot_type: str) -> str | None:
     return builtin_types().get(robot_type)
+
+
+@lru_cache(maxsize=1)
+def builtin_teleop_types() -> dict[str, str]:
+    """{teleoperator type: lerobot module that registers it} for lerobot's own teleoperators."""
+    import lerobot.teleoperators as pkg
+
+    root = Path(pkg.__file__).parent
+    out: dict[str, str] = {}
+    for py in sorted(root.glob("*/*.py")):
+        for name in _REGISTER.findall(py.read_text(encoding="utf-8", errors="replace")):
+            out.setdefault(name, f"lerobot.teleoperators.{py.parent.name}")
+    return out
 
 
 def import_robot_module(module: str, why: str) -> None:

@@ -55,6 +55,9 @@ class SessionSettings:
     timeouts: dict = field(default_factory=dict)
     heartbeat_s: float = 0.5
     dead_after_s: float = 3.0
+    # robot.intervention (teleop, config, imports, signal, action_map, action_scale); None: off (the paper)
+    intervention: dict | None = None
+    tracking: dict | None = None  # the workflow's tracking: section (None: accrue.tracking's defaults)
 
 
 class SessionStop(KeyboardInterrupt):
@@ -293,6 +296,7 @@ class HardwareSession:
             if s["ended"] == "running":
                 s["ended"] = "interrupted (process ended without closing the session)"
         self.in_progress: int | None = None  # the episode started and not yet sealed or discarded
+        self._tracker = None  # opened at the first sealed episode (accrue.tracking)
         self._discard_unsealed()
         self.session = {
             "id": len(self.sessions) + 1,
@@ -363,6 +367,7 @@ class HardwareSession:
         self.session["episodes"] += 1
         self.session["robot_time_s"] = round(self.session["robot_time_s"] + record["robot_time_s"], 6)
         cid = self._save()
+        self._track(record)
         self._log(
             "robot-episode-sealed",
             index=index,
@@ -374,8 +379,42 @@ class HardwareSession:
             robot_time_s=round(record["robot_time_s"], 3),
             limited_commands=record.get("limited_commands") or None,
             weights_version=record.get("weights_version"),
+            interventions=record.get("interventions"),
             checkpoint=cid,
         )
+
+    def intervention_window(self, phase: str | None = None, size: int | None = None) -> float:
+        """Intervened control steps over all control steps of the last `size` (stop_window) episodes."""
+        from accrue.robot.teleop import window_rate
+
+        size = size or self.ctx.config.get("stop_window", 20)
+        phase = phase or self.ctx.config["phase"]
+        return window_rate([(e.get("interventions", 0), e["control_steps"]) for e in self.ordered(phase)], size)
+
+    def _track(self, record: dict) -> None:
+        """The episode's scalars for TensorBoard / W&B (accrue.tracking; never raises once open)."""
+        from accrue.tracking import open_tracker, run_name, tracking_dir
+
+        c = self.ctx.config
+        if self._tracker is None:
+            name = run_name(c["workflow"], c["stage"], self.ctx.step)
+            self._tracker = open_tracker(self.settings.tracking, tracking_dir(self.ctx.store.root, name), name)
+        succ, n = self.window(c.get("stop_window", 20), c["phase"])
+        values = {
+            "robot/success": float(bool(record["label"]["success"])),
+            "robot/success_window": succ / n if n else 0.0,
+            "robot/robot_time_s": self.robot_time_s(),
+            "robot/episode_steps": float(record["control_steps"]),
+        }
+        if "interventions" in record:
+            values |= {
+                "robot/interventions": float(record["interventions"]),
+                "robot/intervention_rate_window": self.intervention_window(),
+            }
+        if record.get("weights_version") is not None:
+            values["learner/version"] = float(record["weights_version"])
+        self._tracker.scalars(values, int(record["index"]))
+        self._tracker.flush()
 
     def relabel(self, index: int, label: dict, gamma: float) -> dict:
         with StopSignals.critical():
@@ -419,6 +458,8 @@ class HardwareSession:
         self._log("robot-learner-checkpoint", updates=info["updates"], version=info["version"], checkpoint=cid)
 
     def close(self, how: str) -> None:
+        if self._tracker is not None:
+            self._tracker.close()
         with StopSignals.critical():
             self.session["ended"] = how
             self._save()
@@ -543,13 +584,11 @@ def episode_loop(
     The operator is shown the live state (operator.show) at each episode's start and end and every
     SHOW_EVERY_S of robot time in between; learner_state() adds the learner's version and health.
     With a `hold` (train), the actor stops acting when the learner has not answered for its staleness
-    (checked at every chunk and before each episode) and waits for it (LearnerHold)."""
-    import tempfile
-
-    from accrue.logs.mcap_episodes import EpisodeRecorder
+    (checked at every chunk and before each episode) and waits for it (LearnerHold).
+    With robot.intervention (warmup and train), the operator may take over through a teleoperator
+    (accrue.robot.teleop): those control steps execute and store the teleop's action, are marked
+    `intervention` in the sealed transitions (what the learner receives) and counted in episode.json."""
     from accrue.robot.bridge import RobotFault
-    from accrue.robot.episode import run_episode, transitions
-    from accrue.robot.operator import Label, now_iso
 
     def lost(why: str):
         session.close(f"robot lost: {why}")
@@ -558,11 +597,76 @@ def episode_loop(
             f"and resume with `accrue stage run ... --step {ctx.step} --continue`"
         )
 
+    phase = ctx.config["phase"]
+    take = None  # robot.intervention: the operator may take over (warmup and train; never in evaluation)
+    if session.settings.intervention and phase in ("warmup", "train"):
+        from accrue.robot.teleop import Intervention
+
+        take = Intervention.from_dict(session.settings.intervention)  # a bad section: one line, robot untouched
     try:
         bridge.connect()
     except RobotFault as exc:
         if not bridge.reconnect():
             lost(str(exc))
+    if take is not None:
+        take.connect(bridge.mapping)
+        if hasattr(operator, "takeover_key"):
+            operator.takeover_key = take.signal == "key"
+    try:
+        _episodes(
+            ctx,
+            session,
+            operator,
+            bridge,
+            take,
+            lost,
+            task=task,
+            done=done,
+            policy_now=policy_now,
+            reference=reference,
+            features=features,
+            settings=settings,
+            gamma=gamma,
+            index_base=index_base,
+            metadata=metadata,
+            on_sealed=on_sealed,
+            between=between,
+            learner_state=learner_state,
+            hold=hold,
+        )
+    finally:
+        if take is not None:
+            take.close()
+
+
+def _episodes(
+    ctx,
+    session,
+    operator,
+    bridge,
+    take,
+    lost,
+    *,
+    task,
+    done,
+    policy_now,
+    reference,
+    features,
+    settings,
+    gamma,
+    index_base,
+    metadata,
+    on_sealed,
+    between,
+    learner_state,
+    hold,
+) -> None:
+    import tempfile
+
+    from accrue.logs.mcap_episodes import EpisodeRecorder
+    from accrue.robot.episode import intervention_count, intervention_rows, run_episode, transitions
+    from accrue.robot.operator import Label, now_iso
+
     sealed = session.ordered()
     last = sealed[-1]["index"] if sealed else None
     logs = Path(tempfile.mkdtemp(dir=ctx.scratch_dir("mcap")))
@@ -583,6 +687,15 @@ def episode_loop(
             except AccrueError:
                 frames = []
         window = [bool(e["label"]["success"]) for e in session.ordered(phase)][-ctx.config.get("stop_window", 20) :]
+        taking = (
+            {}
+            if take is None
+            else {
+                "intervening": bool(take.active or take.toggled),
+                "interventions": take.steps if live["index"] is not None else 0,
+                "intervention_rate_window": round(session.intervention_window(), 4),
+            }
+        )
         fn(
             {
                 "task": task,
@@ -593,6 +706,7 @@ def episode_loop(
                 "robot_time_s": round(session.robot_time_s() + live["acted_s"], 2),
                 "frame": frames[0] if frames else None,
                 **learner_state(),
+                **taking,
                 **state,
             }
         )
@@ -619,6 +733,8 @@ def episode_loop(
             hold.wait(session, operator, show, ctx.console)
             continue
         index = session.next_index(index_base)
+        # the page shows the phase and the window at every reset prompt (the first one, after --continue)
+        show(status=f"episode {index}: waiting for the scene to be reset")
         answer = operator.wait_reset(index, task, last)
         if answer.relabel is not None and last is not None:
             arrays = session.relabel(last, answer.relabel.to_json(), gamma)
@@ -637,7 +753,7 @@ def episode_loop(
         show(status=f"episode {index} started")
         recorder = EpisodeRecorder(logs, control_hz=settings.control_hz, state_names=list(bridge.mapping.state_keys))
         meta = {**metadata, "index": index, "weights_version": version, "session": session.session["id"]}
-        out = run_episode(bridge, settings, reference, policy, features, recorder, meta, poll=poll)
+        out = run_episode(bridge, settings, reference, policy, features, recorder, meta, poll=poll, intervene=take)
         live.update(step=out.control_steps, acted_s=0.0)
         if out.end == "abort" and live["held"]:
             live["held"] = False
@@ -682,6 +798,10 @@ def episode_loop(
             "weights_version": version,
             "ended_at": now_iso(),
         }
+        if take is not None:  # control steps the teleop drove, and the chunk transitions they touched
+            record.update(
+                interventions=intervention_count(arrays), intervened_chunks=int(intervention_rows([arrays]).sum())
+            )
         session.seal_episode(index, record, arrays, mcap)
         on_sealed(index, arrays, relabel=False)
         last = index

@@ -1,0 +1,259 @@
+"""Issue 21 item 6: interventions (beyond the paper, off by default).
+
+The operator takes over through a lerobot Teleoperator; on the simulated robot that is `accrue_sim_expert`,
+the scripted expert holding the takeover button (its IS_INTERVENTION event) during a configured window of
+control steps. The steps it drives execute and store its action, are marked in the sealed transitions and
+in what the learner receives, counted in episode.json and the 20-episode intervention rate, shown to the
+operator and written to the tracker. Without a robot.intervention section nothing changes.
+
+The learner is tests/test_robot_hold's stand-in link, which here also keeps every episode it is pushed
+(exactly the bytes a LearnerService stores)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hw_workflow import run_stage
+from test_robot_hold import fake_link, hold_workflow, use_link
+
+from accrue.errors import AccrueError
+from stages.errors import StageError
+
+pytestmark = pytest.mark.timeout(600)
+H = 4  # the test workflow's horizon
+WINDOW = [2, 7]  # control steps 2..6 of the episode: chunk 0 steps 2-3, chunk 1 steps 0-2
+
+
+def teleop(calib: Path, **config) -> dict:
+    return {"teleop": "accrue_sim_expert", "config": {"calibration_dir": str(calib), **config}}
+
+
+@pytest.fixture(autouse=True)
+def wired(monkeypatch):
+    """robot.intervention into the session settings (stages.steps.hw_plan.session_settings does not pass
+    it yet; harmless once it does)."""
+    from stages.steps import hw_plan
+
+    plain = hw_plan.session_settings
+
+    def session_settings(wf):
+        s = plain(wf)
+        if s.intervention is None and wf.robot.intervention is not None:
+            s = dataclasses.replace(s, intervention=wf.robot.intervention.model_dump())
+        return s
+
+    monkeypatch.setattr(hw_plan, "session_settings", session_settings)
+
+
+@pytest.fixture(scope="module")
+def warm_store(tmp_path_factory):
+    from artifacts.store import Store
+
+    root = tmp_path_factory.mktemp("take-warm")
+    Store.init(root / "store")
+    run_stage(root / "store", hold_workflow(root / "hw.yaml", root / "calib"), 1, step="warmup")
+    return root
+
+
+@pytest.fixture
+def store(warm_store, tmp_path):
+    shutil.copytree(warm_store / "store", tmp_path / "store")
+    return tmp_path
+
+
+def last_checkpoint(store_root: Path, step: str) -> dict[int, tuple[dict, dict]]:
+    """{index: (episode.json, transitions)} of the step's newest intra-step checkpoint."""
+    from artifacts.auditlog import iter_events
+    from artifacts.manifests import materialize
+    from artifacts.store import Store
+
+    st = Store.open(store_root)
+    cid = [e["checkpoint"] for e in iter_events(st) if e.get("event") == "robot-episode-sealed"][-1]
+    d = materialize(st, cid, store_root.parent / f"ckpt-{step}")
+    out = {}
+    for p in sorted((d / "episodes").glob("*/episode.json")):
+        e = json.loads(p.read_text())
+        with np.load(p.parent / "transitions.npz") as z:
+            out[e["index"]] = (e, {k: z[k] for k in z.files})
+    return out
+
+
+def expected_marks(steps: np.ndarray, lo: int, hi: int) -> np.ndarray:
+    marks = np.zeros((len(steps), H), dtype=bool)
+    t = 0
+    for i, n in enumerate(steps):
+        for h in range(int(n)):
+            marks[i, h] = lo <= t < hi
+            t += 1
+    return marks
+
+
+def test_a_takeover_window_marks_exactly_its_steps_in_the_seal_and_what_the_learner_gets(store, monkeypatch):
+    from accrue.robot.episode import intervention_rows, replay_from_episodes
+    from accrue.robot.learner_service import read_npz
+    from accrue.robot.operator import ScriptedOperator
+    from accrue.robot.sim_robot import AccrueSimExpert
+    from accrue.tracking import run_name, tracking_dir
+
+    given: list[dict] = []  # every action the teleop answered, in order
+    plain_action = AccrueSimExpert.get_action
+
+    def get_action(self):
+        a = plain_action(self)
+        given.append(a)
+        return a
+
+    monkeypatch.setattr(AccrueSimExpert, "get_action", get_action)
+    shown: list[tuple[str, dict]] = []
+    monkeypatch.setattr(ScriptedOperator, "show", lambda self, state: shown.append(("show", dict(state))))
+    plain_reset = ScriptedOperator.wait_reset
+    monkeypatch.setattr(
+        ScriptedOperator,
+        "wait_reset",
+        lambda self, *a: (shown.append(("reset", {})), plain_reset(self, *a))[1],
+    )
+
+    received: dict[int, dict] = {}
+    Link = fake_link()
+
+    class Keeping(Link):
+        def push(self, header, blob):
+            received[int(header["index"])] = read_npz(blob)
+            super().push(header, blob)
+
+    use_link(monkeypatch, store / "store", Keeping)
+    # train's episodes are 3, 4, 5 (after warmup's 0-2): the expert takes over in 3 and 5
+    wf = hold_workflow(
+        store / "hw.yaml", store / "calib", intervention=teleop(store / "tcalib", takeover=[WINDOW], episodes=[3, 5])
+    )
+    run_stage(store / "store", wf, 1, step="train")
+
+    eps = last_checkpoint(store / "store", "train")
+    assert sorted(eps) == [3, 4, 5]
+    human = iter(given)
+    total_marked = 0
+    for index, (e, arrays) in eps.items():
+        lo, hi = WINDOW if index in (3, 5) else (0, 0)
+        want = expected_marks(arrays["steps"], lo, hi)
+        assert np.array_equal(arrays["intervention"], want), index  # exactly the window's steps
+        assert e["interventions"] == int(want.sum()) == (hi - lo)
+        assert e["intervened_chunks"] == int(want.any(axis=1).sum())
+        total_marked += e["interventions"]
+        for i, h in zip(*np.nonzero(want)):  # the stored action is the human's, as the teleop gave it
+            a = next(human)
+            assert np.allclose(arrays["action"][i, h], [a[k] for k in a], atol=1e-6)
+        # the learner got the same transitions, flag and human action included (nothing reset the flag)
+        assert set(received[index]) == set(arrays)
+        for k in arrays:
+            assert np.array_equal(received[index][k], arrays[k]), (index, k)
+    assert next(human, None) is None  # the teleop acted on no other step
+
+    # the learner's buffer rows (as LearnerService builds them) carry the human chunks, flagged per row
+    rows = [received[i] for i in sorted(received)]
+    from accrue.learner import ReplayBuffer
+
+    buf = replay_from_episodes(ReplayBuffer(rows[0]["s"].shape[-1], H), rows, 0)
+    flags = intervention_rows(rows)
+    assert len(flags) == len(buf) and flags.sum() == 2 * 2
+    stored = np.concatenate([r["action"] for r in rows])
+    assert np.array_equal(buf.column("action").numpy(), stored)
+
+    # the window rate by hand: intervened control steps over all control steps of the (3) episodes
+    steps = sum(e["control_steps"] for e, _ in eps.values())
+    rate = total_marked / steps
+    from accrue.robot.teleop import window_rate
+
+    assert window_rate([(e["interventions"], e["control_steps"]) for e, _ in eps.values()]) == pytest.approx(rate)
+
+    # shown: before the first reset prompt already (phase, window), and the counts during the session
+    # (warmup ran again here: its robot.config names another calibration dir than the fixture's)
+    first = next(i for i, (kind, s) in enumerate(shown) if kind == "show" and s["phase"] == "train")
+    assert "window" in shown[first][1] and shown[first + 1][0] == "reset"
+    states = [s for kind, s in shown[first:] if kind == "show"]
+    assert any(s.get("intervening") for s in states) and all("intervention_rate_window" in s for s in states)
+    assert states[-1]["intervention_rate_window"] == pytest.approx(round(rate, 4))
+
+    # the tracker: robot/interventions per episode and the window rate
+    from test_tracking import read_scalars
+
+    scalars = read_scalars(tracking_dir(store / "store", run_name("hw", 1, "train")))
+    assert [v for _, v in scalars["robot/interventions"]] == [5.0, 0.0, 5.0]
+    assert scalars["robot/intervention_rate_window"][-1][1] == pytest.approx(rate, rel=1e-5)
+
+
+def test_off_by_default_changes_nothing(tmp_path):
+    """No robot.intervention: no flag, no count; an intervention section whose teleop never takes over
+    executes exactly the same actions (only the all-False flag and the zero count are added)."""
+    from artifacts.store import Store
+
+    runs = {}
+    for name, extra in (("off", {}), ("idle", {"intervention": teleop(tmp_path / "tcalib")})):
+        root = tmp_path / name
+        Store.init(root / "store")
+        run_stage(root / "store", hold_workflow(root / "hw.yaml", tmp_path / "calib", **extra), 1, step="warmup")
+        runs[name] = last_checkpoint(root / "store", "warmup")
+    assert sorted(runs["off"]) == sorted(runs["idle"]) == [0, 1, 2]
+    for index in runs["off"]:
+        (e_off, a_off), (e_idle, a_idle) = runs["off"][index], runs["idle"][index]
+        assert "intervention" not in a_off and "interventions" not in e_off
+        assert not a_idle["intervention"].any() and e_idle["interventions"] == 0
+        assert set(a_idle) - set(a_off) == {"intervention"}
+        for k in a_off:
+            assert np.array_equal(a_off[k], a_idle[k]), (index, k)
+
+
+@pytest.mark.parametrize(
+    "section, says",
+    [
+        ({"teleop": "no_such_teleop"}, "robot.intervention.teleop: unknown lerobot teleoperator type 'no_such_teleop'"),
+        ({"teleop": "accrue_sim_expert", "config": {"speed": 3}}, "robot.intervention.config: not a valid"),
+        (
+            {"teleop": "accrue_sim_expert", "action_map": {"x.pos": "dx"}},
+            "robot.intervention: 'x.pos' is not one of the robot's action keys",
+        ),
+        (
+            {"teleop": "accrue_sim_expert", "action_map": {"dx": "delta_x"}},
+            "robot.intervention.action_map: the teleoperator has no action 'delta_x' for 'dx'",
+        ),
+    ],
+)
+def test_a_bad_intervention_section_is_one_line(tmp_path, section, says):
+    from artifacts.store import Store
+
+    Store.init(tmp_path / "store")
+    section = {**section, "config": {"calibration_dir": str(tmp_path / "tcalib"), **section.get("config", {})}}
+    wf = hold_workflow(tmp_path / "hw.yaml", tmp_path / "calib", intervention=section)
+    with pytest.raises(AccrueError) as err:
+        run_stage(tmp_path / "store", wf, 1, step="warmup")
+    line = str(err.value)
+    assert "\n" not in line and says in line, line
+
+
+def test_a_bad_signal_is_refused_when_the_workflow_loads(tmp_path):
+    from stages.workflow import load_workflow
+
+    wf = hold_workflow(tmp_path / "hw.yaml", tmp_path / "calib", intervention={"teleop": "gamepad", "signal": "x"})
+    with pytest.raises(StageError) as err:
+        load_workflow(wf)
+    assert "\n" not in str(err.value) and "intervention.signal" in str(err.value)
+
+
+def test_the_operators_i_key_toggles_the_takeover_only_when_it_is_on():
+    from accrue.robot.operator_page import PageOperator
+
+    audit: list[tuple[str, dict]] = []
+    pg = PageOperator("op", terminal=False, audit=lambda ev, f: audit.append((ev, f)))
+    try:
+        pg.press("i")
+        assert pg.poll() is None and "key 'i' does nothing here" in pg.state()["messages"][-1]
+        pg.takeover_key = True
+        pg.press("i")
+        assert pg.poll() == "intervene"
+        assert audit[-1][1]["action"] == "takeover" and audit[-1][1]["via"] == "page"
+    finally:
+        pg.close()
