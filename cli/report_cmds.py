@@ -162,5 +162,10 @@ def _print_hardware(summary: dict) -> None:
             f"stage {k}: Single-task needed {row['single_task_s']:.1f} s, {summary['workflow']} "
             f"{row['accrue_s']:.1f} s: {row['saved_s']:.1f} s saved ({row['saved_percent']}%)"
         )
+    for k, row in summary.get("interventions", {}).items():
+        typer.echo(
+            f"stage {k}: interventions per {row['window']}-episode window: "
+            + ", ".join(f"{w['episodes']} {100 * w['rate']:.1f}%" for w in row["windows"])
+        )
     for name, path in summary["files"].items():
         typer.echo(f"{name}: {path}")

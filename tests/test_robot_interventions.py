@@ -185,6 +185,25 @@ def test_a_takeover_window_marks_exactly_its_steps_in_the_seal_and_what_the_lear
     assert [v for _, v in scalars["robot/interventions"]] == [5.0, 0.0, 5.0]
     assert scalars["robot/intervention_rate_window"][-1][1] == pytest.approx(rate, rel=1e-5)
 
+    # the report's robot section: the rate per 20-episode window (here one window of three episodes)
+    from artifacts.store import Store
+    from stages.report.hardware import write_hardware_report
+    from stages.workflow import load_workflow
+
+    summary = write_hardware_report(Store.open(store / "store"), load_workflow(wf), store / "report")
+    [w] = summary["interventions"][1]["windows"]
+    assert w == {
+        "episodes": "3-5",
+        "intervened_steps": total_marked,
+        "control_steps": steps,
+        "episodes_with_interventions": 2,
+        "rate": round(rate, 4),
+    }
+    assert (
+        f"| 1 | 3-5 | {total_marked} | {steps} | 2 | {100 * rate:.1f}% |"
+        in (store / "report" / "interventions.md").read_text()
+    )
+
 
 def test_off_by_default_changes_nothing(tmp_path):
     """No robot.intervention: no flag, no count; an intervention section whose teleop never takes over

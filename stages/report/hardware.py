@@ -8,6 +8,8 @@ policy shaded grey at the left, dashed while fewer than `stop_window` episodes e
 dotted line where the stop rule was reached. With `single_task` (a Single-task workflow of the same task
 sequence, run in the same store) its curves are drawn too, and the robot time saved is shaded and given.
 Table III (`table3.md`): successes over the retention trials on each earlier task after each later stage.
+With robot.intervention (beyond the paper), `interventions.md`: the intervention rate per `stop_window`-episode
+window of each stage's train episodes.
 `report.json` holds every number shown.
 """
 
@@ -35,6 +37,67 @@ def stage_curves(store: Store, wf: Workflow) -> dict[int, dict]:
             raise StageError(f"workflow {wf.name}: stage {k}'s train record is not a hardware run")
         out[k] = data
     return out
+
+
+def stage_interventions(store: Store, wf: Workflow) -> dict[int, dict]:
+    """stage -> the train step's interventions (robot.intervention, beyond the paper), read from its sealed
+    episode records: the intervention rate (intervened control steps / control steps) per consecutive
+    `stop_window`-episode window. Stages run without interventions are left out."""
+    from artifacts.manifests import read_artifact, read_tree
+    from artifacts.refs import read_ref
+
+    size = wf.robot.stop_window if wf.robot is not None else 20
+    out = {}
+    for k in range(1, wf.num_stages + 1):
+        record_id = read_ref(store, step_ref(wf.name, k, "train"))
+        if record_id is None:
+            break
+        artifact = (store.read_json(record_id).get("outputs") or {}).get("episodes")
+        if artifact is None:
+            continue
+        manifest = read_artifact(store, artifact)
+        files = sorted(
+            (e["path"], e["id"]) for e in read_tree(store, manifest["content"]) if e["path"].endswith("episode.json")
+        )
+        eps = [json.loads(store.read_bytes(oid)) for _, oid in files]
+        eps = [e for e in eps if e.get("phase") == "train"]
+        if not any("interventions" in e for e in eps):
+            continue
+        windows = []
+        for i in range(0, len(eps), size):
+            block = eps[i : i + size]
+            steps = sum(e["control_steps"] for e in block)
+            taken = sum(e.get("interventions", 0) for e in block)
+            windows.append(
+                {
+                    "episodes": f"{block[0]['index']}-{block[-1]['index']}",
+                    "intervened_steps": taken,
+                    "control_steps": steps,
+                    "episodes_with_interventions": sum(bool(e.get("interventions")) for e in block),
+                    "rate": round(taken / steps, 4) if steps else 0.0,
+                }
+            )
+        out[k] = {"window": size, "windows": windows, "intervened_steps": sum(e.get("interventions", 0) for e in eps)}
+    return out
+
+
+def interventions_markdown(rows: dict[int, dict]) -> str:
+    lines = [
+        "# Interventions (robot.intervention; beyond the paper)",
+        "",
+        "Intervention rate: control steps the operator drove through the teleoperator / all control steps, per",
+        "consecutive window of train episodes.",
+        "",
+        "| stage | episodes | intervened steps | control steps | episodes with interventions | rate |",
+        "|---|---|---|---|---|---|",
+    ]
+    for k, row in sorted(rows.items()):
+        for w in row["windows"]:
+            lines.append(
+                f"| {k} | {w['episodes']} | {w['intervened_steps']} | {w['control_steps']} | "
+                f"{w['episodes_with_interventions']} | {100 * w['rate']:.1f}% |"
+            )
+    return "\n".join(lines) + "\n"
 
 
 def retention_table(store: Store, wf: Workflow) -> dict[int, dict[str, list[bool]]]:
@@ -160,6 +223,11 @@ def write_hardware_report(
     files = {"fig4": str(plot_fig4(curves, wf, out / "fig4.png", other))}
     (out / "table3.md").write_text(table3_markdown(table, wf))
     files["table3"] = str(out / "table3.md")
+    taken = stage_interventions(store, wf)
+    if taken:  # only a workflow run with robot.intervention has any
+        summary["interventions"] = taken
+        (out / "interventions.md").write_text(interventions_markdown(taken))
+        files["interventions"] = str(out / "interventions.md")
     summary["files"] = files
     summary["out_dir"] = str(out)
     (out / "report.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
