@@ -205,6 +205,43 @@ def test_a_takeover_window_marks_exactly_its_steps_in_the_seal_and_what_the_lear
     )
 
 
+def test_the_operators_key_takes_over_from_the_next_step_until_the_episode_ends(tmp_path, monkeypatch):
+    """signal: key - the operator's `i` (here at episode 1's second poll, i.e. after its second chunk) hands
+    the robot to the teleop from the next control step; the next episode starts with the policy again."""
+    from accrue.robot.operator import ScriptedOperator
+    from artifacts.store import Store
+
+    polls = {"n": 0}
+
+    def poll(self):
+        polls["n"] += 1
+        return "intervene" if self.episode_now == 1 and polls["n"] == polls["at"] else None
+
+    plain_reset = ScriptedOperator.wait_reset
+
+    def wait_reset(self, episode, task, last):
+        self.episode_now = episode
+        polls["at"] = polls["n"] + 2
+        return plain_reset(self, episode, task, last)
+
+    monkeypatch.setattr(ScriptedOperator, "poll", poll)
+    monkeypatch.setattr(ScriptedOperator, "wait_reset", wait_reset)
+    Store.init(tmp_path / "store")
+    section = {**teleop(tmp_path / "tcalib"), "signal": "key"}
+    run_stage(
+        tmp_path / "store", hold_workflow(tmp_path / "hw.yaml", tmp_path / "calib", intervention=section), 1, "warmup"
+    )
+    eps = last_checkpoint(tmp_path / "store", "warmup")
+    for index, (e, arrays) in eps.items():
+        want = np.zeros_like(arrays["intervention"])
+        if index == 1:
+            for i, n in enumerate(arrays["steps"]):
+                want[i, : int(n)] = i >= 2  # every executed step from the third chunk on
+        assert np.array_equal(arrays["intervention"], want), index
+        assert e["interventions"] == int(want.sum())
+    assert eps[1][0]["interventions"] > 0
+
+
 def test_off_by_default_changes_nothing(tmp_path):
     """No robot.intervention: no flag, no count; an intervention section whose teleop never takes over
     executes exactly the same actions (only the all-False flag and the zero count are added)."""

@@ -144,6 +144,7 @@ class Intervention:
 
     def new_episode(self, index: int) -> None:
         self.active, self.steps = False, 0
+        self.toggled = False  # every episode starts with the policy driving: the operator takes over again with i
         hook = getattr(self.teleop, "new_episode", None)
         if hook is not None:
             hook(index)
