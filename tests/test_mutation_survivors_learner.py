@@ -451,3 +451,12 @@ def test_an_empty_prior_batch_is_no_prior_batch():
     want = {k: float(v) for k, v in twin._update(b, None).items()}
     assert got == want and "loss_prior" not in got
     same_params(learner.actor, twin.actor)
+
+
+def test_actor_update_without_cached_targets_names_the_fix():
+    """Survivors agent._actor_update 16-19: the exact message when ACCRUE's prior batch carries no Eq. 3 targets."""
+    learner = make_learner(config("accrue"), D, H, A)
+    b = learner.sample(rows_buffer(16, seed=2), BATCH)
+    with pytest.raises(AccrueError) as exc:
+        learner._actor_update(b, learner.sample(rows_buffer(16, seed=3), BATCH))
+    assert str(exc.value) == "ACCRUE needs cached teacher targets on the prior batch (Batch.with_teacher)"
