@@ -10,10 +10,10 @@ import os
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
+from test_runner_support import KILL_AT
 
 ROOT = Path(__file__).resolve().parents[1]
 ACCRUE = [sys.executable, "-m", "cli.main"]
@@ -187,28 +187,26 @@ def test_kill_9_during_train_then_continue_matches_an_uninterrupted_run(tiny, tm
         base_policy=f"{{init: {policy_id}, finetune: false}}",
     )
     run_json(store, "stage", "run", str(wf), "--stage", "1", "--step", "warmup")
-    env = {**os.environ, "ACCRUE_STORE": str(store), "OMP_NUM_THREADS": "1"}
+    env = {**os.environ, "ACCRUE_STORE": str(store), "OMP_NUM_THREADS": "1", KILL_AT: "1"}
 
     def checkpoints():
         return [e for e in events(store) if e.get("event") == "checkpoint-saved" and e.get("step") == "train"]
 
     before = len(checkpoints())
-    proc = subprocess.Popen(
-        [*ACCRUE, "stage", "run", str(wf), "--stage", "1", "--step", "train"],
+    # train SIGKILLs itself right after its first committed checkpoint (checkpoints are at least two
+    # episodes of every env apart, so 640 env steps have one or two), through the runner tests' fault
+    # hook: no timing window to hit or miss
+    killed = subprocess.run(
+        [sys.executable, str(ROOT / "tests" / "test_runner_support.py"), "accrue", "stage", "run", str(wf)]
+        + ["--stage", "1", "--step", "train"],
         cwd=ROOT,
         env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
+        capture_output=True,
+        text=True,
+        timeout=900,
     )
-    deadline = time.monotonic() + 600
-    try:
-        while len(checkpoints()) == before:
-            assert proc.poll() is None, "train finished before its first checkpoint"
-            assert time.monotonic() < deadline
-            time.sleep(0.05)
-    finally:
-        proc.send_signal(signal.SIGKILL)
-        proc.wait()
+    assert killed.returncode == -signal.SIGKILL, killed.stderr[-3000:]
+    assert len(checkpoints()) == before + 1
     interrupted = accrue(store, "stage", "run", str(wf), "--stage", "1", "--step", "train", check=False)
     assert interrupted.returncode == 2 and "--continue" in interrupted.stderr
     resumed = run_json(store, "stage", "run", str(wf), "--stage", "1", "--step", "train", "--continue")[-1]
@@ -219,8 +217,9 @@ def test_kill_9_during_train_then_continue_matches_an_uninterrupted_run(tiny, tm
     trains = [a for a in list_attempts(Store.open(store)) if a.get("workflow") == "resume" and a["step"] == "train"]
     assert [a["state"] for a in trains] == ["abandoned", "committed"]
     assert trains[1]["resumed_from"] in {c["id"] for c in trains[0]["checkpoints"]}
-    killed_at = checkpoints()[before]["progress"]["env_steps"]
-    assert 0 < killed_at < 640
+    assert trains[1]["resumed_from"] == trains[0]["checkpoints"][-1]["id"] == checkpoints()[before]["checkpoint"]
+    killed_at = [c["progress"]["env_steps"] for c in trains[0]["checkpoints"]]
+    assert len(killed_at) == 1 and 0 < killed_at[0] < 640
     fresh = run_json(store, "stage", "run", str(wf), "--stage", "1", "--step", "train", "--rerun")[-1]
     assert content_ids(store, resumed["outputs"]) == content_ids(store, fresh["outputs"])
     # committed now: a plain run does not run train again

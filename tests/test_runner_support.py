@@ -3,6 +3,7 @@ and concurrency tests can run them in separate processes:
 
     python tests/test_runner_support.py count STORE MODE N SLEEP [--wait]
     python tests/test_runner_support.py writer STORE SEED
+    python tests/test_runner_support.py accrue ARGS...   (the real CLI, with the checkpoint faults below)
 """
 
 from __future__ import annotations
@@ -137,6 +138,25 @@ def _count_main(args: list[str]) -> None:
     print(json.dumps({"cached": result.cached, "record": result.record_id, "outputs": result.outputs}))
 
 
+def _accrue_main(args: list[str]) -> None:
+    """The real `accrue` CLI in this process, with the checkpoint faults above armed on every step's
+    StepContext.save_checkpoint (the product has no test hooks; the environment picks the checkpoint)."""
+    from cli.main import main
+    from stages.runner_context import StepContext
+
+    original, saved = StepContext.save_checkpoint, [0]
+
+    def save_checkpoint(self, dir_path, progress):
+        cid = original(self, dir_path, progress)  # committed: the attempt record and the event are written
+        saved[0] += 1
+        _fault_after_checkpoint(saved[0])
+        return cid
+
+    StepContext.save_checkpoint = save_checkpoint
+    sys.argv = ["accrue", *args]
+    main()
+
+
 if __name__ == "__main__":
     cmd, rest = sys.argv[1], sys.argv[2:]
     if cmd == "count":
@@ -147,3 +167,5 @@ if __name__ == "__main__":
             sys.exit(2)
     elif cmd == "writer":
         _writer(Path(rest[0]), int(rest[1]))
+    elif cmd == "accrue":
+        _accrue_main(rest)
