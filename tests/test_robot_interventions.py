@@ -313,3 +313,34 @@ def test_the_operators_i_key_toggles_the_takeover_only_when_it_is_on():
         assert audit[-1][1]["action"] == "takeover" and audit[-1][1]["via"] == "page"
     finally:
         pg.close()
+
+
+def test_lerobots_keyboard_ee_maps_onto_the_robots_action_keys(tmp_path):
+    """lerobot's own keyboard end-effector teleop, found by name and built by lerobot's factory: its deltas
+    drive the keys action_map names (scaled by action_scale), the keys it lacks are held (0 for deltas), and
+    the result is the normalised action clipped to [-1, 1] like a policy's."""
+    from lerobot.teleoperators.utils import TeleopEvents
+
+    from accrue.robot.mapping import RobotMapping
+    from accrue.robot.teleop import Intervention
+    from accrue.sim.observation import ACTION_NAMES
+
+    take = Intervention.from_dict(
+        {
+            "teleop": "keyboard_ee",
+            "config": {"calibration_dir": str(tmp_path / "kcal")},
+            "action_map": {"dx": "delta_x", "dy": "delta_y", "dz": "delta_z"},
+            "action_scale": {"dz": 3.0},
+        }
+    )
+    take.teleop = take.make_teleop()  # not connected: no keyboard listener in a test
+    assert type(take.teleop).__name__ == "KeyboardEndEffectorTeleop"
+    mapping = RobotMapping(action_limits=(0.5,) * 6).bind({"q": float}, {k: float for k in ACTION_NAMES}, "robot")
+    take.connect(mapping)
+    take.teleop.get_teleop_events = lambda: {TeleopEvents.IS_INTERVENTION: True}
+    take.teleop.get_action = lambda: {"delta_x": 0.25, "delta_y": -1.0, "delta_z": 0.5, "gripper": 1.0}
+    a = take.step({"q": 0.0}, mapping)
+    # robot units / action_limits: 0.25 / 0.5, -1 / 0.5 -> clipped, 0.5 * 3 / 0.5 -> clipped; the rest held
+    assert np.allclose(a, [0.5, -1.0, 1.0, 0.0, 0.0, 0.0]) and take.steps == 1
+    take.teleop.get_teleop_events = lambda: {TeleopEvents.IS_INTERVENTION: False}
+    assert take.step({"q": 0.0}, mapping) is None and take.steps == 1

@@ -3,7 +3,8 @@ episode early and re-label the last one. Labels carry who gave them, when and th
 sealed with the episode, so an audit finds every one).
 
     TerminalOperator(name)            single keys on a terminal (rich): s/f label, r reset done, p pause,
-                                      e end the episode now, l re-label the last episode, a abort
+                                      e end the episode now, l re-label the last episode, a abort, and
+                                      i take over / give back while robot.intervention has signal: key
     PageOperator(name, ...)           the same keys as buttons on a local web page with the live state
                                       (accrue.robot.operator_page), and on the terminal too when there is one
     ScriptedOperator(name, ...)       for tests and unattended dry runs: labels what the simulated robot
@@ -56,7 +57,8 @@ class Operator:
 
     def show(self, state: dict) -> None:
         """The live state for a view that can show it (the page): task, phase, episode, step, window,
-        robot_time_s, learner_version, learner_health, interventions, status, frame. Thread-safe where
+        robot_time_s, learner_version, learner_health, interventions (control steps the operator drove
+        in this episode), intervening, intervention_rate_window, status, frame. Thread-safe where
         implemented; the terminal and the scripted operator have nothing to show it on."""
 
     def wait_reset(self, episode: int, task: str, last: int | None) -> ResetAnswer:

@@ -32,17 +32,20 @@ EXTRA_OF_MODULE = {
 _REGISTER = re.compile(r"""register_subclass\(\s*["']([A-Za-z0-9_\-]+)["']""")
 
 
-@lru_cache(maxsize=1)
-def builtin_types() -> dict[str, str]:
-    """{robot type: lerobot module that registers it} for lerobot's own robots."""
-    import lerobot.robots as pkg
-
-    root = Path(pkg.__file__).parent
+def _registered(package: str) -> dict[str, str]:
+    """{type: module that registers it} for the subpackages of lerobot `package` (read, not imported)."""
+    root = Path(importlib.import_module(package).__file__).parent
     out: dict[str, str] = {}
     for py in sorted(root.glob("*/*.py")):
         for name in _REGISTER.findall(py.read_text(encoding="utf-8", errors="replace")):
-            out.setdefault(name, f"lerobot.robots.{py.parent.name}")
+            out.setdefault(name, f"{package}.{py.parent.name}")
     return out
+
+
+@lru_cache(maxsize=1)
+def builtin_types() -> dict[str, str]:
+    """{robot type: lerobot module that registers it} for lerobot's own robots."""
+    return _registered("lerobot.robots")
 
 
 def builtin_module(robot_type: str) -> str | None:
@@ -52,14 +55,7 @@ def builtin_module(robot_type: str) -> str | None:
 @lru_cache(maxsize=1)
 def builtin_teleop_types() -> dict[str, str]:
     """{teleoperator type: lerobot module that registers it} for lerobot's own teleoperators."""
-    import lerobot.teleoperators as pkg
-
-    root = Path(pkg.__file__).parent
-    out: dict[str, str] = {}
-    for py in sorted(root.glob("*/*.py")):
-        for name in _REGISTER.findall(py.read_text(encoding="utf-8", errors="replace")):
-            out.setdefault(name, f"lerobot.teleoperators.{py.parent.name}")
-    return out
+    return _registered("lerobot.teleoperators")
 
 
 def import_robot_module(module: str, why: str) -> None:
