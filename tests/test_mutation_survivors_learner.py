@@ -460,3 +460,16 @@ def test_actor_update_without_cached_targets_names_the_fix():
     with pytest.raises(AccrueError) as exc:
         learner._actor_update(b, learner.sample(rows_buffer(16, seed=3), BATCH))
     assert str(exc.value) == "ACCRUE needs cached teacher targets on the prior batch (Batch.with_teacher)"
+
+
+def test_amp_on_a_cpu_learner_is_a_silent_no_op():
+    """Survivors agent._autocast 1, 2: autocast is entered only for amp on a CUDA device; a CPU learner
+    with amp (the GPU presets' setting) acts and updates without torch's 'CUDA is not available' warning."""
+    import warnings
+
+    learner = make_learner(config("accrue", amp=True), D, H, A)
+    s, ref = inputs(3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        learner.act(s, ref, explore=False)
+        assert "critic_loss" in learner.train_step(rows_buffer(12, seed=0))
