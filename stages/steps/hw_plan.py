@@ -49,6 +49,8 @@ def session_settings(wf: Workflow):
         clock=r.clock,
         faults=dict(r.faults),
         timeouts=dict(r.timeouts),
+        intervention=r.intervention.model_dump() if r.intervention is not None else None,
+        tracking=wf.tracking.model_dump(),
     )
 
 
