@@ -101,6 +101,8 @@ class InterventionSpec(_Strict):
     signal: Literal["events", "key"] = "events"
     action_map: dict[str, str] = {}  # robot action key -> teleop action key (default: the same names)
     action_scale: dict[str, float] = {}  # robot action key -> factor on the teleop's value (robot units)
+    # a teleop call (events, action, feedback) slower than this ends the episode as a fault (never a hang)
+    timeout_s: float = Field(1.0, gt=0)
 
 
 class RobotSpec(_Strict):
