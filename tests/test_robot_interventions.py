@@ -344,3 +344,33 @@ def test_lerobots_keyboard_ee_maps_onto_the_robots_action_keys(tmp_path):
     assert np.allclose(a, [0.5, -1.0, 1.0, 0.0, 0.0, 0.0]) and take.steps == 1
     take.teleop.get_teleop_events = lambda: {TeleopEvents.IS_INTERVENTION: False}
     assert take.step({"q": 0.0}, mapping) is None and take.steps == 1
+
+
+def test_a_teleoperator_that_stops_answering_ends_the_episode_not_the_session(tmp_path, monkeypatch):
+    """A stuck teleop (its get_action never returns) is given up after robot.intervention.timeout_s: the
+    episode ends as a fault, labelled a failure by the system, and the next episodes go on."""
+    import threading
+
+    from accrue.robot.sim_robot import AccrueSimExpert
+    from artifacts.store import Store
+
+    stuck = threading.Event()
+    monkeypatch.setattr(AccrueSimExpert, "get_action", lambda self: stuck.wait(60))
+    Store.init(tmp_path / "store")
+    section = {**teleop(tmp_path / "tcalib", takeover=[WINDOW], episodes=[1]), "timeout_s": 0.3}
+    try:
+        run_stage(
+            tmp_path / "store",
+            hold_workflow(tmp_path / "hw.yaml", tmp_path / "calib", intervention=section),
+            1,
+            "warmup",
+        )
+    finally:
+        stuck.set()  # the worker thread left behind returns
+    eps = last_checkpoint(tmp_path / "store", "warmup")
+    assert sorted(eps) == [0, 1, 2]
+    e = eps[1][0]
+    assert e["end"] == "fault" and e["label"]["by"] == "system" and not e["label"]["success"]
+    assert "the teleoperator did not answer get_action within 0.3 s" in e["reason"]
+    assert e["control_steps"] == WINDOW[0] and e["interventions"] == 0  # it never drove a step
+    assert eps[0][0]["end"] != "fault" and eps[2][0]["end"] != "fault"

@@ -13,7 +13,8 @@ as lerobot's HIL-SERL does) or by the operator's `i` key on the terminal or page
 The teleop's action is mapped onto the robot's action keys (`action_map`, `action_scale`), normalised and
 clipped like a policy's action, and then goes through the same bridge and action envelope. The flag is
 the episode loop's own record of which steps it executed from the teleop; nothing downstream overwrites it
-(HIL-SERL 0.4.4's env reset it to False and its actor did not forward it to the learner).
+(HIL-SERL 0.4.4's env reset it to False and its actor did not forward it to the learner). Every teleop call
+has a deadline (`timeout_s`): a teleop that stops answering or raises ends the episode as a fault.
 """
 
 from __future__ import annotations
@@ -86,12 +87,14 @@ class Intervention:
     signal: str = "events"  # events | key
     action_map: dict[str, str] = field(default_factory=dict)
     action_scale: dict[str, float] = field(default_factory=dict)
+    timeout_s: float = 1.0  # a teleop call slower than this ends the episode (RobotFault), never hangs it
     teleop: Any = None
     toggled: bool = False  # signal key: the operator's `i` has handed the robot to the teleop
     active: bool = False  # the last control step was the teleop's
     steps: int = 0  # control steps the teleop drove in this episode
     _keys: tuple[str, ...] = ()
     _driven: dict[str, str] = field(default_factory=dict)  # robot key -> teleop key
+    _pool: Any = None
 
     @classmethod
     def from_dict(cls, d: dict | None) -> "Intervention | None":
@@ -104,7 +107,29 @@ class Intervention:
             signal=d.get("signal", "events"),
             action_map=dict(d.get("action_map") or {}),
             action_scale={k: float(v) for k, v in (d.get("action_scale") or {}).items()},
+            timeout_s=float(d.get("timeout_s") or 1.0),
         )
+
+    def _call(self, what: str, fn, *args):
+        """A teleop call behind the deadline, on its own worker thread (a stuck device driver cannot be
+        interrupted; a new worker is started after a timeout); a timeout or an error is a RobotFault, which
+        ends the episode as not a success, as a robot fault does."""
+        import concurrent.futures as cf
+
+        from accrue.robot.bridge import RobotFault
+
+        if self._pool is None:
+            self._pool = cf.ThreadPoolExecutor(max_workers=1, thread_name_prefix="teleop")
+        future = self._pool.submit(fn, *args)
+        try:
+            return future.result(timeout=self.timeout_s)
+        except cf.TimeoutError:
+            self._pool.shutdown(wait=False)
+            self._pool = None
+            raise RobotFault("timeout", f"the teleoperator did not answer {what} within {self.timeout_s:g} s") from None
+        except Exception as exc:  # noqa: BLE001 - any device error ends the episode, with its text
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else ""
+            raise RobotFault("error", f"the teleoperator's {what} failed: {type(exc).__name__}: {first}") from None
 
     def connect(self, mapping) -> None:
         """Build and connect the teleop and check it can drive the robot's action keys (mapping bound)."""
@@ -158,19 +183,21 @@ class Intervention:
             return self.toggled
         from lerobot.teleoperators.utils import TeleopEvents
 
-        events = self.teleop.get_teleop_events() or {}
+        events = self._call("get_teleop_events", self.teleop.get_teleop_events) or {}
         return bool(events.get(TeleopEvents.IS_INTERVENTION, events.get("is_intervention", False)))
 
     def step(self, observation: dict, mapping) -> np.ndarray | None:
         """The human's normalised action for this control step, or None when the policy acts."""
         feedback = self.teleop.feedback_features
         if feedback:  # a teleop that follows the robot (force feedback; the simulated expert's view)
-            self.teleop.send_feedback({k: observation[k] for k in feedback if k in observation})
+            self._call(
+                "send_feedback", self.teleop.send_feedback, {k: observation[k] for k in feedback if k in observation}
+            )
         self.active = self._wanted()
         if not self.active:
             return None
+        got = self._call("get_action", self.teleop.get_action)
         self.steps += 1
-        got = self.teleop.get_action()
         observed = mapping.normalise(np.array([float(observation.get(k, 0.0)) for k in self._keys]))
         held = observed if mapping.action_mode == "joint" else np.zeros(len(self._keys))
         raw = mapping._span()[0] + held * mapping._span()[1]  # keys the teleop does not drive are held
@@ -180,6 +207,9 @@ class Intervention:
         return np.clip(mapping.normalise(raw), -1.0, 1.0).astype(np.float32)
 
     def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=False)
+            self._pool = None
         if self.teleop is not None:
             try:
                 if self.teleop.is_connected:
