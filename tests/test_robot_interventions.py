@@ -11,7 +11,6 @@ The learner is tests/test_robot_hold's stand-in link, which here also keeps ever
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -31,23 +30,6 @@ WINDOW = [2, 7]  # control steps 2..6 of the episode: chunk 0 steps 2-3, chunk 1
 
 def teleop(calib: Path, **config) -> dict:
     return {"teleop": "accrue_sim_expert", "config": {"calibration_dir": str(calib), **config}}
-
-
-@pytest.fixture(autouse=True)
-def wired(monkeypatch):
-    """robot.intervention into the session settings (stages.steps.hw_plan.session_settings does not pass
-    it yet; harmless once it does)."""
-    from stages.steps import hw_plan
-
-    plain = hw_plan.session_settings
-
-    def session_settings(wf):
-        s = plain(wf)
-        if s.intervention is None and wf.robot.intervention is not None:
-            s = dataclasses.replace(s, intervention=wf.robot.intervention.model_dump())
-        return s
-
-    monkeypatch.setattr(hw_plan, "session_settings", session_settings)
 
 
 @pytest.fixture(scope="module")
