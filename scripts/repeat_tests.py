@@ -104,6 +104,8 @@ def main(argv: list[str] | None = None) -> int:
     result = {
         "command": " ".join(shlex.quote(a) for a in [sys.executable, *sys.argv]),
         "pytest": " ".join(shlex.quote(a) for a in pytest_cmd),
+        # the test files (or node ids) the series covers, as given; options such as -m are in "pytest"
+        "selection": [a for a in args.pytest_args if not a.startswith("-") and (ROOT / a.split("::")[0]).exists()],
         "niceness": os.nice(0),
         "note": args.note,
         "machine": {
