@@ -29,3 +29,37 @@ def test_no_intervention_is_the_paper(tmp_path):
     settings = session_settings(load_workflow(hold_workflow(tmp_path / "hw.yaml", tmp_path / "calib")))
     assert settings.intervention is None
     assert settings.tracking["tensorboard"] is True  # the default
+
+
+def test_the_terminal_operator_of_a_session_audits_every_key(monkeypatch):
+    """make_operator gives the terminal operator the session's audit (it had none: terminal actions
+    never reached the audit log, only the page's did)."""
+    import io
+    import os
+    import pty
+    import sys
+
+    from rich.console import Console
+
+    from stages.steps.hw_session import SessionSettings, make_operator
+
+    master, slave = pty.openpty()
+    tty_in = os.fdopen(slave, "r")
+    monkeypatch.setattr(sys, "stdin", tty_in)
+    audited: list[tuple[str, dict]] = []
+    op = make_operator(
+        SessionSettings(operator="terminal", operator_name="ann"),
+        None,
+        Console(file=io.StringIO()),
+        audit=lambda event, fields: audited.append((event, fields)),
+    )
+    try:
+        os.write(master, b"r")
+        assert op.wait_reset(1, "nist/rect_peg", 0).go
+    finally:
+        op.close()
+        tty_in.close()
+        os.close(master)
+    assert [(e, f["action"], f["via"], f["operator"]) for e, f in audited] == [
+        ("robot-operator-action", "reset", "terminal", "ann")
+    ]

@@ -238,7 +238,7 @@ def make_bridge(c: dict, settings: SessionSettings, task: str, report):
 def make_operator(settings: SessionSettings, bridge, console, *, store_root: Path | None = None, audit=None):
     """The workflow's operator. `bridge` is asked for the simulated robot's success when a label is due
     (anything with the bridge's hook(), so one operator can outlive several bridges); `audit(event,
-    fields)` records each of a page operator's actions, `store_root` gives its link token."""
+    fields)` records each action of a terminal or page operator, `store_root` gives the page its token."""
     from accrue.robot.operator import ScriptedOperator, TerminalOperator
 
     name = settings.operator_name or os.environ.get("USER", "operator")
@@ -272,7 +272,7 @@ def make_operator(settings: SessionSettings, bridge, console, *, store_root: Pat
             corrects=set(s.get("corrects", ())),
             abort_before=s.get("abort_before"),
         )
-    return TerminalOperator(name, console=console)
+    return TerminalOperator(name, console=console, audit=audit)  # every key audited, via=terminal
 
 
 class HardwareSession:
