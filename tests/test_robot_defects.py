@@ -44,8 +44,9 @@ def keyed_terminal():
     from accrue.robot.operator import TerminalOperator
 
     class KeyedTerminal(TerminalOperator):
-        def __init__(self, name, console=None):
+        def __init__(self, name, console=None, audit=None):
             self.name, self.console, self._saved = name, console or Console(stderr=True), None
+            self._audit = audit
             self.typed = list("rs" * 20)  # reset done, success; again and again
 
         def _key(self, timeout):

@@ -171,3 +171,33 @@ def test_a_killed_actors_directory_is_removed_by_the_next_link(tmp_path, monkeyp
         assert link.tmp.parent == tmp_path and link.tmp.name.startswith(f"accrue-actor-{os.getpid()}-")
     finally:
         link.close()
+
+
+# ---------------------------------------------------------------------------- the learner's temp dir
+def test_the_learner_removes_its_directory_and_keeps_no_snapshot_copies(tmp_path, monkeypatch):
+    """The learner's `accrue-learner-<pid>-*` dir held a dead copy of the learner per published snapshot
+    and was never removed (77 were left in /tmp here); a killed learner's is swept by the next one."""
+    import tempfile
+
+    from test_robot_learner_link import init_payload
+
+    from accrue.robot import learner_service
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()
+    dead = tmp_path / f"accrue-learner-{gone.pid}-abc"
+    (dead / "snap").mkdir(parents=True)
+    service = learner_service.LearnerService()
+    assert not dead.exists()
+    assert service.tmp.parent == tmp_path and service.tmp.name.startswith(f"accrue-learner-{os.getpid()}-")
+    header, blob = init_payload(tmp_path)
+    service.init({**header, "run_id": "run-a"}, blob)
+    before = set(service.tmp.iterdir())
+    for checkpoint in (False, True, False):
+        with service.lock:
+            service._snapshot(checkpoint)
+    assert set(service.tmp.iterdir()) == before  # each snapshot is served from its tar bytes only
+    assert service.snapshot[0] == service.version and service.snapshot[3]
+    service.remove_tmp()
+    assert not service.tmp.exists()

@@ -25,36 +25,19 @@ import tempfile
 import threading
 import time
 import uuid
-import weakref
 from pathlib import Path
 from typing import Callable
 
+from accrue.process_tmp import owned_tmpdir, sweep_dead
 from accrue.robot.link_auth import TOKEN_ENV, LinkAuth
 from accrue.robot.transport import PROTOCOL, Peer, PeerDown, tar_dir, untar
 
 TMP_PREFIX = "accrue-actor-"
 
 
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # another user's process
-        return True
-    return True
-
-
 def sweep_dead_actor_dirs() -> list[Path]:
-    """Remove `accrue-actor-<pid>-*` dirs in the temp dir whose process is gone (a kill -9 skips every
-    cleanup); dirs of live processes, and names without a pid, are left alone."""
-    removed = []
-    for d in Path(tempfile.gettempdir()).glob(f"{TMP_PREFIX}*-*"):
-        pid = d.name[len(TMP_PREFIX) :].split("-", 1)[0]
-        if pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)) and d.is_dir():
-            shutil.rmtree(d, ignore_errors=True)
-            removed.append(d)
-    return removed
+    """Remove `accrue-actor-<pid>-*` dirs whose process is gone (a kill -9 skips every cleanup)."""
+    return sweep_dead(TMP_PREFIX)
 
 
 class LearnerLink:
@@ -96,9 +79,7 @@ class LearnerLink:
         self.last_ok = time.monotonic()
         # every weights snapshot received lands here; removed at close(), or at exit if close() never ran,
         # or by the next link on this machine when this process was killed (the pid is in the name)
-        sweep_dead_actor_dirs()
-        self.tmp = Path(tempfile.mkdtemp(prefix=f"{TMP_PREFIX}{os.getpid()}-"))
-        self._remove_tmp = weakref.finalize(self, shutil.rmtree, self.tmp, ignore_errors=True)
+        self.tmp, self._remove_tmp = owned_tmpdir(self, TMP_PREFIX)
         self.thread = threading.Thread(target=self._run, name="learner-link", daemon=True)
 
     # ------------------------------------------------------------------ the actor's calls (never block)

@@ -33,6 +33,7 @@ import datetime
 import io
 import json
 import os
+import shutil
 import sys
 import tempfile
 import threading
@@ -41,8 +42,11 @@ from pathlib import Path
 from typing import Callable
 
 from accrue.errors import AccrueError
+from accrue.process_tmp import owned_tmpdir
 from accrue.robot.link_auth import TOKEN_ENV, is_loopback, parse_address, read_token_file
 from accrue.robot.transport import PROTOCOL, serve, tar_dir, untar
+
+TMP_PREFIX = "accrue-learner-"
 
 RECENT_REFUSALS = 50  # the refusals a Heartbeat answer carries (the count covers all of them)
 
@@ -95,7 +99,8 @@ class LearnerService:
         self.track_mark = 0
         self.run_id: str | None = None
         self.learner = None
-        self.tmp = Path(tempfile.mkdtemp(prefix="accrue-learner-"))
+        # received inits and served snapshots; removed at exit, or by the next learner if this one is killed
+        self.tmp, self.remove_tmp = owned_tmpdir(self, TMP_PREFIX)
         self.episodes: dict[int, dict] = {}  # index -> transition arrays
         self.dirty = False  # episodes changed since the buffer was built
         self.updates = self.version = 0
@@ -282,6 +287,7 @@ class LearnerService:
         )
         self.version += 1
         self.snapshot = (self.version, self.updates, checkpoint, tar_dir(d))
+        shutil.rmtree(d, ignore_errors=True)  # the tar is what is served
         if checkpoint:
             self.checkpoint_version = self.version
 
@@ -403,6 +409,7 @@ def main(argv: list[str] | None = None, audit: Callable[[str, dict], None] | Non
     server.stop(grace=0.5)
     with service.lock:  # the trainer thread writes under the lock
         service.close_tracking()
+    service.remove_tmp()
     return 0
 
 

@@ -34,6 +34,7 @@ from typing import Any, Callable, Iterator, NamedTuple
 import numpy as np
 
 from accrue.errors import AccrueError
+from accrue.process_tmp import process_alive
 
 ACTION_DIM = 6
 ACTION_NAMES = ["dx", "dy", "dz", "droll", "dpitch", "dyaw"]
@@ -373,18 +374,8 @@ def _remove_stale_staging(out_dir: Path) -> None:
     prefix = f".{out_dir.name}.partial-"
     for path in out_dir.parent.glob(prefix + "*"):
         pid = path.name[len(prefix) :]
-        if pid.isdigit() and (int(pid) == os.getpid() or not _process_alive(int(pid))):
+        if pid.isdigit() and (int(pid) == os.getpid() or not process_alive(int(pid))):
             shutil.rmtree(path, ignore_errors=True)
-
-
-def _process_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 def _publish(staging: Path, out_dir: Path) -> None:
