@@ -26,7 +26,8 @@ def test_so101_without_its_sdk_is_one_line_naming_the_extra(tmp_path):
     with pytest.raises(AccrueError) as err:
         robot_factory("so101_follower", {"port": "/dev/ttyACM0", "id": "arm0", "calibration_dir": str(tmp_path)})
     line = str(err.value)
-    assert "\n" not in line and "'scservo_sdk'" in line and "pip install 'lerobot[feetech]'" in line
+    # lerobot 0.6 checks for the SDK's distribution before importing it, and names it
+    assert "\n" not in line and "'feetech-servo-sdk'" in line and "pip install 'lerobot[feetech]'" in line
     assert line.startswith("robot.type so101_follower: lerobot.robots.so_follower needs")
 
 

@@ -53,7 +53,13 @@ def robot_factory(robot_type: str, config: dict[str, Any], imports: tuple[str, .
 
     `imports` are modules to import first so that third-party robot types register themselves (lerobot
     finds plugins by distribution name only in its own scripts); accrue's simulated robot is built in."""
-    from accrue.robot.robot_types import builtin_module, builtin_types, import_robot_module, missing_dependency
+    from accrue.robot.robot_types import (
+        builtin_module,
+        builtin_types,
+        import_robot_module,
+        missing_dependency,
+        missing_requirement,
+    )
 
     for name in ("accrue.robot.sim_robot", *imports):
         import_robot_module(name, "robot.imports")
@@ -83,6 +89,11 @@ def robot_factory(robot_type: str, config: dict[str, Any], imports: tuple[str, .
             return make_robot_from_config(robot_config)
         except ModuleNotFoundError as exc:  # the driver's SDK (lerobot imports it when the robot is built)
             raise missing_dependency(exc, f"robot.type {robot_type}", cls.__module__.rsplit(".", 1)[0]) from None
+        except ImportError as exc:  # lerobot 0.6 checks for the SDK first and names its extra itself
+            line = missing_requirement(exc, f"robot.type {robot_type}", cls.__module__.rsplit(".", 1)[0])
+            if line is None:
+                raise
+            raise line from None
 
     make()  # a missing SDK or a bad field is a configuration error now, not a fault mid-session
     return make
