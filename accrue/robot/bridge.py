@@ -51,8 +51,9 @@ class Timeouts:
 def robot_factory(robot_type: str, config: dict[str, Any], imports: tuple[str, ...] = ()) -> Callable[[], Any]:
     """A function building the lerobot Robot of `robot_type` (a RobotConfig registry name) from `config`.
 
-    `imports` are modules to import first so that third-party robot types register themselves (lerobot
-    finds plugins by distribution name only in its own scripts); accrue's simulated robot is built in."""
+    `imports` are modules to import first so that third-party robot types register themselves; an installed
+    `lerobot_robot_*` plugin distribution is found without one, as lerobot 0.6's own scripts find it
+    (register_third_party_plugins). accrue's simulated robot is built in."""
     from accrue.robot.robot_types import (
         builtin_module,
         builtin_types,
@@ -69,6 +70,10 @@ def robot_factory(robot_type: str, config: dict[str, Any], imports: tuple[str, .
     if robot_type not in RobotConfig.get_known_choices() and builtin_module(robot_type):
         # one of lerobot's own robots: its module registers it (and names the extra it lacks)
         import_robot_module(builtin_module(robot_type), f"robot.type {robot_type}")
+    if robot_type not in RobotConfig.get_known_choices():
+        from lerobot.utils.import_utils import register_third_party_plugins
+
+        register_third_party_plugins()  # imports every installed lerobot_{robot,camera,...}_* distribution
     known = sorted(set(RobotConfig.get_known_choices()) | set(builtin_types()))
     if robot_type not in RobotConfig.get_known_choices():
         raise AccrueError(
