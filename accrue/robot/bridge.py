@@ -1,4 +1,4 @@
-"""Any lerobot 0.4.4 `Robot` behind deadlines: every call to the robot runs on a worker thread and is
+"""Any lerobot 0.6 `Robot` behind deadlines: every call to the robot runs on a worker thread and is
 given up after its timeout, so a robot that stops answering ends the episode instead of hanging it.
 
     bridge = RobotBridge(make_robot, mapping, Timeouts(connect_s=10, observation_s=1, action_s=1), actions=env)
