@@ -19,9 +19,9 @@ EPISODE_FRAMES = (6, 4)
 
 
 def record(root: Path, robot_type: str, observation: dict, action: dict, seed: int = 0) -> tuple[Path, list]:
-    """Episodes written the way lerobot-record writes them; also the (observation, action) dicts of each frame."""
+    """Episodes written the way lerobot-record writes them (its own frame builders); also the (observation, action) dicts of each frame."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
-    from lerobot.datasets.utils import build_dataset_frame, hw_to_dataset_features
+    from lerobot.utils.feature_utils import build_dataset_frame, hw_to_dataset_features
 
     features = {
         **hw_to_dataset_features(observation, "observation", use_video=False),

@@ -26,7 +26,8 @@ def test_so101_without_its_sdk_is_one_line_naming_the_extra(tmp_path):
     with pytest.raises(AccrueError) as err:
         robot_factory("so101_follower", {"port": "/dev/ttyACM0", "id": "arm0", "calibration_dir": str(tmp_path)})
     line = str(err.value)
-    assert "\n" not in line and "'scservo_sdk'" in line and "pip install 'lerobot[feetech]'" in line
+    # lerobot 0.6 checks for the SDK's distribution before importing it, and names it
+    assert "\n" not in line and "'feetech-servo-sdk'" in line and "pip install 'lerobot[feetech]'" in line
     assert line.startswith("robot.type so101_follower: lerobot.robots.so_follower needs")
 
 
@@ -71,3 +72,77 @@ def test_r_at_the_terminal_resets_the_simulated_scene(tmp_path, monkeypatch):
     assert len(sealed) == 3
     for e in sealed:  # each episode acted on a fresh scene: robot time > 0, labelled by the person
         assert e["robot_time_s"] > 0 and e["label_by"] == "scripted-test", e
+
+
+PLUGIN = """
+from dataclasses import dataclass
+
+from lerobot.robots.config import RobotConfig
+from lerobot.robots.robot import Robot
+
+
+@RobotConfig.register_subclass("accrue_test_plugin_arm")
+@dataclass
+class PluginArmConfig(RobotConfig):
+    gain: float = 1.0
+
+
+class PluginArm(Robot):
+    config_class = PluginArmConfig
+    name = "accrue_test_plugin_arm"
+
+    def __init__(self, config):
+        super().__init__(config)
+        self.config, self._connected, self.sent = config, False, []
+
+    observation_features = property(lambda self: {"x.pos": float})
+    action_features = property(lambda self: {"x.pos": float})
+    is_connected = property(lambda self: self._connected)
+    is_calibrated = property(lambda self: True)
+
+    def connect(self, calibrate=True):
+        self._connected = True
+
+    def calibrate(self):
+        pass
+
+    def configure(self):
+        pass
+
+    def get_observation(self):
+        return {"x.pos": self.config.gain}
+
+    def send_action(self, action):
+        self.sent.append(action)
+        return action
+
+    def disconnect(self):
+        self._connected = False
+"""
+
+
+def test_installed_lerobot_robot_plugin_is_found_without_an_imports_line(tmp_path, monkeypatch):
+    """lerobot 0.6's plugin convention: a distribution named lerobot_robot_* registers its robot on import."""
+    from accrue.robot.bridge import robot_factory
+
+    pkg = tmp_path / "lerobot_robot_accrue_test"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text(
+        "from .config_plugin_arm import PluginArmConfig\nfrom .plugin_arm import PluginArm\n"
+    )
+    (pkg / "config_plugin_arm.py").write_text(PLUGIN.split("class PluginArm(Robot)")[0])
+    (pkg / "plugin_arm.py").write_text(
+        "from lerobot.robots.robot import Robot\n\nfrom .config_plugin_arm import PluginArmConfig\n\n\n"
+        "class PluginArm(Robot)" + PLUGIN.split("class PluginArm(Robot)")[1]
+    )
+    dist = tmp_path / "lerobot_robot_accrue_test-0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: lerobot_robot_accrue_test\nVersion: 0.1\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+
+    make = robot_factory("accrue_test_plugin_arm", {"gain": 2.5, "calibration_dir": str(tmp_path / "calib")})
+    robot = make()
+    robot.connect()
+    assert type(robot).__name__ == "PluginArm" and robot.get_observation() == {"x.pos": 2.5}
+    with pytest.raises(AccrueError, match="robot.config: not a valid PluginArmConfig"):
+        robot_factory("accrue_test_plugin_arm", {"no_such_field": 1})

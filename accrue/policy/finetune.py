@@ -100,7 +100,7 @@ def _train_args(settings: FinetuneSettings, policy_flags: list[str], training_ro
         f"--batch_size={settings.batch_size}",
         f"--seed={settings.seed}",
         f"--num_workers={settings.num_workers}",
-        "--eval_freq=0",
+        "--env_eval_freq=0",
         f"--save_freq={settings.steps}",
         f"--log_freq={max(1, settings.steps // 50)}",
         "--wandb.enable=false",

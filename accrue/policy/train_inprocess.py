@@ -107,27 +107,30 @@ def _batches(cfg, meta, table_dir: Path | None):
         return shuffled_batches(*cached, cfg.batch_size, generator)
 
     from lerobot.datasets.sampler import EpisodeAwareSampler
-    from lerobot.datasets.utils import cycle
+    from lerobot.scripts.lerobot_train import _dataloader_worker_kwargs
+    from lerobot.utils.collate import lerobot_collate_fn
+    from lerobot.utils.utils import cycle
 
+    # lerobot-train 0.6's loader: an episode-aware sampler whose order is a function of the seed alone
     dataset = _lerobot_dataset(cfg)
-    sampler = None
-    if hasattr(cfg.policy, "drop_n_last_frames"):
-        sampler = EpisodeAwareSampler(
-            dataset.meta.episodes["dataset_from_index"],
-            dataset.meta.episodes["dataset_to_index"],
-            episode_indices_to_use=dataset.episodes,
-            drop_n_last_frames=cfg.policy.drop_n_last_frames,
-            shuffle=True,
-        )
+    sampler = EpisodeAwareSampler(
+        dataset.meta.episodes["dataset_from_index"],
+        dataset.meta.episodes["dataset_to_index"],
+        episode_indices_to_use=dataset.episodes,
+        drop_n_last_frames=getattr(cfg.policy, "drop_n_last_frames", 0),
+        shuffle=True,
+        seed=cfg.seed if cfg.seed is not None else 0,
+        absolute_to_relative_idx=dataset.absolute_to_relative_idx,
+    )
     loader = torch.utils.data.DataLoader(
         dataset,
         num_workers=cfg.num_workers,
         batch_size=cfg.batch_size,
-        shuffle=sampler is None,
+        shuffle=False,
         sampler=sampler,
-        generator=generator,
         drop_last=False,
-        prefetch_factor=2 if cfg.num_workers > 0 else None,
+        collate_fn=lerobot_collate_fn if dataset.meta.has_language_columns else None,
+        **_dataloader_worker_kwargs(cfg),
     )
     return cycle(loader)
 
@@ -185,13 +188,13 @@ def train_in_process(
     scrub(cfg) runs before the train config is saved, to drop machine-specific paths from it.
     """
     import torch
+    from lerobot.common.train_utils import save_checkpoint
     from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
     from lerobot.optim.factory import make_optimizer_and_scheduler
     from lerobot.policies.factory import make_policy
     from lerobot.scripts.lerobot_train import update_policy
     from lerobot.utils.logging_utils import AverageMeter, MetricsTracker
     from lerobot.utils.random_utils import set_seed
-    from lerobot.utils.train_utils import save_checkpoint
 
     with _process_state(threads):
         accelerator = _accelerator(cfg.policy.device)
@@ -230,6 +233,8 @@ def train_in_process(
             scheduler,
             preprocessor,
             postprocessor,
+            num_processes=accelerator.num_processes,
+            batch_size=cfg.batch_size,
         )
         accelerator.end_training()
         del policy, optimizer, batches

@@ -1,4 +1,4 @@
-"""Any lerobot 0.4.4 `Robot` behind deadlines: every call to the robot runs on a worker thread and is
+"""Any lerobot 0.6 `Robot` behind deadlines: every call to the robot runs on a worker thread and is
 given up after its timeout, so a robot that stops answering ends the episode instead of hanging it.
 
     bridge = RobotBridge(make_robot, mapping, Timeouts(connect_s=10, observation_s=1, action_s=1), actions=env)
@@ -51,9 +51,16 @@ class Timeouts:
 def robot_factory(robot_type: str, config: dict[str, Any], imports: tuple[str, ...] = ()) -> Callable[[], Any]:
     """A function building the lerobot Robot of `robot_type` (a RobotConfig registry name) from `config`.
 
-    `imports` are modules to import first so that third-party robot types register themselves (lerobot
-    finds plugins by distribution name only in its own scripts); accrue's simulated robot is built in."""
-    from accrue.robot.robot_types import builtin_module, builtin_types, import_robot_module, missing_dependency
+    `imports` are modules to import first so that third-party robot types register themselves; an installed
+    `lerobot_robot_*` plugin distribution is found without one, as lerobot 0.6's own scripts find it
+    (register_third_party_plugins). accrue's simulated robot is built in."""
+    from accrue.robot.robot_types import (
+        builtin_module,
+        builtin_types,
+        import_robot_module,
+        missing_dependency,
+        missing_requirement,
+    )
 
     for name in ("accrue.robot.sim_robot", *imports):
         import_robot_module(name, "robot.imports")
@@ -63,6 +70,10 @@ def robot_factory(robot_type: str, config: dict[str, Any], imports: tuple[str, .
     if robot_type not in RobotConfig.get_known_choices() and builtin_module(robot_type):
         # one of lerobot's own robots: its module registers it (and names the extra it lacks)
         import_robot_module(builtin_module(robot_type), f"robot.type {robot_type}")
+    if robot_type not in RobotConfig.get_known_choices():
+        from lerobot.utils.import_utils import register_third_party_plugins
+
+        register_third_party_plugins()  # imports every installed lerobot_{robot,camera,...}_* distribution
     known = sorted(set(RobotConfig.get_known_choices()) | set(builtin_types()))
     if robot_type not in RobotConfig.get_known_choices():
         raise AccrueError(
@@ -83,6 +94,11 @@ def robot_factory(robot_type: str, config: dict[str, Any], imports: tuple[str, .
             return make_robot_from_config(robot_config)
         except ModuleNotFoundError as exc:  # the driver's SDK (lerobot imports it when the robot is built)
             raise missing_dependency(exc, f"robot.type {robot_type}", cls.__module__.rsplit(".", 1)[0]) from None
+        except ImportError as exc:  # lerobot 0.6 checks for the SDK first and names its extra itself
+            line = missing_requirement(exc, f"robot.type {robot_type}", cls.__module__.rsplit(".", 1)[0])
+            if line is None:
+                raise
+            raise line from None
 
     make()  # a missing SDK or a bad field is a configuration error now, not a fault mid-session
     return make

@@ -33,7 +33,6 @@ from accrue.sim.demos import (
     REWARD_KEY,
     STATE_KEY,
     SUCCESS_KEY,
-    _add_frame,
     _check_out_dir,
     _label_success_tail,
     _publish,
@@ -168,7 +167,7 @@ def convert_robot_dataset(
                 ]
                 _label_success_tail(frames)
                 for frame in frames:
-                    _add_frame(ds, frame)
+                    ds.add_frame(frame)
                 with warnings.catch_warnings():
                     warnings.filterwarnings("ignore", "Converting input from bool", RuntimeWarning)
                     ds.save_episode()

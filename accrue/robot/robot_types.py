@@ -16,7 +16,7 @@ from pathlib import Path
 
 from accrue.errors import AccrueError
 
-# the module a robot driver imports -> lerobot's extra that installs it (lerobot 0.4.4's pyproject)
+# the module a robot driver imports -> lerobot's extra that installs it (lerobot 0.6.1's pyproject)
 EXTRA_OF_MODULE = {
     "scservo_sdk": "feetech",
     "dynamixel_sdk": "dynamixel",
@@ -25,10 +25,13 @@ EXTRA_OF_MODULE = {
     "can": "damiao",
     "placo": "kinematics",
     "pyrealsense2": "intelrealsense",
-    "unitree_sdk2py": "unitree_g1",
+    "unitree_sdk2py": "unitree-g1",
     "pygame": "hopejr",
 }
 
+# lerobot 0.6's require_package(): "'feetech-servo-sdk' is required but not installed. Install it with: pip
+# install 'lerobot[feetech]' (or ...)", raised when the robot is built, before the SDK is imported
+_REQUIRED = re.compile(r"""'([^']+)' is required but not installed\. Install it with: pip install '([^']+)'""")
 _REGISTER = re.compile(r"""register_subclass\(\s*["']([A-Za-z0-9_\-]+)["']""")
 
 
@@ -66,6 +69,14 @@ def import_robot_module(module: str, why: str) -> None:
         raise missing_dependency(exc, why, module) from None
     except ImportError as exc:
         raise AccrueError(f"{why}: cannot import {module!r} ({exc})") from None
+
+
+def missing_requirement(exc: ImportError, why: str, what: str) -> AccrueError | None:
+    """lerobot's own "package is required" ImportError as one line in missing_dependency's form; else None."""
+    found = _REQUIRED.search(str(exc))
+    if found is None:
+        return None
+    return AccrueError(f"{why}: {what} needs {found[1]!r}, which is not installed (pip install '{found[2]}')")
 
 
 def missing_dependency(exc: ModuleNotFoundError, why: str, what: str) -> AccrueError:

@@ -42,7 +42,6 @@ STATE_KEY = "observation.state"
 ACTION_KEY = "action"
 IMAGE_KEY = "observation.images.wrist"
 REWARD_KEY, DONE_KEY, SUCCESS_KEY = "next.reward", "next.done", "next.success"
-SCALAR_KEYS = (REWARD_KEY, DONE_KEY, SUCCESS_KEY)
 ACCRUE_META = Path("meta") / "accrue.json"
 OBS_MODES = ("state", "state+image")
 ACCRUE_META_FORMAT = 1
@@ -136,15 +135,6 @@ def _check_out_dir(out_dir: Path) -> None:
         if any(out_dir.iterdir()):
             raise AccrueError(f"output directory {out_dir} exists and is not empty; pick a new one")
     out_dir.parent.mkdir(parents=True, exist_ok=True)
-
-
-def _add_frame(ds: Any, frame: dict) -> None:
-    ds.add_frame(frame)
-    # lerobot validates (1,)-shaped features as shape-(1,) arrays but stores them as scalar
-    # columns, and `float(array of shape (1,))` is an error in numpy >= 2.4: keep 0-d values in
-    # the episode buffer, as lerobot does for its own (1,)-shaped columns (timestamp, ...).
-    for key in SCALAR_KEYS:
-        ds.episode_buffer[key][-1] = np.asarray(ds.episode_buffer[key][-1]).reshape(())
 
 
 def _label_success_tail(frames: list[dict]) -> None:
@@ -314,7 +304,7 @@ def write_demos(
                     if ep.success:
                         _label_success_tail(ep.frames)
                     for frame in ep.frames:
-                        _add_frame(ds, frame)
+                        ds.add_frame(frame)
                     with warnings.catch_warnings():
                         # lerobot's histogram of bool columns warns on every episode; harmless
                         warnings.filterwarnings("ignore", "Converting input from bool", RuntimeWarning)
