@@ -356,3 +356,25 @@ def test_a_teleoperator_that_stops_answering_ends_the_episode_not_the_session(tm
     assert "the teleoperator did not answer get_action within 0.3 s" in e["reason"]
     assert e["control_steps"] == WINDOW[0] and e["interventions"] == 0  # it never drove a step
     assert eps[0][0]["end"] != "fault" and eps[2][0]["end"] != "fault"
+
+
+def test_a_teleop_whose_package_is_missing_is_one_line_naming_the_extra(tmp_path, monkeypatch):
+    """lerobot 0.6 checks a teleop's package itself (e.g. keyboard_ee's pynput) and raises its own
+    ImportError; the intervention section turns it into one line naming lerobot's extra."""
+    from lerobot.utils import import_utils
+
+    from accrue.robot.teleop import Intervention
+
+    monkeypatch.setitem(import_utils._require_package_cache, "pynput", False)
+    take = Intervention.from_dict(
+        {
+            "teleop": "keyboard_ee",
+            "config": {"calibration_dir": str(tmp_path / "kcal")},
+            "action_map": {"dx": "delta_x"},
+        }
+    )
+    with pytest.raises(AccrueError) as err:
+        take.make_teleop()
+    line = str(err.value)
+    assert "\n" not in line and line.startswith("robot.intervention.teleop keyboard_ee: ")
+    assert "'pynput'" in line and "lerobot[pynput-dep]" in line

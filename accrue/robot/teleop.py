@@ -31,7 +31,12 @@ WINDOW = 20  # episodes in the intervention-rate window (the stop rule's window 
 
 def teleop_factory(teleop_type: str, config: dict[str, Any], imports: tuple[str, ...] = ()) -> Callable[[], Any]:
     """A function building the lerobot Teleoperator of `teleop_type` (a TeleoperatorConfig registry name)."""
-    from accrue.robot.robot_types import builtin_teleop_types, import_robot_module, missing_dependency
+    from accrue.robot.robot_types import (
+        builtin_teleop_types,
+        import_robot_module,
+        missing_dependency,
+        missing_requirement,
+    )
 
     where = "robot.intervention"
     for name in ("accrue.robot.sim_robot", *imports):
@@ -62,6 +67,11 @@ def teleop_factory(teleop_type: str, config: dict[str, Any], imports: tuple[str,
             return make_teleoperator_from_config(teleop_config)
         except ModuleNotFoundError as exc:
             raise missing_dependency(exc, f"{where}.teleop {teleop_type}", cls.__module__.rsplit(".", 1)[0]) from None
+        except ImportError as exc:  # lerobot 0.6 checks for a teleop's package first and names its extra
+            line = missing_requirement(exc, f"{where}.teleop {teleop_type}", cls.__module__.rsplit(".", 1)[0])
+            if line is None:
+                raise
+            raise line from None
 
     return make
 
