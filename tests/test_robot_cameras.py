@@ -58,6 +58,45 @@ def test_sim_robot_declares_cameras_and_joints_like_a_lerobot_arm(tmp_path):
     bridge.disconnect()
 
 
+def test_connect_starts_the_renderer_so_the_first_observation_only_draws(tmp_path, monkeypatch):
+    """The renderer's start-up (GL context, model upload, shaders: the first frame) belongs to connect; a first
+    get_observation that paid it once outlasted the bridge's 1 s observation timeout on a loaded machine."""
+    import mujoco
+
+    from accrue.sim.vec_env import VecAssemblyEnv
+
+    made, drawn = [], []
+    real_renderer, real_render = mujoco.Renderer, VecAssemblyEnv.render
+
+    def renderer(*args, **kw):
+        made.append(args[1:])
+        return real_renderer(*args, **kw)
+
+    def render(env, camera="front"):
+        drawn.append((camera, real_render(env, camera)))
+        return drawn[-1][1]
+
+    monkeypatch.setattr(mujoco, "Renderer", renderer)
+    monkeypatch.setattr(VecAssemblyEnv, "render", render)
+    robot = sim(tmp_path, render_cameras=["front"], image_size=32, action_mode="joint")()
+    robot.connect()
+    assert made == [(32, 32)] and [c for c, _ in drawn] == ["front"]  # made and drawn before any observation
+    first, second = robot.get_observation()["front"], robot.get_observation()["front"]
+    assert len(made) == 1 and len(drawn) == 3  # observations only draw
+    np.testing.assert_array_equal(first, drawn[0][1][0])  # the warm-up frame is the scene as it stands
+    np.testing.assert_array_equal(first, second)
+    robot.disconnect()  # closes the renderer; the next connect starts it again
+    robot.connect()
+    assert len(made) == 2 and len(drawn) == 4
+    robot.get_observation()
+    assert len(made) == 2 and len(drawn) == 5
+    robot.disconnect()
+    blind = sim(tmp_path)()  # no render_cameras: connect makes no renderer
+    blind.connect()
+    assert len(made) == 2 and len(drawn) == 5
+    blind.disconnect()
+
+
 def test_delta_mode_is_unchanged_and_has_no_joint_keys(tmp_path):
     robot = sim(tmp_path)()
     assert "x.pos" not in robot.observation_features and len(robot.action_features) == 6
