@@ -1,4 +1,5 @@
-"""Replay of chunk transitions (s, a, ã, R^(H), s_{t+H}, ã_{t+H}, done, task, episode, ended) and the retention rule.
+"""Replay of chunk transitions (s, a, ã, R^(H), s_{t+H}, ã_{t+H}, done, task, episode, ended, intervention)
+and the retention rule.
 
 - Storage is a set of growable tensors on one device (CPU or GPU); `sample` draws uniform indices from a
   caller-owned torch.Generator, so sampling is deterministic and resumable.
@@ -9,6 +10,11 @@
   new safetensors shard plus a small JSON index; earlier shards are rewritten byte-identically when the
   target directory lacks them, so a content-addressed store dedupes them. No capacity eviction: a stage
   has a fixed env-step budget, so the buffer is bounded by it (and eviction would break the shards).
+- `intervention` (beyond the paper, docs/DEPARTURES.md item 12) marks a transition whose chunk the operator
+  drove, in part or whole, through a teleoperator on the robot (lerobot HIL-SERL's `is_intervention`). It is
+  stored and counted, never read by a loss. A shard holds it only where one of its rows is set, so a replay
+  without interventions (every simulator replay) writes exactly the shards it wrote before the column
+  existed; a shard without it loads as all False.
 - `retain_last_episodes(buffer, n)` is the paper's memory B^{<k}: the last N complete episodes of each task.
 """
 
@@ -27,6 +33,8 @@ from accrue.errors import AccrueError
 INDEX_FILE = "index.json"
 FORMAT_VERSION = 1
 _FIELDS = ("state", "action", "ref", "reward", "next_state", "next_ref", "done", "task", "episode", "ended")
+SPARSE_FIELDS = ("intervention",)  # in a shard only where one of its rows is set (absent: all False)
+_COLUMNS = _FIELDS + SPARSE_FIELDS
 
 
 @dataclass
@@ -45,6 +53,7 @@ class Batch:
     teacher: torch.Tensor | None = None  # Eq. 3 cached targets â_j (prior memory only)
     fresh_ref: torch.Tensor | None = None  # current base policy's chunk at s_j (distill_inputs fresh/both)
     ended: torch.Tensor | None = None  # (B,) bool, the episode ended in this transition
+    intervention: torch.Tensor | None = None  # (B,) bool, the operator drove (part of) this chunk
 
     def __len__(self) -> int:
         return self.state.shape[0]
@@ -116,6 +125,7 @@ class ReplayBuffer:
             "task": ((), torch.int64),
             "episode": ((), torch.int64),
             "ended": ((), torch.bool),
+            "intervention": ((), torch.bool),
         }
 
     def __len__(self) -> int:
@@ -140,9 +150,12 @@ class ReplayBuffer:
         self._next_row = nxt
 
     # ---- writing --------------------------------------------------------------------------
-    def add(self, state, action, ref, reward, next_state, next_ref, done, task, episode, ended=None) -> None:
+    def add(
+        self, state, action, ref, reward, next_state, next_ref, done, task, episode, ended=None, intervention=None
+    ) -> None:
         """Append N transitions (leading dim N on every array; task/episode may be scalars). `ended` defaults
-        to `done` (a caller that never truncates); pass terminated | truncated."""
+        to `done` (a caller that never truncates); pass terminated | truncated. `intervention` defaults to
+        False on every row (no operator takeover)."""
         state = torch.as_tensor(state, dtype=torch.float32)
         n = state.shape[0]
         cols = {
@@ -156,6 +169,7 @@ class ReplayBuffer:
             "task": task,
             "episode": episode,
             "ended": done if ended is None else ended,
+            "intervention": torch.zeros(n, dtype=torch.bool) if intervention is None else intervention,
         }
         layout = self._layout()
         rows = {}
@@ -205,6 +219,7 @@ class ReplayBuffer:
             episode=d["episode"][idx],
             index=idx,
             ended=d["ended"][idx],
+            intervention=d["intervention"][idx],
         )
 
     def sample(self, n: int, generator: torch.Generator, n_step: int = 1, gamma: float | None = None) -> Batch:
@@ -253,7 +268,9 @@ class ReplayBuffer:
         from safetensors.torch import save_file
 
         path = directory / self._shard_name(start, count)
-        tensors = {name: self._data[name][start : start + count].detach().to("cpu").contiguous() for name in _FIELDS}
+        rows = {name: self._data[name][start : start + count] for name in _COLUMNS}
+        names = _FIELDS + tuple(name for name in SPARSE_FIELDS if bool(rows[name].any()))
+        tensors = {name: rows[name].detach().to("cpu").contiguous() for name in names}
         tmp = path.with_suffix(".tmp")
         save_file(tensors, str(tmp))
         os.replace(tmp, path)
@@ -316,6 +333,7 @@ class ReplayBuffer:
                 raise AccrueError(f"{path}: replay shard listed in the index is missing")
             rows = load_file(str(path))
             rows.setdefault("ended", rows["done"].clone())  # shards written before episodes were marked
+            rows.setdefault("intervention", torch.zeros_like(rows["done"]))  # no row of the shard was taken over
             if rows["state"].shape[0] != shard["count"] or shard["start"] != buf.size:
                 raise AccrueError(f"{path}: replay shard does not match the index")
             buf._write(rows)
@@ -331,7 +349,7 @@ class ReplayBuffer:
             self.state_dim, self.horizon, self.action_dim, self.device, initial_capacity=max(1, rows.numel())
         )
         if rows.numel():
-            out._write({name: self._data[name][rows.to(self.device)] for name in _FIELDS})
+            out._write({name: self._data[name][rows.to(self.device)] for name in _COLUMNS})
         return out
 
     @staticmethod
@@ -348,7 +366,7 @@ class ReplayBuffer:
             if (b.state_dim, b.horizon, b.action_dim) != (first.state_dim, first.horizon, first.action_dim):
                 raise AccrueError("replay concat: buffers have different state/chunk shapes")
             if len(b):
-                out._write({name: b.column(name).to(out.device) for name in _FIELDS})
+                out._write({name: b.column(name).to(out.device) for name in _COLUMNS})
         return out
 
 

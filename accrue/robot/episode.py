@@ -223,19 +223,25 @@ def intervention_count(arrays: dict) -> int:
     return int(sum(np.asarray(marks[i][: steps[i]]).sum() for i in range(len(steps))))
 
 
+def chunk_interventions(arrays: dict) -> np.ndarray:
+    """Per chunk transition of one episode: whether the teleop drove any of its control steps (HIL-SERL's
+    intervention flag, per chunk; all False where interventions were off)."""
+    marks = arrays.get("intervention")
+    if marks is None:
+        return np.zeros(len(arrays["action"]), dtype=bool)
+    return np.asarray(marks, dtype=bool).reshape(len(arrays["action"]), -1).any(axis=1)
+
+
 def intervention_rows(episodes: list[dict]) -> np.ndarray:
-    """Per chunk transition that replay_from_episodes appends after the warmup rows, in the same order:
-    whether the teleop drove any of its control steps (HIL-SERL's intervention flag, per chunk)."""
-    rows = [
-        np.asarray(e["intervention"]).any(axis=1) if "intervention" in e else np.zeros(len(e["action"]), dtype=bool)
-        for e in episodes
-        if len(e["action"])
-    ]
+    """Per chunk transition that replay_from_episodes appends after the warmup rows, in the same order: its
+    `chunk_interventions` flag (the replay's `intervention` column for those rows)."""
+    rows = [chunk_interventions(e) for e in episodes if len(e["action"])]
     return np.concatenate(rows) if rows else np.zeros(0, dtype=bool)
 
 
 def replay_from_episodes(warm, episodes: list[dict], task_index: int):
-    """B^k: the warmup buffer followed by each episode's rows, in the order given."""
+    """B^k: the warmup buffer followed by each episode's rows, in the order given; a row's `intervention` is
+    set where the operator drove any control step of its chunk."""
     from accrue.learner import ReplayBuffer
 
     parts = [warm]
@@ -254,6 +260,7 @@ def replay_from_episodes(warm, episodes: list[dict], task_index: int):
             task_index,
             int(e["episode"]),
             ended=e["ended"],
+            intervention=chunk_interventions(e),
         )
         parts.append(b)
     return ReplayBuffer.concat(parts) if len(parts) > 1 else warm

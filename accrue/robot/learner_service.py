@@ -16,9 +16,10 @@ A refused call is counted, printed (peer, method, time) and passed to `audit` (t
 the learner has one); the actor also hears of refusals in every Heartbeat answer.
 
 Tracking (accrue.tracking, docs/TRACKING.md): when `Init` carries a `tracking` section the learner writes
-learner/<losses, q_mean>, learner/updates, learner/version and learner/episodes against its update count,
-one point per `every` updates: under the actor's log directory when the actor started it (same host),
-under ./accrue-tracking/<run> of a learner started by hand on another host.
+learner/<losses, q_mean>, learner/updates, learner/version, learner/episodes and
+learner/intervention_transitions (rows of its buffer the operator drove; also in every Heartbeat answer)
+against its update count, one point per `every` updates: under the actor's log directory when the actor
+started it (same host), under ./accrue-tracking/<run> of a learner started by hand on another host.
 
 A re-initialised learner continues the run: it starts from the update count of the checkpoint it is sent
 and numbers its weights above `version_floor` (the newest version the actor has seen), so one version
@@ -103,6 +104,7 @@ class LearnerService:
         self.tmp, self.remove_tmp = owned_tmpdir(self, TMP_PREFIX)
         self.episodes: dict[int, dict] = {}  # index -> transition arrays
         self.dirty = False  # episodes changed since the buffer was built
+        self.intervened = 0  # transitions of the buffer the operator drove (its `intervention` column)
         self.updates = self.version = 0
         self.snapshot: tuple[int, int, bool, bytes] | None = None  # version, updates, checkpoint, tar
         self.checkpoint_version = -1  # the newest snapshot marked as a checkpoint
@@ -183,7 +185,7 @@ class LearnerService:
             self.updates, self.version = int(info["updates"]), max(int(info["version"]), floor)
             self.last_publish = self.last_ckpt = None
             self.episodes, self.dirty, self.snapshot, self.checkpoint_version = {}, True, None, -1
-            self.buffer = None
+            self.buffer, self.intervened = None, 0
             self.run_id = h["run_id"]
             self._open_tracking(info.get("tracking"))
         return {"ok": True}, b""
@@ -223,7 +225,12 @@ class LearnerService:
         self.track_mark = self.updates // tracker.every
         values = {f"learner/{key}": value for key, value in info.items()}
         values.update(
-            {"learner/updates": self.updates, "learner/version": self.version, "learner/episodes": len(self.episodes)}
+            {
+                "learner/updates": self.updates,
+                "learner/version": self.version,
+                "learner/episodes": len(self.episodes),
+                "learner/intervention_transitions": self.intervened,
+            }
         )
         tracker.scalars(values, self.updates)
 
@@ -258,6 +265,7 @@ class LearnerService:
             "updates": self.updates,
             "version": self.version,
             "episodes": len(self.episodes),
+            "intervention_transitions": self.intervened,
             "busy": self.busy,
             "refused": self.refused,
             "refusals": list(self.refusals),
@@ -276,6 +284,7 @@ class LearnerService:
             self.warm, [self.episodes[i] for i in sorted(self.episodes)], int(self.info["task_index"])
         )
         self.rl_rows = len(self.buffer) - len(self.warm)
+        self.intervened = int(self.buffer.column("intervention").sum())
 
     def _snapshot(self, checkpoint: bool):
         from accrue.learner import save_learner
