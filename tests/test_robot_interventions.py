@@ -397,3 +397,69 @@ def test_a_teleop_whose_package_is_missing_is_one_line_naming_the_extra(tmp_path
     line = str(err.value)
     assert "\n" not in line and line.startswith("robot.intervention.teleop keyboard_ee: ")
     assert "'pynput'" in line and "lerobot[pynput-dep]" in line
+
+
+TELEOP_PLUGIN = """
+from dataclasses import dataclass
+
+from lerobot.teleoperators.config import TeleoperatorConfig
+from lerobot.teleoperators.teleoperator import Teleoperator
+
+
+@TeleoperatorConfig.register_subclass("accrue_test_plugin_pad")
+@dataclass
+class PluginPadConfig(TeleoperatorConfig):
+    gain: float = 1.0
+
+
+class PluginPad(Teleoperator):
+    config_class = PluginPadConfig
+    name = "accrue_test_plugin_pad"
+
+    def __init__(self, config):
+        super().__init__(config)
+        self.config = config
+
+    action_features = property(lambda self: {"dx": float})
+    feedback_features = property(lambda self: {})
+    is_connected = property(lambda self: True)
+    is_calibrated = property(lambda self: True)
+
+    def connect(self, calibrate=True):
+        pass
+
+    def calibrate(self):
+        pass
+
+    def configure(self):
+        pass
+
+    def get_action(self):
+        return {"dx": self.config.gain}
+
+    def send_feedback(self, feedback):
+        pass
+
+    def disconnect(self):
+        pass
+"""
+
+
+def test_an_installed_lerobot_teleoperator_plugin_is_found_without_an_imports_line(tmp_path, monkeypatch):
+    """The teleop is found as the robot is (one shared lerobot_factory): a lerobot_teleoperator_* distribution
+    registers its type on import; its config is checked in one line like a built-in's."""
+    from accrue.robot.teleop import teleop_factory
+
+    pkg = tmp_path / "lerobot_teleoperator_accrue_test"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("from .plugin_pad import PluginPad, PluginPadConfig\n")
+    (pkg / "plugin_pad.py").write_text(TELEOP_PLUGIN)
+    dist = tmp_path / "lerobot_teleoperator_accrue_test-0.1.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: lerobot_teleoperator_accrue_test\nVersion: 0.1\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+
+    pad = teleop_factory("accrue_test_plugin_pad", {"gain": 0.25, "calibration_dir": str(tmp_path / "pcal")})()
+    assert type(pad).__name__ == "PluginPad" and pad.get_action() == {"dx": 0.25}
+    with pytest.raises(AccrueError, match=r"^robot.intervention.config: not a valid PluginPadConfig"):
+        teleop_factory("accrue_test_plugin_pad", {"no_such_field": 1})

@@ -52,55 +52,13 @@ def robot_factory(robot_type: str, config: dict[str, Any], imports: tuple[str, .
     """A function building the lerobot Robot of `robot_type` (a RobotConfig registry name) from `config`.
 
     `imports` are modules to import first so that third-party robot types register themselves; an installed
-    `lerobot_robot_*` plugin distribution is found without one, as lerobot 0.6's own scripts find it
-    (register_third_party_plugins). accrue's simulated robot is built in."""
-    from accrue.robot.robot_types import (
-        builtin_module,
-        builtin_types,
-        import_robot_module,
-        missing_dependency,
-        missing_requirement,
-    )
+    `lerobot_robot_*` plugin distribution is found without one (accrue.robot.robot_types.lerobot_factory).
+    accrue's simulated robot is built in. The robot is built once here: a missing SDK or a bad field is a
+    configuration error now, not a fault mid-session."""
+    from accrue.robot.robot_types import lerobot_factory
 
-    for name in ("accrue.robot.sim_robot", *imports):
-        import_robot_module(name, "robot.imports")
-    from lerobot.robots.config import RobotConfig
-    from lerobot.robots.utils import make_robot_from_config
-
-    if robot_type not in RobotConfig.get_known_choices() and builtin_module(robot_type):
-        # one of lerobot's own robots: its module registers it (and names the extra it lacks)
-        import_robot_module(builtin_module(robot_type), f"robot.type {robot_type}")
-    if robot_type not in RobotConfig.get_known_choices():
-        from lerobot.utils.import_utils import register_third_party_plugins
-
-        register_third_party_plugins()  # imports every installed lerobot_{robot,camera,...}_* distribution
-    known = sorted(set(RobotConfig.get_known_choices()) | set(builtin_types()))
-    if robot_type not in RobotConfig.get_known_choices():
-        raise AccrueError(
-            f"robot.type: unknown lerobot robot type {robot_type!r} (known: {', '.join(known)}; "
-            "a third-party robot's module goes in robot.imports)"
-        )
-    cls = RobotConfig.get_choice_class(robot_type)
-    try:
-        import draccus
-
-        robot_config = draccus.decode(cls, dict(config))
-    except Exception as exc:  # noqa: BLE001 - draccus raises many types for a bad field
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise AccrueError(f"robot.config: not a valid {cls.__name__} ({first})") from None
-
-    def make():
-        try:
-            return make_robot_from_config(robot_config)
-        except ModuleNotFoundError as exc:  # the driver's SDK (lerobot imports it when the robot is built)
-            raise missing_dependency(exc, f"robot.type {robot_type}", cls.__module__.rsplit(".", 1)[0]) from None
-        except ImportError as exc:  # lerobot 0.6 checks for the SDK first and names its extra itself
-            line = missing_requirement(exc, f"robot.type {robot_type}", cls.__module__.rsplit(".", 1)[0])
-            if line is None:
-                raise
-            raise line from None
-
-    make()  # a missing SDK or a bad field is a configuration error now, not a fault mid-session
+    make = lerobot_factory("robot", robot_type, config, imports, where="robot", type_key="type")
+    make()
     return make
 
 

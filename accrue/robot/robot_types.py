@@ -4,7 +4,9 @@
 lerobot registers a robot type when its config module is imported, and only its own scripts import them.
 `builtin_module(type)` reads lerobot/robots/*/ for `register_subclass("<type>")` (no import, so a robot
 whose SDK is absent does not stop the others), and `import_robot_module` imports it; a missing SDK is one
-line naming the pip extra that provides it.
+line naming the pip extra that provides it. `lerobot_factory` is the whole path from a type name and its
+config to a function building the device, shared by the robot (`accrue.robot.bridge.robot_factory`) and
+the intervention's teleoperator (`accrue.robot.teleop.teleop_factory`).
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ import importlib
 import re
 from functools import lru_cache
 from pathlib import Path
+from typing import Any, Callable
 
 from accrue.errors import AccrueError
 
@@ -85,3 +88,71 @@ def missing_dependency(exc: ModuleNotFoundError, why: str, what: str) -> AccrueE
     extra = EXTRA_OF_MODULE.get(missing)
     hint = f"pip install 'lerobot[{extra}]'" if extra else f"install the package that provides {missing!r}"
     return AccrueError(f"{why}: {what} needs {missing!r}, which is not installed ({hint})")
+
+
+def _lerobot_kind(kind: str) -> tuple[Any, Callable[[Any], Any], dict[str, str]]:
+    """(config registry, lerobot's make_*_from_config, {builtin type: module}) for `robot` / `teleoperator`."""
+    if kind == "robot":
+        from lerobot.robots.config import RobotConfig
+        from lerobot.robots.utils import make_robot_from_config
+
+        return RobotConfig, make_robot_from_config, builtin_types()
+    if kind != "teleoperator":
+        raise ValueError(f"lerobot kind {kind!r}: robot or teleoperator")
+    from lerobot.teleoperators.config import TeleoperatorConfig
+    from lerobot.teleoperators.utils import make_teleoperator_from_config
+
+    return TeleoperatorConfig, make_teleoperator_from_config, builtin_teleop_types()
+
+
+def lerobot_factory(
+    kind: str, type_name: str, config: dict[str, Any], imports: tuple[str, ...], *, where: str, type_key: str
+) -> Callable[[], Any]:
+    """A function building lerobot's `kind` ("robot" or "teleoperator") of `type_name` from `config`.
+
+    The workflow names it as `<where>.<type_key>` (`robot.type`, `robot.intervention.teleop`), with
+    `<where>.config` and `<where>.imports` beside it. The `imports` modules (and accrue's simulated robot and
+    expert) are imported first so that third-party types register; one of lerobot's own types is found by
+    name; an installed lerobot_{robot,teleoperator,...}_* plugin distribution without an imports line, as
+    lerobot 0.6's own scripts find it (register_third_party_plugins). Every user mistake is one line: an
+    unknown type, a config field the type's config class refuses, a package the device needs (with the
+    extra that installs it; raised by the returned function, where lerobot checks it)."""
+    field = f"{where}.{type_key}"
+    for name in ("accrue.robot.sim_robot", *imports):
+        import_robot_module(name, f"{where}.imports")
+    registry, make_from_config, builtin = _lerobot_kind(kind)
+    if type_name not in registry.get_known_choices() and type_name in builtin:
+        # one of lerobot's own: its module registers it (and names the extra it lacks)
+        import_robot_module(builtin[type_name], f"{field} {type_name}")
+    if type_name not in registry.get_known_choices():
+        from lerobot.utils.import_utils import register_third_party_plugins
+
+        register_third_party_plugins()  # imports every installed lerobot_{robot,teleoperator,...}_* distribution
+    if type_name not in registry.get_known_choices():
+        known = sorted(set(registry.get_known_choices()) | set(builtin))
+        raise AccrueError(
+            f"{field}: unknown lerobot {kind} type {type_name!r} (known: {', '.join(known)}; "
+            f"a third-party {kind}'s module goes in {where}.imports)"
+        )
+    cls = registry.get_choice_class(type_name)
+    try:
+        import draccus
+
+        device_config = draccus.decode(cls, dict(config))
+    except Exception as exc:  # noqa: BLE001 - draccus raises many types for a bad field
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise AccrueError(f"{where}.config: not a valid {cls.__name__} ({first})") from None
+    package = cls.__module__.rsplit(".", 1)[0]
+
+    def make():
+        try:
+            return make_from_config(device_config)
+        except ModuleNotFoundError as exc:  # the driver's SDK (lerobot imports it when the device is built)
+            raise missing_dependency(exc, f"{field} {type_name}", package) from None
+        except ImportError as exc:  # lerobot 0.6 checks for the package first and names its extra itself
+            line = missing_requirement(exc, f"{field} {type_name}", package)
+            if line is None:
+                raise
+            raise line from None
+
+    return make

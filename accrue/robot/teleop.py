@@ -30,50 +30,11 @@ WINDOW = 20  # episodes in the intervention-rate window (the stop rule's window 
 
 
 def teleop_factory(teleop_type: str, config: dict[str, Any], imports: tuple[str, ...] = ()) -> Callable[[], Any]:
-    """A function building the lerobot Teleoperator of `teleop_type` (a TeleoperatorConfig registry name)."""
-    from accrue.robot.robot_types import (
-        builtin_teleop_types,
-        import_robot_module,
-        missing_dependency,
-        missing_requirement,
-    )
+    """A function building the lerobot Teleoperator of `teleop_type` (a TeleoperatorConfig registry name);
+    a package it lacks is one line naming lerobot's extra when it is built (robot_types.lerobot_factory)."""
+    from accrue.robot.robot_types import lerobot_factory
 
-    where = "robot.intervention"
-    for name in ("accrue.robot.sim_robot", *imports):
-        import_robot_module(name, f"{where}.imports")
-    from lerobot.teleoperators.config import TeleoperatorConfig
-    from lerobot.teleoperators.utils import make_teleoperator_from_config
-
-    builtin = builtin_teleop_types()
-    if teleop_type not in TeleoperatorConfig.get_known_choices() and teleop_type in builtin:
-        import_robot_module(builtin[teleop_type], f"{where}.teleop {teleop_type}")
-    if teleop_type not in TeleoperatorConfig.get_known_choices():
-        known = sorted(set(TeleoperatorConfig.get_known_choices()) | set(builtin))
-        raise AccrueError(
-            f"{where}.teleop: unknown lerobot teleoperator type {teleop_type!r} (known: {', '.join(known)}; "
-            f"a third-party teleoperator's module goes in {where}.imports)"
-        )
-    cls = TeleoperatorConfig.get_choice_class(teleop_type)
-    try:
-        import draccus
-
-        teleop_config = draccus.decode(cls, dict(config))
-    except Exception as exc:  # noqa: BLE001 - draccus raises many types for a bad field
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise AccrueError(f"{where}.config: not a valid {cls.__name__} ({first})") from None
-
-    def make():
-        try:
-            return make_teleoperator_from_config(teleop_config)
-        except ModuleNotFoundError as exc:
-            raise missing_dependency(exc, f"{where}.teleop {teleop_type}", cls.__module__.rsplit(".", 1)[0]) from None
-        except ImportError as exc:  # lerobot 0.6 checks for a teleop's package first and names its extra
-            line = missing_requirement(exc, f"{where}.teleop {teleop_type}", cls.__module__.rsplit(".", 1)[0])
-            if line is None:
-                raise
-            raise line from None
-
-    return make
+    return lerobot_factory("teleoperator", teleop_type, config, imports, where="robot.intervention", type_key="teleop")
 
 
 def feature_names(features: dict) -> list[str]:
