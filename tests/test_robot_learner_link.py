@@ -137,9 +137,11 @@ def test_link_trains_serves_weights_and_survives_a_learner_restart(tmp_path, one
     service.stop.set()
     have = link.version
     wait_for(lambda: "robot-learner-lost" in reports, 10, "the lost learner to be reported")
-    assert link.version == have
+    kept = link.version  # a Pull answered just before the stop can land after `have` was read (seen under load)
+    assert kept >= have
     sealed.append(({"index": 3, "relabel": False}, episode(3)))
     link.push(*sealed[-1])
+    assert link.version == kept  # no learner: nothing replaces the weights it has
 
     # a new learner at the same address: re-initialised with every sealed episode, no episode twice
     service2, server2, _ = start_learner(port)
