@@ -463,3 +463,62 @@ def test_an_installed_lerobot_teleoperator_plugin_is_found_without_an_imports_li
     assert type(pad).__name__ == "PluginPad" and pad.get_action() == {"dx": 0.25}
     with pytest.raises(AccrueError, match=r"^robot.intervention.config: not a valid PluginPadConfig"):
         teleop_factory("accrue_test_plugin_pad", {"no_such_field": 1})
+
+
+def test_lerobots_keyboard_and_arm_teleops_connect_with_the_arguments_they_take(tmp_path, monkeypatch):
+    """lerobot 0.6's KeyboardTeleop / GamepadTeleop take connect() with no argument, its arms take
+    connect(calibrate=...): the takeover connects each the way its own signature allows (calling the keyboard
+    with calibrate=False was a TypeError, so keyboard_ee and gamepad could never connect). Where the keyboard
+    cannot capture keys (headless, Wayland) lerobot connects without a listener: that is one line, not a silent
+    teleop that never acts."""
+    import lerobot.teleoperators.keyboard.teleop_keyboard as kb
+
+    from accrue.errors import AccrueError
+    from accrue.robot.mapping import RobotMapping
+    from accrue.robot.teleop import Intervention, connect_without_calibration
+    from accrue.sim.observation import ACTION_NAMES
+
+    calls: list[tuple] = []
+
+    class NoArgs:
+        def connect(self):
+            calls.append(("no-args",))
+
+    class Arm:
+        def connect(self, calibrate: bool = True):
+            calls.append(("arm", calibrate))
+
+    connect_without_calibration(NoArgs())
+    connect_without_calibration(Arm())
+    assert calls == [("no-args",), ("arm", False)]
+
+    mapping = RobotMapping(action_limits=(0.5,) * 6).bind({"q": float}, {k: float for k in ACTION_NAMES}, "robot")
+    spec = {
+        "teleop": "keyboard_ee",
+        "config": {"calibration_dir": str(tmp_path / "k")},
+        "action_map": {"dx": "delta_x"},
+    }
+    monkeypatch.setattr(kb, "pynput_can_capture", lambda: False)  # as on this headless machine, whatever DISPLAY is
+    take = Intervention.from_dict(spec)
+    with pytest.raises(AccrueError, match="KeyboardEndEffectorTeleop reports it is not connected after connect"):
+        take.connect(mapping)
+
+    # a keyboard that can capture: lerobot's own connect runs (its listener replaced by a stand-in thread)
+    started = []
+
+    class Listener:
+        def __init__(self, on_press, on_release):
+            pass
+
+        def start(self):
+            started.append(True)
+
+        def is_alive(self):
+            return True
+
+    monkeypatch.setattr(kb, "pynput_can_capture", lambda: True)
+    monkeypatch.setattr(kb, "PYNPUT_AVAILABLE", True)
+    monkeypatch.setattr(kb, "keyboard", type("keyboard", (), {"Listener": Listener}), raising=False)
+    take = Intervention.from_dict(spec)
+    take.connect(mapping)
+    assert started == [True] and take.teleop.is_connected

@@ -52,6 +52,17 @@ def window_rate(counts: list[tuple[int, int]], size: int = WINDOW) -> float:
     return float(sum(i for i, _ in last)) / steps if steps else 0.0
 
 
+def connect_without_calibration(teleop) -> None:
+    """lerobot's arm teleops (so101_leader) take connect(calibrate=...), its keyboard and gamepad teleops
+    take no argument: never ask a person to calibrate mid-session, where the device lets us say so."""
+    import inspect
+
+    if "calibrate" in inspect.signature(teleop.connect).parameters:
+        teleop.connect(calibrate=False)
+    else:
+        teleop.connect()
+
+
 @dataclass
 class Intervention:
     make_teleop: Callable[[], Any]
@@ -107,7 +118,14 @@ class Intervention:
         if self.teleop is None:
             try:
                 self.teleop = self.make_teleop()
-                self.teleop.connect(calibrate=False)
+                connect_without_calibration(self.teleop)
+                if getattr(self.teleop, "is_connected", True) is False:
+                    # lerobot's keyboard teleops "connect" without a listener where they cannot capture keys
+                    raise AccrueError(
+                        f"robot.intervention: {type(self.teleop).__name__} reports it is not connected after connect() "
+                        "(a keyboard teleop needs an X11 session, a Windows desktop or macOS input monitoring); "
+                        "use a gamepad, a leader arm, or signal: key on the operator page"
+                    )
             except AccrueError:
                 raise
             except Exception as exc:  # noqa: BLE001 - a device that is not there, a bad field
