@@ -278,6 +278,26 @@ README = ROOT / "README.md"
 MARKERS = ("<!-- perf-table:start -->", "<!-- perf-table:end -->")
 
 
+def software() -> dict:
+    """What a row was measured with: a figure from another Python or lerobot is another figure."""
+    from importlib.metadata import version
+
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
+    return {
+        "commit": commit.stdout.strip() or None,
+        "python": ".".join(map(str, sys.version_info[:3])),
+        "lerobot": version("lerobot"),
+        "torch": version("torch"),
+    }
+
+
+def software_line(results: dict) -> str:
+    seen = sorted({(r["software"]["python"], r["software"]["lerobot"]) for r in results.values() if r.get("software")})
+    if not seen:
+        return "the rows do not record the Python and lerobot they ran on"
+    return "measured with " + "; ".join(f"Python {py} / lerobot {lr}" for py, lr in seen)
+
+
 def _figure(results: dict, row: str, key: str, unit: str = "", fmt: str = "{:.1f}") -> str:
     value = results.get(row, {}).get(key)
     return "not measured" if value is None else fmt.format(value) + unit
@@ -343,7 +363,7 @@ def readme_table(results: dict) -> str:
         f"Measured on a {ft.get('machine_before', {}).get('cores', 2)}-core machine **shared with other jobs** "
         f"(1-min load average {loads[0] if loads else '?'}–{loads[-1] if loads else '?'} at the rows' starts), "
         "so every figure is an upper bound on an idle machine's; written by `python benchmarks/perf_report.py --readme` "
-        "from `benchmarks/results/perf.json`.",
+        f"from `benchmarks/results/perf.json`; {software_line(results)}.",
         "",
         "| measure | issue 19 | measured | goal | command |",
         "|---|---|---|---|---|",
@@ -392,6 +412,7 @@ def main() -> None:
             command=shlex.join(["python", "benchmarks/perf_report.py", *_measuring_args(sys.argv[1:])]),
             machine_before=before,
             machine_after=machine(),
+            software=software(),
             wall_s=round(time.perf_counter() - t, 1),
             note=args.note,
             date=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
