@@ -2,7 +2,8 @@
 audit), the live state and the camera frame are served, the page's keys and the terminal's go into one
 operator; and a real browser (Debian's headless Chromium, driven by playwright) runs a whole simulated
 warmup session from the page (reset, labels, pause, re-label, end, abort), which the audit log and the
-sealed labels (via="page") show."""
+sealed labels (via="page") show; and with robot.intervention, the page's interventions row and its `i` button
+(a takeover from the page, in the audit log and in the sealed transitions)."""
 
 from __future__ import annotations
 
@@ -216,13 +217,22 @@ def page_workflow(tmp_path: Path) -> Path:
 class SessionThread:
     """The stage in a thread of this process, with a hook on the page operator make_operator builds."""
 
-    def __init__(self, store: Path, wf: Path, step: str, monkeypatch, hold_episode: int | None = None):
+    def __init__(
+        self,
+        store: Path,
+        wf: Path,
+        step: str,
+        monkeypatch,
+        hold_episode: int | None = None,
+        hold_key: str = "e",
+        seen: threading.Event | None = None,
+    ):
         from hw_workflow import run_stage
 
         from accrue.robot import operator_page
 
         made: queue.Queue = queue.Queue()
-        ended = threading.Event()
+        pressed = threading.Event()
 
         class Recorded(operator_page.PageOperator):
             def __init__(self, *args, **kwargs):
@@ -231,14 +241,17 @@ class SessionThread:
 
             def press(self, key, via="page"):
                 super().press(key, via)
-                if key == "e":
-                    ended.set()
+                if key == hold_key:
+                    pressed.set()
 
             def poll(self):
-                # a person presses e while the episode runs: the episode waits for it at its first chunk's
-                # end, so the test need not race a fast simulated episode
+                # a person presses the hold key (e, i) while the episode runs: the episode waits for it at its
+                # first chunk's end, so the test need not race a fast simulated episode; with `seen`, once the
+                # page has been shown the operator driving, the episode waits until the test has seen it too
                 if self._episode == hold_episode:
-                    assert ended.wait(60), "e never came from the page"
+                    assert pressed.wait(60), f"{hold_key} never came from the page"
+                    if seen is not None and self.state()["shown"].get("intervening"):
+                        assert seen.wait(60), "the test never saw the takeover on the page"
                 return super().poll()
 
         monkeypatch.setattr(operator_page, "PageOperator", Recorded)
@@ -416,3 +429,94 @@ def test_screenshot_of_a_training_session(tmp_path, monkeypatch):
 def op_success(pg) -> bool:
     """What the person saw: the episode's end line says 'done' when the plug seated."""
     return "(done," in (pg.text_content("#prompt") or "")
+
+
+def intervention_page_workflow(tmp_path: Path) -> Path:
+    """The page workflow without a camera, with the simulated expert as the teleop the operator's `i` hands
+    the robot to (robot.intervention signal: key)."""
+    from hw_workflow import write_hw_workflow
+
+    wf = write_hw_workflow(tmp_path / "hw.yaml", tmp_path / "calib")
+    take = {"teleop": "accrue_sim_expert", "config": {"calibration_dir": str(tmp_path / "tcalib")}, "signal": "key"}
+    text = wf.read_text().replace(
+        "operator: scripted",
+        f'operator: page\n  operator_page: {{listen: "127.0.0.1:0"}}\n  intervention: {json.dumps(take)}',
+    )
+    wf.write_text(text)
+    return wf
+
+
+@needs_chromium
+@pytest.mark.slow
+def test_the_page_shows_interventions_and_its_i_button_takes_over(tmp_path, monkeypatch):
+    """With robot.intervention (signal: key) the page's `i` button, enabled only during an episode, hands the
+    robot to the teleop from the next chunk: the page shows OPERATOR DRIVING while it drives, then the
+    episode's count and the window rate the sealed episode gives; the audit log has the takeover from the
+    page, and the sealed transitions mark exactly the chunks after it."""
+    from hw_workflow import robot_events
+    from playwright.sync_api import expect, sync_playwright
+
+    from accrue.robot.link_auth import store_token
+    from artifacts.manifests import materialize
+    from artifacts.store import Store
+    from stages.errors import StageError
+
+    expect.set_options(timeout=60_000)
+    Store.init(tmp_path / "store")
+    seen = threading.Event()
+    session = SessionThread(
+        tmp_path / "store", intervention_page_workflow(tmp_path), "warmup", monkeypatch, 0, "i", seen
+    )
+    op = session.operator()
+    token = store_token(tmp_path / "store")
+    with sync_playwright() as p:
+        b = browser(p)
+        pg = b.new_page(viewport={"width": 1100, "height": 760})
+        pg.goto(op.url + f"?token={token}")
+        wait_prompt(pg, "reset", 0)
+        expect(pg.locator("#interventions")).to_have_text("0 steps this episode")
+        expect(pg.locator("#intervention-rate")).to_have_text("window rate 0.0% of steps")
+        expect(pg.locator("#btn-i")).to_be_disabled()  # no episode running: nothing to take over
+        pg.click("#btn-r")
+        wait_prompt(pg, "episode", 0)
+        expect(pg.locator("#intervening")).to_have_text("")
+        expect(pg.locator("#btn-i")).to_be_enabled()
+        pg.click("#btn-i")
+        expect(pg.locator("#intervening")).to_have_text("OPERATOR DRIVING")
+        driving = pg.text_content("#interventions")
+        seen.set()  # the episode goes on, the expert driving it to its end
+        wait_prompt(pg, "label", 0)
+        pg.click("#btn-s")
+        wait_prompt(pg, "reset", 1)
+        expect(pg.locator("#intervening")).to_have_text("")  # the takeover ended with its episode
+        expect(pg.locator("#btn-i")).to_be_disabled()
+        count, rate = pg.text_content("#interventions"), pg.text_content("#intervention-rate")
+        pg.click("#btn-a")
+        session.thread.join(timeout=60)
+        assert not session.thread.is_alive()
+        b.close()
+    assert isinstance(session.error, StageError) and "aborted by the operator" in str(session.error)
+
+    actions = robot_events(tmp_path / "store", "robot-operator-action")
+    assert [(e["action"], e.get("episode"), e["via"]) for e in actions] == [
+        ("reset", 0, "page"),
+        ("takeover", 0, "page"),
+        ("label", 0, "page"),
+        ("abort", 1, "page"),
+    ]
+    [sealed] = robot_events(tmp_path / "store", "robot-episode-sealed")
+    ep = materialize(Store.open(tmp_path / "store"), sealed["checkpoint"], tmp_path / "sealed") / "episodes" / "000000"
+    e = json.loads((ep / "episode.json").read_text())
+    with np.load(ep / "transitions.npz") as z:
+        marks, steps = z["intervention"], z["steps"]
+    # `i` came at the first chunk's end: every executed step from the second chunk on is the teleop's
+    want = np.zeros_like(marks)
+    for i, n in enumerate(steps):
+        want[i, : int(n)] = i >= 1
+    assert len(steps) >= 3 and np.array_equal(marks, want)
+    assert e["interventions"] == int(want.sum()) > 0
+    # what the page showed: the count while driving (the chunks done so far), then the sealed count and rate
+    assert 0 < int(driving.split()[0]) < e["interventions"] and driving.endswith(" steps this episode")
+    assert count == f"{e['interventions']} steps in episode 0"
+    shown_rate = float(rate.removeprefix("window rate ").removesuffix("% of steps"))
+    assert shown_rate == pytest.approx(100 * e["interventions"] / e["control_steps"], abs=0.051)

@@ -471,9 +471,13 @@ function render(st) {
   const h = $("learner-health");
   h.textContent = s.learner_health || "";
   h.className = s.learner_health ? "health-" + s.learner_health : "";
-  text("interventions", s.interventions, (v) => v + " steps this episode");
-  $("intervening").textContent = s.intervening ? "OPERATOR DRIVING" : "";
-  $("intervening").className = s.intervening ? "health-holding" : "";
+  // between episodes the count is the last episode's, and nobody drives (a takeover ends with its episode)
+  const acting = p.expect === "episode", ended = p.expect !== "episode" && p.expect !== "label";
+  text("interventions", s.interventions,
+       (v) => v + (ended && s.episode !== null && s.episode !== undefined
+         ? " steps in episode " + s.episode : " steps this episode"));
+  $("intervening").textContent = s.intervening && acting ? "OPERATOR DRIVING" : "";
+  $("intervening").className = s.intervening && acting ? "health-holding" : "";
   const rate = s.intervention_rate_window;  // absent: interventions are off
   $("intervention-rate").textContent = rate === undefined || rate === null ? ""
     : "window rate " + (100 * Number(rate)).toFixed(1) + "% of steps";
