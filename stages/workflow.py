@@ -136,7 +136,7 @@ class RobotSpec(_Strict):
     operator: Literal["terminal", "scripted", "page"] = "terminal"
     operator_name: str = ""
     scripted: dict[str, Any] = {}  # scripted operator: delay_s, mistakes [episode], corrects, abort_before
-    operator_page: dict[str, Any] = {}  # page operator: listen HOST:PORT (default 127.0.0.1:0, loopback)
+    operator_page: dict[str, Any] = {}  # page: listen HOST:PORT (default 127.0.0.1:0), insecure (off loopback)
     learner_address: Optional[str] = None  # host:port of `accrue robot learner` (two hosts); none: local process
     link: Optional[dict[str, Any]] = None  # token_file, tls {cert, key, ca} (accrue.robot.link_auth)
     hold: HoldSpec = HoldSpec()
@@ -285,17 +285,27 @@ def _check_robot(wf: Workflow, source: str) -> None:
     if wf.robot is None:
         return
     from accrue.errors import AccrueError
-    from accrue.robot.link_auth import parse_address, validate_link_section
+    from accrue.robot.link_auth import is_loopback, parse_address, validate_link_section
 
     r = wf.robot
     try:
         if r.learner_address is not None:
             parse_address(r.learner_address, "robot.learner_address")
-        unknown = sorted(set(r.operator_page) - {"listen"})
+        unknown = sorted(set(r.operator_page) - {"listen", "insecure"})
         if unknown:
-            raise AccrueError(f"robot.operator_page: unknown key {unknown[0]!r} (known: listen)")
+            raise AccrueError(f"robot.operator_page: unknown key {unknown[0]!r} (known: listen, insecure)")
+        insecure = r.operator_page.get("insecure", False)
+        if not isinstance(insecure, bool):
+            raise AccrueError(f"robot.operator_page.insecure: expected true or false, got {insecure!r}")
         if "listen" in r.operator_page:
-            parse_address(r.operator_page["listen"], "robot.operator_page.listen", allow_zero=True)
+            host, _ = parse_address(r.operator_page["listen"], "robot.operator_page.listen", allow_zero=True)
+            # the page is plain HTTP and carries the link token: off loopback only when asked for
+            if not is_loopback(host) and not insecure:
+                raise AccrueError(
+                    f"robot.operator_page.listen: {r.operator_page['listen']} is not loopback and the page "
+                    "sends the link token in plain HTTP; use an SSH tunnel, or set operator_page.insecure: "
+                    "true (a trusted LAN only)"
+                )
         validate_link_section(r.link, "robot.link")
     except AccrueError as exc:
         raise StageError(f"{source}: {exc}") from None
