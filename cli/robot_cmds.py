@@ -106,6 +106,9 @@ def certs(
         raise AccrueError(
             "accrue robot certs needs the `cryptography` package; or make a pair with openssl (docs/ROBOT_LINK.md)"
         ) from None
+    for name in host or []:  # an empty name would be a certificate no actor can dial
+        if not name.strip() or any(c.isspace() or c in "/\\" for c in name):
+            raise AccrueError(f"accrue robot certs --host: {name!r} is not a host name or IP address")
     names = list(dict.fromkeys([*(host or [socket.gethostname()]), "localhost", "127.0.0.1"]))
     directory = Path(directory)
     cert_path, key_path = directory / CERT_FILE, directory / KEY_FILE

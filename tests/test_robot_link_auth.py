@@ -58,7 +58,7 @@ def test_calls_without_the_token_are_refused_logged_and_audited(tmp_path, capsys
     assert [e["method"] for e in refused] == ["Hello", "Shutdown", "Episode"]
     assert all(e["peer"].startswith("ipv4:127.0.0.1:") and e["at"] for e in refused)
     printed = capsys.readouterr().out
-    assert printed.count("accrue learner: refused ") == 3 and "refused Shutdown from ipv4:127.0.0.1:" in printed
+    assert printed.count("accrue robot learner: refused ") == 3 and "refused Shutdown from ipv4:127.0.0.1:" in printed
     assert "the-run-id" not in printed
     for text in (printed, store.log_path.read_text()):
         assert TOKEN not in text and "not-the-token" not in text

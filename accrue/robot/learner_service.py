@@ -137,7 +137,7 @@ class LearnerService:
             entry = {"seq": self.refused, "peer": peer, "method": method, "at": at}
             self.refusals.append(entry)
         say(
-            f"accrue learner: refused {method} from {peer} at {at}: no or wrong link token "
+            f"accrue robot learner: refused {method} from {peer} at {at}: no or wrong link token "
             f"({entry['seq']} refused so far)"
         )
         if self.audit is not None:
@@ -203,14 +203,14 @@ class LearnerService:
         )
         try:
             self.tracker = open_tracker(
-                tracking.get("spec"), log_dir, name, warn=lambda line: say(f"accrue learner: {line}")
+                tracking.get("spec"), log_dir, name, warn=lambda line: say(f"accrue robot learner: {line}")
             )
         except (TypeError, ValueError) as exc:  # a spec the actor's schema let through: no tracking, one line
-            say(f"accrue learner: tracking off ({exc})")
+            say(f"accrue robot learner: tracking off ({exc})")
             return
         self.track_mark = self.updates // self.tracker.every
         if self.tracker.enabled:
-            say(f"accrue learner: tracking {', '.join(self.tracker.sinks)} under {log_dir}")
+            say(f"accrue robot learner: tracking {', '.join(self.tracker.sinks)} under {log_dir}")
 
     def close_tracking(self) -> None:
         if self.tracker is not None:
@@ -345,14 +345,14 @@ def link_token(token_file: str | None) -> str:
     if token:
         return token
     if token_file:
-        return read_token_file(token_file, "accrue learner --token-file")
+        return read_token_file(token_file, "accrue robot learner --token-file")
     raise AccrueError(
-        "accrue learner: no link token; give --store DIR (the actor's store, or a copy of its "
+        "accrue robot learner: no link token; give --store DIR (the actor's store, or a copy of its "
         "robot/link-token) or --token-file FILE"
     )
 
 
-def check_listen(listen: str, tls: bool, insecure: bool, prog: str = "accrue learner") -> None:
+def check_listen(listen: str, tls: bool, insecure: bool, prog: str = "accrue robot learner") -> None:
     host, _ = parse_address(listen, f"{prog} --listen", allow_zero=True)
     if not is_loopback(host) and not tls and not insecure:
         raise AccrueError(
@@ -362,7 +362,7 @@ def check_listen(listen: str, tls: bool, insecure: bool, prog: str = "accrue lea
 
 
 def main(argv: list[str] | None = None, audit: Callable[[str, dict], None] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="accrue-learner")
+    parser = argparse.ArgumentParser(prog="accrue robot learner")
     parser.add_argument("--listen", default="127.0.0.1:0")
     parser.add_argument("--parent-pid", type=int, default=0)
     parser.add_argument("--orphan-after", type=float, default=10.0)
@@ -372,7 +372,7 @@ def main(argv: list[str] | None = None, audit: Callable[[str, dict], None] | Non
     parser.add_argument("--insecure", action="store_true")
     args = parser.parse_args(argv)
     if (args.tls_cert is None) != (args.tls_key is None):
-        raise AccrueError("accrue learner: give --tls-cert and --tls-key together")
+        raise AccrueError("accrue robot learner: give --tls-cert and --tls-key together")
     check_listen(args.listen, args.tls_cert is not None, args.insecure)
     token = link_token(args.token_file)
 
@@ -395,7 +395,7 @@ def main(argv: list[str] | None = None, audit: Callable[[str, dict], None] | Non
     torch.optim.AdamW([torch.nn.Parameter(torch.zeros(1))])
 
     service.last_call = time.monotonic()  # the imports above are not the actor's silence
-    say(f"accrue learner listening on port {port} (pid {os.getpid()})")
+    say(f"accrue robot learner listening on port {port} (pid {os.getpid()})")
     trainer = threading.Thread(target=service.train_forever, daemon=True)
     trainer.start()
     silent = False
@@ -403,11 +403,11 @@ def main(argv: list[str] | None = None, audit: Callable[[str, dict], None] | Non
         time.sleep(0.2)
         quiet = time.monotonic() - service.last_call > args.orphan_after
         if args.parent_pid and (os.getppid() != args.parent_pid or quiet):
-            say("accrue learner: the actor that started it is gone; exiting")
+            say("accrue robot learner: the actor that started it is gone; exiting")
             break
         if quiet != silent and service.run_id is not None:  # a standalone learner waits for its actor
             say(
-                "accrue learner: "
+                "accrue robot learner: "
                 + (
                     f"no call from the actor for {args.orphan_after:g} s; waiting for it"
                     if quiet
