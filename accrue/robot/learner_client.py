@@ -10,7 +10,10 @@ A restarted learner resumes from the newest checkpoint of this run (the one this
 newer than what `init_payload` holds), so its update count continues; it numbers its weights above every
 version this link has exposed (`version_floor` at Init), so a version names one set of weights per run.
 Every call carries `auth.token`; a learner this actor starts itself gets it in its environment (an
-ephemeral token when no `auth` is given). Refusals the learner reports in its Heartbeat answers are
+ephemeral token when no `auth` is given). A learner that refuses this actor's token, or whose TLS
+certificate the CA does not verify, is not "unreachable": the link reports it once, in one line saying
+what to fix (event robot-link-refused-by-learner), keeps it in `refused` and raises it from `check()`,
+and tries again only every REFUSED_RETRY_S. Refusals the learner reports in its Heartbeat answers are
 reported here (event robot-link-refused), so they reach the actor's audit log.
 """
 
@@ -30,9 +33,28 @@ from typing import Callable
 
 from accrue.process_tmp import owned_tmpdir, sweep_dead
 from accrue.robot.link_auth import TOKEN_ENV, LinkAuth
-from accrue.robot.transport import PROTOCOL, Peer, PeerDown, tar_dir, untar
+from accrue.robot.transport import PROTOCOL, LinkRefused, Peer, PeerDown, tar_dir, untar
 
 TMP_PREFIX = "accrue-actor-"
+REFUSED_RETRY_S = 5.0  # a refused link is tried again this seldom: the learner logs every refused call
+
+__all__ = ["LearnerLink", "LinkRefused", "refusal_line", "sweep_dead_actor_dirs"]
+
+
+def refusal_line(address: str | None, exc: LinkRefused, auth: LinkAuth) -> str:
+    """What the operator does about a learner that refused this actor (its token, or TLS), in one line."""
+    if exc.reason == "tls":
+        ca = f"robot.link.tls.ca {auth.tls_ca}" if auth.tls_ca is not None else "robot.link.tls.ca"
+        return (
+            f"TLS with the learner at {address} failed ({exc}): {ca} must be the learner's --tls-cert (or "
+            "the CA that signed it), and the learner must run with --tls-cert/--tls-key"
+        )
+    source = f" (from {auth.token_from})" if auth.token_from is not None else ""
+    return (
+        f"the learner at {address} refused this actor's link token{source}: start the learner with this "
+        "token (`accrue robot token --out FILE` here, then --token-file FILE there) or set "
+        "robot.link.token_file to the learner's token"
+    )
 
 
 def sweep_dead_actor_dirs() -> list[Path]:
@@ -76,6 +98,9 @@ class LearnerLink:
         self.lock = threading.Lock()
         self.stop = threading.Event()
         self.lost_reported = False
+        # the learner refused this actor (its token or TLS): a LinkRefused with the operator's line, until
+        # a call gets through; see check()
+        self.refused: LinkRefused | None = None
         self.last_ok = time.monotonic()
         # every weights snapshot received lands here; removed at close(), or at exit if close() never ran,
         # or by the next link on this machine when this process was killed (the pid is in the name)
@@ -198,6 +223,7 @@ class LearnerLink:
                 self.queue = [(dict(h, run_id=self.run_id), b) for h, b in sealed] + queued
             # self.version stays: the actor acts with those weights until newer ones (above the floor) come
         self.ready = True
+        self.refused = None
         if self.lost_reported:
             self.report("learner is back", {"event": "robot-learner-back"})
         self.lost_reported = False
@@ -229,6 +255,13 @@ class LearnerLink:
         if h.get("checkpoint"):
             self.checkpoint = d
         self.on_snapshot(h, d)
+
+    def check(self) -> None:
+        """Raise the LinkRefused of a learner that refuses this actor (its token, or TLS): retrying with the
+        same token and CA cannot succeed, so a caller waiting for the learner should stop here."""
+        refused = self.refused
+        if refused is not None:
+            raise refused
 
     def healthy(self) -> bool:
         """The learner answered a heartbeat within dead_after_s."""
@@ -272,6 +305,15 @@ class LearnerLink:
                 if h.get("version") is not None:
                     self._take(h, blob)
                 self.last_ok = time.monotonic()
+            except LinkRefused as exc:  # not a learner that is away: one that will not take this actor
+                self.ready = False
+                line = refusal_line(self.address, exc, self.auth)
+                if self.refused is None or str(self.refused) != line:
+                    self.refused = LinkRefused(line, exc.reason)
+                    self.lost_reported = True  # "learner is back" follows if it takes this actor later
+                    self.report(line, {"event": "robot-link-refused-by-learner", "reason": exc.reason})
+                self.stop.wait(max(self.heartbeat_s, REFUSED_RETRY_S))
+                continue
             except Exception as exc:  # noqa: BLE001 - any failure: the learner is unreachable for now
                 self.ready = False
                 gone = time.monotonic() - self.last_ok

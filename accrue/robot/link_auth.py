@@ -90,12 +90,48 @@ def store_token(store_root: Path) -> str:
     return _read_token(path, f"store {store_root}")
 
 
+_PEM_BLOCK = re.compile(r"-----BEGIN ([A-Z0-9 ]+)-----\s*([A-Za-z0-9+/=\s]+?)-----END \1-----")
+
+
+def pem_labels(data: bytes) -> list[str]:
+    """The labels of the well-formed PEM blocks in `data` ("CERTIFICATE", "PRIVATE KEY", ...), in order."""
+    import base64
+    import binascii
+
+    text = data.decode("ascii", errors="replace")
+    labels = []
+    for m in _PEM_BLOCK.finditer(text):
+        try:
+            if base64.b64decode("".join(m.group(2).split()), validate=True):
+                labels.append(m.group(1))
+        except (binascii.Error, ValueError):
+            continue
+    return labels
+
+
+def check_pem(path: Path | str, kind: str, where: str) -> bytes:
+    """The bytes of a PEM file holding a certificate (`kind` "certificate") or a private key ("key");
+    anything else - unreadable, not PEM, the other kind - is one AccrueError line naming `where` and the file."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise AccrueError(f"{where}: cannot read {path} ({exc.strerror})") from None
+    labels = pem_labels(data)
+    wanted = "CERTIFICATE" if kind == "certificate" else "PRIVATE KEY"
+    if not any(label == wanted or (kind == "key" and label.endswith(" PRIVATE KEY")) for label in labels):
+        found = f"it holds {', '.join(sorted(set(labels)))}" if labels else "it is not PEM"
+        raise AccrueError(f"{where}: {path} is not a PEM {kind} ({found}; -----BEGIN {wanted}----- expected)")
+    return data
+
+
 @dataclass(frozen=True)
 class LinkAuth:
     token: str = field(repr=False)
     tls_cert: Path | None = None
     tls_key: Path | None = None
     tls_ca: Path | None = None
+    token_from: Path | None = None  # the file the token was read from (named in a refusal, never the token)
 
     @classmethod
     def ephemeral(cls) -> "LinkAuth":
@@ -104,7 +140,8 @@ class LinkAuth:
 
 
 def validate_link_section(d: dict | None, where: str) -> dict:
-    """robot.link: {token_file: F, tls: {cert, key, ca}}, every file present; paths made absolute."""
+    """robot.link: {token_file: F, tls: {cert, key, ca}}, every file present (the TLS ones PEM of their
+    kind); paths made absolute."""
     if d is None:
         return {}
     if not isinstance(d, dict):
@@ -132,6 +169,8 @@ def validate_link_section(d: dict | None, where: str) -> dict:
         if unknown:
             raise AccrueError(f"{where}.tls: unknown key(s) {unknown}; known: {sorted(TLS_KEYS)}")
         out["tls"] = {k: file(v, f"tls.{k}") for k, v in tls.items() if v is not None}
+        for k, path in out["tls"].items():  # a wrong file is found here, not as a learner that never answers
+            check_pem(path, "key" if k == "key" else "certificate", f"{where}.tls.{k}")
     return out
 
 
@@ -139,6 +178,11 @@ def link_auth_for(robot_section: dict, store_root: Path) -> LinkAuth:
     link = validate_link_section((robot_section or {}).get("link"), "robot.link")
     token = read_token_file(link["token_file"], "robot.link.token_file") if "token_file" in link else None
     tls = {k: Path(v) for k, v in link.get("tls", {}).items()}
+    source = Path(link["token_file"]) if token else Path(store_root).absolute() / TOKEN_FILE
     return LinkAuth(
-        token or store_token(store_root), tls_cert=tls.get("cert"), tls_key=tls.get("key"), tls_ca=tls.get("ca")
+        token or store_token(store_root),
+        tls_cert=tls.get("cert"),
+        tls_key=tls.get("key"),
+        tls_ca=tls.get("ca"),
+        token_from=source,
     )

@@ -15,13 +15,14 @@ from __future__ import annotations
 import hmac
 import io
 import json
+import re
 import struct
 import tarfile
 from pathlib import Path
 from typing import Callable
 
 from accrue.errors import AccrueError
-from accrue.robot.link_auth import METADATA_KEY, parse_address
+from accrue.robot.link_auth import METADATA_KEY, check_pem, parse_address
 
 PROTOCOL = 2  # 2: the link token on every call, version_floor at Init
 SERVICE = "accrue.robot.Learner"
@@ -47,8 +48,19 @@ class PeerDown(Exception):
     """The peer did not answer in time, or is not there."""
 
 
-class LinkRefused(PeerDown):
-    """The learner answered UNAUTHENTICATED: this actor's link token is not the learner's."""
+class LinkRefused(PeerDown, AccrueError):
+    """The learner refused this actor: `reason` "token" (it answered UNAUTHENTICATED or PERMISSION_DENIED:
+    this actor's link token is not the learner's) or "tls" (the TLS handshake failed: the learner's
+    certificate is not the one robot.link.tls.ca trusts, or one end speaks no TLS). Calling again with the
+    same token and CA cannot succeed, unlike a PeerDown."""
+
+    def __init__(self, message: str, reason: str = "token"):
+        super().__init__(message)
+        self.reason = reason
+
+
+# how gRPC's details name a failed TLS handshake (it reports it as UNAVAILABLE, like a learner not there)
+_TLS_FAILED = re.compile(r"(?i)(?:ssl|tls) handshake failed|CERTIFICATE_VERIFY_FAILED|WRONG_VERSION_NUMBER")
 
 
 def pack(header: dict, blob: bytes = b"") -> bytes:
@@ -202,7 +214,8 @@ class Peer:
         self._grpc = grpc
         self._metadata = ((METADATA_KEY, token),) if token else None
         if tls_ca is not None:
-            creds = grpc.ssl_channel_credentials(root_certificates=_read(tls_ca, "CA certificate"))
+            ca = check_pem(tls_ca, "certificate", "robot.link.tls.ca")
+            creds = grpc.ssl_channel_credentials(root_certificates=ca)
             self.channel = grpc.secure_channel(address, creds, options=_OPTIONS)
         else:
             self.channel = grpc.insecure_channel(address, options=_OPTIONS)
@@ -213,10 +226,15 @@ class Peer:
             data = fn(pack(header, blob), timeout=timeout, metadata=self._metadata)
         except self._grpc.RpcError as exc:
             code = exc.code() if hasattr(exc, "code") else None
-            if code == self._grpc.StatusCode.UNAUTHENTICATED:
+            status = self._grpc.StatusCode
+            if code in (status.UNAUTHENTICATED, status.PERMISSION_DENIED):
                 raise LinkRefused(
-                    f"{method} to {self.address}: UNAUTHENTICATED (the learner refused this actor's link token)"
+                    f"{method} to {self.address}: {code.name} (the learner refused this actor's link token)"
                 ) from None
+            details = str(exc.details() if hasattr(exc, "details") else "") or ""
+            if code == status.UNAVAILABLE and _TLS_FAILED.search(details):
+                why = details.rpartition("OPENSSL_internal:")[2].removesuffix(": OK").strip()
+                raise LinkRefused(f"{method} to {self.address}: TLS handshake failed ({why[:200]})", "tls") from None
             raise PeerDown(f"{method} to {self.address}: {code.name if code else '?'}") from None
         out, out_blob = unpack(data)
         if "error" in out:
