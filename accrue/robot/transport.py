@@ -92,11 +92,36 @@ def untar(blob: bytes, dest: Path) -> Path:
     return dest
 
 
-def _read(path: Path, what: str) -> bytes:
+def tls_pair(cert: Path, key: Path) -> tuple[bytes, bytes]:
+    """(key PEM, certificate PEM) for the server, checked before gRPC sees them: gRPC reports a bad pair only
+    as an address it cannot listen on. Not PEM, the other kind, an encrypted key or a key that is not the
+    certificate's is one AccrueError line naming both files."""
+    bad = f"learner link: --tls-cert {cert} and --tls-key {key} are not a usable PEM pair"
     try:
-        return Path(path).read_bytes()
-    except OSError as exc:
-        raise AccrueError(f"learner link: cannot read the TLS {what} {path} ({exc.strerror})") from None
+        cert_pem = check_pem(cert, "certificate", "--tls-cert")
+        key_pem = check_pem(key, "key", "--tls-key")
+    except AccrueError as exc:
+        raise AccrueError(f"{bad} ({exc})") from None
+    try:
+        from cryptography import x509
+        from cryptography.exceptions import UnsupportedAlgorithm
+        from cryptography.hazmat.primitives import serialization
+    except ImportError:  # the PEM checks above are what can be done without it
+        return key_pem, cert_pem
+    try:
+        public = x509.load_pem_x509_certificate(cert_pem).public_key()
+    except ValueError as exc:
+        raise AccrueError(f"{bad} ({cert} does not parse as a certificate: {exc})") from None
+    try:
+        private = serialization.load_pem_private_key(key_pem, password=None)
+    except TypeError:
+        raise AccrueError(f"{bad} ({key} is encrypted; give it without a passphrase, mode 0600)") from None
+    except (ValueError, UnsupportedAlgorithm) as exc:
+        raise AccrueError(f"{bad} ({key} does not parse as a private key: {exc})") from None
+    der = serialization.Encoding.DER, serialization.PublicFormat.SubjectPublicKeyInfo
+    if private.public_key().public_bytes(*der) != public.public_bytes(*der):
+        raise AccrueError(f"{bad} (the key is not the certificate's)")
+    return key_pem, cert_pem
 
 
 def serve(
@@ -122,6 +147,7 @@ def serve(
     if (tls_cert is None) != (tls_key is None):
         raise AccrueError("learner link: TLS needs both a certificate and its key")
     expected = token.encode()
+    pair = tls_pair(Path(tls_cert), Path(tls_key)) if tls_cert is not None else None
 
     def wrap(name: str, fn: Handler):
         def call(request: bytes, context) -> bytes:
@@ -147,8 +173,8 @@ def serve(
         (grpc.method_handlers_generic_handler(SERVICE, {name: wrap(name, fn) for name, fn in handlers.items()}),)
     )
     try:
-        if tls_cert is not None:
-            creds = grpc.ssl_server_credentials([(_read(tls_key, "key"), _read(tls_cert, "certificate"))])
+        if pair is not None:
+            creds = grpc.ssl_server_credentials([pair])
             port = server.add_secure_port(address, creds)
         else:
             port = server.add_insecure_port(address)
