@@ -1,5 +1,6 @@
 """`accrue robot learner`: the learner process of a hardware stage on another host (the GPU box), and
-`accrue robot certs`: a self-signed TLS pair for that link on a lab LAN.
+`accrue robot certs`: a self-signed TLS pair for that link on a lab LAN, and `accrue robot token`: the store's
+link token made (if new) and copied for the learner's host.
 
 The actor (`accrue stage run` beside the robot, with `robot.learner_address: HOST:PORT`) sends it what it
 needs and every sealed episode; this process holds nothing durable and may be restarted at any time.
@@ -12,6 +13,8 @@ from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
+
+from cli.store_cmds import StoreOpt
 
 robot_app = typer.Typer(help="Robot sessions: the learner process for a second host.", no_args_is_help=True)
 
@@ -76,6 +79,55 @@ def learner(
     elif token_file is not None:
         argv += ["--token-file", str(token_file)]
     raise typer.Exit(main(argv, audit=audit))
+
+
+@robot_app.command("token")
+def token(
+    store: StoreOpt = None,
+    out: Annotated[
+        Optional[Path], typer.Option("--out", help="Also write a copy here (mode 0600), for the learner's host.")
+    ] = None,
+    show: Annotated[bool, typer.Option("--show", help="Print the token itself (it is a secret).")] = False,
+) -> None:
+    """Make the store's link token if it has none yet, and say where it is (never the token, unless --show).
+
+    The learner (--store or --token-file) and the actor (robot.learner_address) use this same token."""
+    import os
+    import secrets
+
+    from accrue.errors import AccrueError
+    from accrue.robot.link_auth import TOKEN_FILE, read_token_file, store_token
+    from cli.store_cmds import open_store
+
+    root = open_store(store).root
+    existed = (root / TOKEN_FILE).is_file()
+    value = store_token(root)
+    print(f"link token: {root / TOKEN_FILE} (0600{', made now' if not existed else ''})")
+    if out is not None:
+        out = out.expanduser()
+        if out.exists():
+            try:
+                same = out.is_file() and out.read_text().strip() == value
+            except (OSError, UnicodeDecodeError):
+                same = False
+            if not same:
+                raise AccrueError(f"accrue robot token: {out} exists and is not this token; remove it first")
+            read_token_file(out, "accrue robot token --out")  # the copy is private (0600), or one line
+        else:
+            tmp = out.with_name(f".{out.name}.{os.getpid()}.{secrets.token_hex(4)}")
+            try:
+                fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+            except OSError as exc:
+                raise AccrueError(f"accrue robot token: cannot write {out} ({exc.strerror})") from None
+            try:
+                os.write(fd, (value + "\n").encode())
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+            os.replace(tmp, out)
+        print(f"copied to {out} (0600): give it to the learner as --token-file, or as robot.link.token_file")
+    if show:
+        print(value)
 
 
 @robot_app.command("certs")
