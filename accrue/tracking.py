@@ -19,8 +19,12 @@ import sys
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
+# the defaults and choices of a workflow's `tracking:` section; stages.workflow's TrackingSpec/WandbSpec
+# take theirs from here, so a plain dict given to settings_of() and a validated workflow agree
+DEFAULT_TENSORBOARD = True
 DEFAULT_EVERY = 20  # learner updates between two loss/Q points (TrackingSpec.every)
 WANDB_MODES = ("offline", "online")
+WANDB_DEFAULTS = {"project": "accrue", "mode": "offline", "entity": None}
 
 
 def run_name(workflow: str, stage: int, step: str) -> str:
@@ -49,11 +53,11 @@ def settings_of(spec: Any) -> dict:
         raise TypeError(f"tracking spec must be a mapping or None (got {type(spec).__name__})")
     wandb = data.get("wandb")
     if wandb is not None:
-        wandb = {"project": "accrue", "mode": "offline", "entity": None, **dict(wandb)}
+        wandb = {**WANDB_DEFAULTS, **dict(wandb)}
         if wandb["mode"] not in WANDB_MODES:
             raise ValueError(f"tracking.wandb.mode must be one of {', '.join(WANDB_MODES)} (got {wandb['mode']!r})")
     return {
-        "tensorboard": bool(data.get("tensorboard", True)),
+        "tensorboard": bool(data.get("tensorboard", DEFAULT_TENSORBOARD)),
         "wandb": wandb,
         "every": int(data.get("every", DEFAULT_EVERY)),
     }

@@ -14,6 +14,7 @@ from typing import Any, Literal, Optional
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from accrue import tracking as _tracking
 from accrue.methods import METHODS
 from stages.errors import StageError
 
@@ -158,20 +159,23 @@ class RobotSpec(_Strict):
 
 
 class WandbSpec(_Strict):
-    """Weights & Biases, used only when asked for here (docs/TRACKING.md); offline needs no network."""
+    """Weights & Biases, used only when asked for here (docs/TRACKING.md); offline needs no network.
+    Defaults and modes are accrue.tracking's (WANDB_DEFAULTS, WANDB_MODES)."""
 
-    project: str = "accrue"
-    mode: Literal["offline", "online"] = "offline"
-    entity: Optional[str] = None
+    project: str = _tracking.WANDB_DEFAULTS["project"]
+    mode: Literal[_tracking.WANDB_MODES] = _tracking.WANDB_DEFAULTS["mode"]  # type: ignore[valid-type]
+    entity: Optional[str] = _tracking.WANDB_DEFAULTS["entity"]
 
 
 class TrackingSpec(_Strict):
-    """Where train steps, robot sessions and bench cells write their scalars (accrue.tracking). Nothing
-    here enters a cache key: event files sit beside the store's audit log, never in its objects."""
+    """Where train steps, robot sessions and bench cells write their scalars (accrue.tracking, whose
+    defaults these are). Nothing here enters a cache key: event files sit beside the store's audit log,
+    never in its objects."""
 
-    tensorboard: bool = True
+    tensorboard: bool = _tracking.DEFAULT_TENSORBOARD
     wandb: Optional[WandbSpec] = None
-    every: int = Field(20, gt=0)  # learner updates between two loss/Q points (eval points are all written)
+    # learner updates between two loss/Q points (eval points are all written)
+    every: int = Field(_tracking.DEFAULT_EVERY, gt=0)
 
 
 class Workflow(_Strict):

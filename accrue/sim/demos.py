@@ -360,7 +360,13 @@ def _sort_stats_keys(path: Path) -> None:
 
 
 def _remove_stale_staging(out_dir: Path) -> None:
-    """Delete staging directories of earlier runs into `out_dir` whose process no longer exists."""
+    """Delete staging directories of earlier runs into `out_dir` whose process no longer exists.
+
+    Not accrue.process_tmp.sweep_dead, on purpose: the staging name is `.<name>.partial-<pid>` with
+    nothing after the pid (sweep_dead matches `<prefix><pid>-*`; demo_convert, so101_demos and the
+    demos tests use this name too), and it is a fixed function of the pid, so a leftover whose pid this
+    process now has (pids are reused, in containers soon) must go as well - LeRobotDataset.create
+    refuses a root that exists - where sweep_dead always spares this process's own directories."""
     prefix = f".{out_dir.name}.partial-"
     for path in out_dir.parent.glob(prefix + "*"):
         pid = path.name[len(prefix) :]
