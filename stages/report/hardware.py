@@ -8,8 +8,10 @@ policy shaded grey at the left, dashed while fewer than `stop_window` episodes e
 dotted line where the stop rule was reached. With `single_task` (a Single-task workflow of the same task
 sequence, run in the same store) its curves are drawn too, and the robot time saved is shaded and given.
 Table III (`table3.md`): successes over the retention trials on each earlier task after each later stage.
-With robot.intervention (beyond the paper), `interventions.md`: the intervention rate per `stop_window`-episode
-window of each stage's train episodes.
+With robot.intervention (beyond the paper), `interventions.md`: the intervention rate per block of
+`stop_window` consecutive train episodes of each stage, and the sliding rate over the last `stop_window`
+episodes at the stage's end (what the operator page and TensorBoard show); both are accrue.robot.teleop's
+window_rate.
 `report.json` holds every number shown.
 """
 
@@ -41,8 +43,10 @@ def stage_curves(store: Store, wf: Workflow) -> dict[int, dict]:
 
 def stage_interventions(store: Store, wf: Workflow) -> dict[int, dict]:
     """stage -> the train step's interventions (robot.intervention, beyond the paper), read from its sealed
-    episode records: the intervention rate (intervened control steps / control steps) per consecutive
-    `stop_window`-episode window. Stages run without interventions are left out."""
+    episode records: the intervention rate (intervened control steps / control steps, teleop.window_rate)
+    per block of `stop_window` consecutive episodes ("windows"), and the sliding one over the last
+    `stop_window` episodes at the stage's end ("sliding_rate", the page's and TensorBoard's last value).
+    Stages run without interventions are left out."""
     from artifacts.manifests import read_artifact, read_tree
     from artifacts.refs import read_ref
 
@@ -61,34 +65,48 @@ def stage_interventions(store: Store, wf: Workflow) -> dict[int, dict]:
         )
         eps = [json.loads(store.read_bytes(oid)) for _, oid in files]
         eps = [e for e in eps if e.get("phase") == "train"]
-        if not any("interventions" in e for e in eps):
-            continue
-        windows = []
-        for i in range(0, len(eps), size):
-            block = eps[i : i + size]
-            steps = sum(e["control_steps"] for e in block)
-            taken = sum(e.get("interventions", 0) for e in block)
-            windows.append(
-                {
-                    "episodes": f"{block[0]['index']}-{block[-1]['index']}",
-                    "intervened_steps": taken,
-                    "control_steps": steps,
-                    "episodes_with_interventions": sum(bool(e.get("interventions")) for e in block),
-                    "rate": round(taken / steps, 4) if steps else 0.0,
-                }
-            )
-        out[k] = {"window": size, "windows": windows, "intervened_steps": sum(e.get("interventions", 0) for e in eps)}
+        if any("interventions" in e for e in eps):
+            out[k] = intervention_rates(eps, size)
     return out
+
+
+def intervention_rates(eps: list[dict], size: int) -> dict:
+    """The train episodes' (episode.json records, in order) intervention rates: per block of `size`
+    consecutive episodes, and sliding over the last `size` at the end; both teleop.window_rate."""
+    from accrue.robot.teleop import window_rate
+
+    counts = [(e.get("interventions", 0), e["control_steps"]) for e in eps]
+    windows = []
+    for i in range(0, len(eps), size):
+        block, block_counts = eps[i : i + size], counts[i : i + size]
+        windows.append(
+            {
+                "episodes": f"{block[0]['index']}-{block[-1]['index']}",
+                "intervened_steps": sum(n for n, _ in block_counts),
+                "control_steps": sum(n for _, n in block_counts),
+                "episodes_with_interventions": sum(bool(n) for n, _ in block_counts),
+                "rate": round(window_rate(block_counts, len(block_counts)), 4),
+            }
+        )
+    return {
+        "window": size,
+        "windows_are": f"blocks of {size} consecutive train episodes",
+        "windows": windows,
+        "sliding_rate": round(window_rate(counts, size), 4),
+        "intervened_steps": sum(n for n, _ in counts),
+    }
 
 
 def interventions_markdown(rows: dict[int, dict]) -> str:
     lines = [
         "# Interventions (robot.intervention; beyond the paper)",
         "",
-        "Intervention rate: control steps the operator drove through the teleoperator / all control steps, per",
-        "consecutive window of train episodes.",
+        "Intervention rate: control steps the operator drove through the teleoperator / all control steps",
+        "(accrue.robot.teleop.window_rate). The table gives it per block of consecutive train episodes; the",
+        "operator page and TensorBoard show it sliding, over the last episodes, whose value at each stage's",
+        "end is listed below the table.",
         "",
-        "| stage | episodes | intervened steps | control steps | episodes with interventions | rate |",
+        "| stage | block of episodes | intervened steps | control steps | episodes with interventions | rate |",
         "|---|---|---|---|---|---|",
     ]
     for k, row in sorted(rows.items()):
@@ -96,6 +114,13 @@ def interventions_markdown(rows: dict[int, dict]) -> str:
             lines.append(
                 f"| {k} | {w['episodes']} | {w['intervened_steps']} | {w['control_steps']} | "
                 f"{w['episodes_with_interventions']} | {100 * w['rate']:.1f}% |"
+            )
+    lines.append("")
+    for k, row in sorted(rows.items()):
+        if "sliding_rate" in row:
+            lines.append(
+                f"- stage {k}: per block of {row['window']}; sliding over the last {row['window']} at the "
+                f"end: {100 * row['sliding_rate']:.1f}%"
             )
     return "\n".join(lines) + "\n"
 
