@@ -67,7 +67,10 @@ def _check_dataset_matches_checkpoint(init_dir: Path, training_root: Path) -> No
     for key, shape in shapes.items():
         if key not in features:
             raise AccrueError(f"the demonstrations lack '{key}', which checkpoint {init_dir} takes as input")
-        if tuple(features[key]["shape"]) != shape:
+        have = tuple(features[key]["shape"])
+        if features[key].get("dtype") in ("image", "video") and len(have) == 3:
+            have = (have[2], have[0], have[1])  # a dataset stores frames (h, w, c); a policy takes (c, h, w)
+        if have != shape:
             raise AccrueError(
                 f"the demonstrations' '{key}' has shape {list(features[key]['shape'])} but checkpoint "
                 f"{init_dir} expects {list(shape)}"
