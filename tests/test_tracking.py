@@ -123,7 +123,7 @@ def test_workflow_cli_error_for_a_bad_wandb_mode():
 
 
 @pytest.mark.skipif(
-    importlib.util.find_spec("wandb") is None, reason="wandb is not installed (it comes with lerobot 0.4.4)"
+    importlib.util.find_spec("wandb") is None, reason="wandb is not installed (it comes with lerobot[training] 0.6.1)"
 )
 def test_wandb_offline_writes_its_run_without_a_network(tmp_path, monkeypatch):
     # no network: offline mode must not try one; a proxy to nowhere makes any attempt fail
@@ -195,6 +195,19 @@ def test_train_step_writes_losses_q_and_eval_success_and_keeps_artifact_ids(tmp_
 
 
 # ------------------------------------------------------------------------------ the robot learner
+def documented_runs(workflow: str, stage: int) -> set[str]:
+    """The store run directories docs/TRACKING.md's "Where the files go" table gives for robot steps,
+    with <workflow> and <k> filled in and <step> each hardware step."""
+    import re
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "TRACKING.md").read_text()
+    out = set()
+    for row in re.findall(r"^\| robot .*?\| `<store>/log/tracking/([^`]+)/`", text, flags=re.M):
+        row = row.replace("<workflow>", workflow).replace("<k>", str(stage))
+        out |= {row.replace("<step>", step) for step in ("warmup", "train", "evaluate-all")}
+    return out
+
+
 @pytest.mark.slow
 def test_robot_learner_writes_losses_q_updates_and_version(tmp_path, monkeypatch):
     """Stage 1 of the tiny hardware workflow on the simulated robot: the learner process the actor
@@ -207,7 +220,13 @@ def test_robot_learner_writes_losses_q_updates_and_version(tmp_path, monkeypatch
     Store.init(tmp_path / "store")
     wf = write_hw_workflow(tmp_path / "hw.yaml", tmp_path / "calib")
     run_stage(tmp_path / "store", wf, 1, step=None)
-    run_dir = tmp_path / "store" / "log" / "tracking" / "hw" / "stage-1" / "train" / "learner"
+    root = tmp_path / "store" / "log" / "tracking"
+    run_dir = root / "hw" / "stage-1" / "train" / "learner"
+    # every run the stage wrote (warmup and train on the actor's side, the learner's inside train/) is
+    # one docs/TRACKING.md lists; stage 1 has no earlier task, so no evaluate-all run
+    runs = sorted({str(p.parent.relative_to(root)) for p in root.rglob("events.out.tfevents*")})
+    assert runs == ["hw/stage-1/train", "hw/stage-1/train/learner", "hw/stage-1/warmup"]
+    assert all(run in documented_runs("hw", 1) for run in runs), (runs, documented_runs("hw", 1))
     scalars = read_scalars(run_dir)
     for tag in ("learner/critic_loss", "learner/q_mean", "learner/updates", "learner/version", "learner/episodes"):
         assert tag in scalars, sorted(scalars)
@@ -257,7 +276,7 @@ def test_bench_cells_write_side_by_side_runs(tmp_path, monkeypatch):
 
 
 @pytest.mark.skipif(
-    importlib.util.find_spec("wandb") is None, reason="wandb is not installed (it comes with lerobot 0.4.4)"
+    importlib.util.find_spec("wandb") is None, reason="wandb is not installed (it comes with lerobot[training] 0.6.1)"
 )
 def test_wandb_online_without_a_login_is_one_line_not_a_prompt(tmp_path, monkeypatch):
     monkeypatch.delenv("WANDB_API_KEY", raising=False)
