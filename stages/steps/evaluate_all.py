@@ -1,91 +1,43 @@
-"""`evaluate-all`: row k of the success matrix, π_base^k + θ^k on tasks 1..k (M episodes each), the base
-policy alone on the same episodes (for the report), and MCAP logs of a few episodes per task. With
-budgets.report_episodes the episodes are the disjoint report set (never the selection set that train's
-curves choose checkpoints on)."""
+"""`evaluate-all`: row k of the success matrix, π_base^k + θ^k on tasks 1..k.
+
+In the simulator M episodes per task, the base policy alone on the same episodes (for the report), and
+MCAP logs of a few episodes per task (with budgets.report_episodes the disjoint report set); on a robot
+(stages.steps.robot_env) operator-labelled retention trials on each earlier task (Table III)."""
 
 from __future__ import annotations
 
 from stages.runner_context import StepContext
 from stages.runner_types import StepDef
-from stages.steps import train as train_step
-from stages.steps.common import deterministic, load_base_policy, make_env, per_task_features, reference_fn, write_json
+from stages.steps.common import write_json
+from stages.steps.environments import environment_for
+from stages.steps.stage_io import base_inputs, deployed
 
 EVAL_FILE = "eval.json"  # the `eval` output: row k of the success matrix and the base policy alone
 
 
-def run(ctx: StepContext) -> None:
-    from accrue import rl_loop
-    from accrue.learner import load_learner
-    from accrue.logs.mcap_episodes import EpisodeRecorder
-    from accrue.sim import STATE_NAMES, get_task
-
+def run(ctx: StepContext, robot=None) -> None:
+    """`robot`: the session settings the plan binds for a workflow with a robot (outside the cache key)."""
     c = ctx.config
-    k, tasks, horizon, seed = c["stage"], c["task_ids"], c["horizon"], c["seed"]
-    deterministic(seed)
-    policy = load_base_policy(ctx.input_path("base-policy"), seed)
-    references = {t: reference_fn(policy, t, horizon) for t in tasks}
-    features = per_task_features(c, tasks)
-    checkpoint = ctx.input_path("checkpoint")
-    current = load_learner(checkpoint / train_step.LEARNER_DIR, device="cpu")
-    # Isolated keeps one learner per task: task i is evaluated with checkpoint i
-    per_task = checkpoint / train_step.PER_TASK_DIR
-    learners = {
-        t: (load_learner(per_task / str(i), device="cpu") if (per_task / str(i)).is_dir() else current)
-        for i, t in enumerate(tasks, 1)
-    }
-    episode_set, episodes = ("report", c["report_episodes"]) if c.get("report_episodes") else ("eval", c["episodes"])
-    evaluator = rl_loop.Evaluator(
-        lambda t, n: make_env(t, n, rl_loop.env_seed(seed, k, episode_set, tasks.index(t)), c["obs_mode"]),
-        references,
-        features,
-        episodes,
-        c["num_envs"],
-        horizon,
-        c["gamma"],
-    )
-    success, base_success = {}, {}
-    for t in tasks:
-        success[t] = evaluator.success_rate(t, rl_loop.actor_act(learners[t]))
-        base_success[t] = evaluator.success_rate(t)
-        ctx.console.print(
-            f"evaluate-all: {t}: actor {success[t]:.2f}  base policy alone {base_success[t]:.2f} "
-            f"({episodes} {episode_set} episodes)"
+    tasks = c["task_ids"]
+    env = environment_for(c, robot)
+    with env.scope():
+        base = base_inputs(ctx, tasks)
+        learners = deployed(ctx, tasks)
+        result = env.evaluate(ctx, base, learners)
+        write_json(
+            ctx.new_output("eval", "eval") / EVAL_FILE,
+            {
+                "stage": c["stage"],
+                "task_ids": tasks,
+                "success": result.success,
+                "base_success": result.base_success,
+                "episodes": result.episodes,
+                "method": c["method"],
+                "seed": c["seed"],
+                "per_task_checkpoint": learners.per_task_checkpoint(),
+                **result.extra,
+            },
         )
-    evaluator.close()
-    write_json(
-        ctx.new_output("eval", "eval") / EVAL_FILE,
-        {
-            "stage": k,
-            "task_ids": tasks,
-            "success": success,
-            "base_success": base_success,
-            "episodes": episodes,
-            **({"episode_set": episode_set} if episode_set == "report" else {}),
-            "method": c["method"],
-            "seed": seed,
-            "per_task_checkpoint": sorted(t for t in tasks if learners[t] is not current),
-        },
-    )
-
-    logs = ctx.new_output("episodes", "episodes")
-    for i, t in enumerate(tasks):
-        if c["record_episodes"] < 1:
-            break
-        env = make_env(t, c["record_episodes"], rl_loop.env_seed(seed, k, episode_set, i), c["obs_mode"])
-        recorder = EpisodeRecorder(
-            logs / t.replace("/", "__"), control_hz=get_task(t).control_hz, state_names=list(STATE_NAMES)
-        )
-        rl_loop.record_episodes(
-            env,
-            references[t],
-            features[t],
-            rl_loop.actor_act(learners[t]),
-            recorder,
-            horizon,
-            {"task_id": t, "stage": k, "seed": seed, "policy": "base+actor"},
-        )
-        env.close()
-    ctx.log_event("evaluation", stage=k, success=success, base_success=base_success)
 
 
 STEP = StepDef(

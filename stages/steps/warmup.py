@@ -1,54 +1,44 @@
-"""`warmup`: Algorithm 1 line 3, roll out π_base^k on task k; its transitions are the first shard of B^k."""
+"""`warmup`: Algorithm 1 line 3, roll out π_base^k on task k; its transitions are the first shard of B^k.
+
+In the simulator on `num_envs` vector envs for `episodes` episodes; on a robot (stages.steps.robot_env)
+operator-labelled, each episode sealed at once, with an `episodes` output."""
 
 from __future__ import annotations
 
 from stages.runner_context import StepContext
 from stages.runner_types import StepDef
-from stages.steps.common import deterministic, load_base_policy, make_env, per_task_features, reference_fn, write_json
+from stages.steps.common import write_json
+from stages.steps.environments import environment_for
+from stages.steps.stage_io import WARMUP_INFO_FILE, base_inputs
 
-INFO_FILE = "warmup.json"  # in the `replay` output, beside the shards: counts and the next episode id
+INFO_FILE = WARMUP_INFO_FILE  # in the `replay` output, beside the shards: counts and the next episode id
 
 
-def run(ctx: StepContext) -> None:
-    from accrue import rl_loop
+def run(ctx: StepContext, robot=None) -> None:
+    """`robot`: the session settings the plan binds for a workflow with a robot (outside the cache key)."""
     from accrue.learner import ReplayBuffer
 
     c = ctx.config
-    deterministic(c["seed"])
-    policy = load_base_policy(ctx.input_path("base-policy"), c["seed"])
-    env = make_env(c["task"], c["num_envs"], rl_loop.env_seed(c["seed"], c["stage"], "warmup"), c["obs_mode"])
-    features = per_task_features(c, [c["task"]])[c["task"]]
-    obs_dim = features(env.reset()).shape[1]
-    buffer = ReplayBuffer(obs_dim, c["horizon"])
-    collector = rl_loop.ChunkCollector(
-        env,
-        reference_fn(policy, c["task"], c["horizon"]),
-        features,
-        buffer,
-        task_index=c["stage"] - 1,
-        gamma=c["gamma"],
-    )
-    collector.restart()
-    stats = rl_loop.warmup(collector, c["episodes"])
-    env.close()
-    out = ctx.new_output("replay", "replay")
-    buffer.save_new_shards(out)
-    write_json(
-        out / INFO_FILE,
-        {
-            "stage": c["stage"],
-            "task": c["task"],
-            "episodes": stats.episodes,
-            "successes": stats.successes,
-            "env_steps": stats.env_steps,
-            "transitions": len(buffer),
-            "next_episode": collector.next_episode,
-        },
-    )
-    ctx.console.print(
-        f"warmup: {stats.episodes} base-policy episodes on {c['task']}, "
-        f"{stats.successes} succeeded, {len(buffer)} chunk transitions"
-    )
+    env = environment_for(c, robot)
+    with env.scope():
+        base = base_inputs(ctx, [c["task"]])
+        result = env.warmup(ctx, base, lambda state_dim: ReplayBuffer(state_dim, c["horizon"]))
+        out = ctx.new_output("replay", "replay")
+        result.buffer.save_new_shards(out)
+        write_json(
+            out / INFO_FILE,
+            {
+                "stage": c["stage"],
+                "task": c["task"],
+                "episodes": result.episodes,
+                "successes": result.successes,
+                "env_steps": result.env_steps,
+                "transitions": len(result.buffer),
+                "next_episode": result.next_episode,
+                **result.extra,
+            },
+        )
+        ctx.console.print(result.line)
 
 
 STEP = StepDef(

@@ -1,7 +1,7 @@
-"""What the hardware steps share: the robot, the operator, and sealing every labelled episode at once.
+"""A robot session: the robot, the operator, and sealing every labelled episode at once.
 
-A hardware step (hw_warmup, hw_train, hw_evaluate) is a sequence of operator-labelled robot episodes.
-Each finished, labelled episode is sealed immediately as an intra-step checkpoint artifact (fsynced by
+On a robot, warmup, train and evaluate-all (their robot part: stages.steps.robot_env) are sequences of
+operator-labelled robot episodes. Each finished, labelled episode is sealed immediately as an intra-step checkpoint artifact (fsynced by
 the store) holding every episode sealed so far - `episodes/<index>/` with `episode.json` (label with
 who/when, re-labels, robot time, faults, weights version, session), `transitions.npz` and
 `episode.mcap` - plus the learner's last checkpoint and `sessions.json`. Unchanged files are the same
@@ -26,7 +26,7 @@ import time
 import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from stages.errors import StageError
 from stages.runner_context import StepContext
@@ -556,33 +556,36 @@ def _now() -> str:
     return dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds")
 
 
-def episode_loop(
-    ctx: StepContext,
-    session: HardwareSession,
-    operator,
-    bridge,
-    *,
-    task: str,
-    done,
-    policy_now,
-    reference,
-    features,
-    settings,
-    gamma: float,
-    index_base: int,
-    metadata: dict,
-    on_sealed=lambda index, arrays, relabel=False: None,
-    between=lambda: None,
-    learner_state=lambda: {},
-    hold: LearnerHold | None = None,
-) -> None:
-    """Operator-labelled episodes on `task` until done() says enough; each sealed at once.
+@dataclass
+class EpisodeLoop:
+    """What a run of operator-labelled episodes on one task needs (episode_loop).
 
     policy_now() -> (policy(s, ref, fresh) -> chunk, weights version or None), asked at each episode start
-    (the actor acts with the newest weights it has). A robot fault ends the episode as a failure labelled
-    by "system"; the robot is reconnected, or the step stops with one line (everything sealed stays).
-    The operator is shown the live state (operator.show) at each episode's start and end and every
-    SHOW_EVERY_S of robot time in between; learner_state() adds the learner's version and health.
+    (the actor acts with the newest weights it has); on_sealed(index, arrays, relabel) after each seal or
+    re-label; between() before each episode; learner_state() adds the learner's version and health to the
+    operator's view; a `hold` (train) stops the actor while the learner does not answer."""
+
+    task: str
+    done: Callable[[], bool]
+    policy_now: Callable[[], tuple]
+    reference: Callable
+    features: Callable
+    settings: Any  # accrue.robot.episode.EpisodeSettings
+    gamma: float
+    index_base: int
+    metadata: dict
+    on_sealed: Callable = lambda index, arrays, relabel=False: None
+    between: Callable[[], None] = lambda: None
+    learner_state: Callable[[], dict] = dict
+    hold: LearnerHold | None = None
+
+
+def episode_loop(ctx: StepContext, session: HardwareSession, operator, bridge, loop: EpisodeLoop) -> None:
+    """Operator-labelled episodes on loop.task until loop.done() says enough; each sealed at once.
+
+    A robot fault ends the episode as a failure labelled by "system"; the robot is reconnected, or the
+    step stops with one line (everything sealed stays). The operator is shown the live state
+    (operator.show) at each episode's start and end and every SHOW_EVERY_S of robot time in between.
     With a `hold` (train), the actor stops acting when the learner has not answered for its staleness
     (checked at every chunk and before each episode) and waits for it (LearnerHold).
     With robot.intervention (warmup and train), the operator may take over through a teleoperator
@@ -613,54 +616,13 @@ def episode_loop(
         if hasattr(operator, "takeover_key"):
             operator.takeover_key = take.signal == "key"
     try:
-        _episodes(
-            ctx,
-            session,
-            operator,
-            bridge,
-            take,
-            lost,
-            task=task,
-            done=done,
-            policy_now=policy_now,
-            reference=reference,
-            features=features,
-            settings=settings,
-            gamma=gamma,
-            index_base=index_base,
-            metadata=metadata,
-            on_sealed=on_sealed,
-            between=between,
-            learner_state=learner_state,
-            hold=hold,
-        )
+        _episodes(ctx, session, operator, bridge, take, lost, loop)
     finally:
         if take is not None:
             take.close()
 
 
-def _episodes(
-    ctx,
-    session,
-    operator,
-    bridge,
-    take,
-    lost,
-    *,
-    task,
-    done,
-    policy_now,
-    reference,
-    features,
-    settings,
-    gamma,
-    index_base,
-    metadata,
-    on_sealed,
-    between,
-    learner_state,
-    hold,
-) -> None:
+def _episodes(ctx, session, operator, bridge, take, lost, loop: EpisodeLoop) -> None:
     import tempfile
 
     from accrue.logs.mcap_episodes import EpisodeRecorder
@@ -671,7 +633,7 @@ def _episodes(
     last = sealed[-1]["index"] if sealed else None
     logs = Path(tempfile.mkdtemp(dir=ctx.scratch_dir("mcap")))
     phase = ctx.config["phase"]
-    chunk_s = settings.horizon / settings.control_hz  # robot time of one chunk
+    chunk_s = loop.settings.horizon / loop.settings.control_hz  # robot time of one chunk
     live = {"index": None, "step": 0, "acted_s": 0.0, "shown_s": 0.0, "held": False}
 
     def show(**state) -> None:
@@ -698,14 +660,14 @@ def _episodes(
         )
         fn(
             {
-                "task": task,
+                "task": loop.task,
                 "phase": phase,
                 "episode": live["index"],
                 "step": live["step"],
                 "window": window,
                 "robot_time_s": round(session.robot_time_s() + live["acted_s"], 2),
                 "frame": frames[0] if frames else None,
-                **learner_state(),
+                **loop.learner_state(),
                 **taking,
                 **state,
             }
@@ -713,32 +675,32 @@ def _episodes(
 
     def poll() -> str | None:
         command = operator.poll()
-        live["step"] += settings.horizon
+        live["step"] += loop.settings.horizon
         live["acted_s"] += chunk_s
         if live["acted_s"] - live["shown_s"] >= SHOW_EVERY_S - 1e-9:
             live["shown_s"] = live["acted_s"]
             show(status=f"episode {live['index']} running")
-        if hold is not None and command is None:
-            hold.acted(chunk_s)
-            if hold.due():
+        if loop.hold is not None and command is None:
+            loop.hold.acted(chunk_s)
+            if loop.hold.due():
                 live["held"] = True
                 return "abort"  # ends the episode now; discarded below, not an operator's abort
         return command
 
-    while not done():
-        between()
-        if done():
+    while not loop.done():
+        loop.between()
+        if loop.done():
             break
-        if hold is not None and hold.due():
-            hold.wait(session, operator, show, ctx.console)
+        if loop.hold is not None and loop.hold.due():
+            loop.hold.wait(session, operator, show, ctx.console)
             continue
-        index = session.next_index(index_base)
+        index = session.next_index(loop.index_base)
         # the page shows the phase and the window at every reset prompt (the first one, after --continue)
         show(status=f"episode {index}: waiting for the scene to be reset")
-        answer = operator.wait_reset(index, task, last)
+        answer = operator.wait_reset(index, loop.task, last)
         if answer.relabel is not None and last is not None:
-            arrays = session.relabel(last, answer.relabel.to_json(), gamma)
-            on_sealed(last, arrays, relabel=True)
+            arrays = session.relabel(last, answer.relabel.to_json(), loop.gamma)
+            loop.on_sealed(last, arrays, relabel=True)
         if not answer.go:
             session.close("aborted by the operator")
             raise StageError(
@@ -747,19 +709,23 @@ def _episodes(
         reset_scene = bridge.hook("reset_scene")
         if reset_scene is not None:  # a simulated robot: the scene is put back when any operator says reset
             reset_scene()
-        policy, version = policy_now()
+        policy, version = loop.policy_now()
         session.started(index)
         live.update(index=index, step=0, acted_s=0.0, shown_s=0.0)
         show(status=f"episode {index} started")
-        recorder = EpisodeRecorder(logs, control_hz=settings.control_hz, state_names=list(bridge.mapping.state_keys))
-        meta = {**metadata, "index": index, "weights_version": version, "session": session.session["id"]}
-        out = run_episode(bridge, settings, reference, policy, features, recorder, meta, poll=poll, intervene=take)
+        recorder = EpisodeRecorder(
+            logs, control_hz=loop.settings.control_hz, state_names=list(bridge.mapping.state_keys)
+        )
+        meta = {**loop.metadata, "index": index, "weights_version": version, "session": session.session["id"]}
+        out = run_episode(
+            bridge, loop.settings, loop.reference, policy, loop.features, recorder, meta, poll=poll, intervene=take
+        )
         live.update(step=out.control_steps, acted_s=0.0)
         if out.end == "abort" and live["held"]:
             live["held"] = False
             recorder.abort(0)
             session.discard(index, "the learner stopped answering: the robot was held, the episode not sealed")
-            hold.wait(session, operator, show, ctx.console)
+            loop.hold.wait(session, operator, show, ctx.console)
             continue
         if out.end == "abort":
             recorder.abort(0)
@@ -782,10 +748,10 @@ def _episodes(
             truncated=out.end == "time-limit",
             metadata={"label_by": label.by, "label_at": label.at, "end": out.end, "reason": out.reason},
         )
-        arrays = transitions(out, label.success, gamma, index)
+        arrays = transitions(out, label.success, loop.gamma, index)
         record = {
             "phase": ctx.config["phase"],
-            "task": task,
+            "task": loop.task,
             "label": label.to_json(),
             "end": out.end,
             "reason": out.reason,
@@ -803,7 +769,7 @@ def _episodes(
                 interventions=intervention_count(arrays), intervened_chunks=int(intervention_rows([arrays]).sum())
             )
         session.seal_episode(index, record, arrays, mcap)
-        on_sealed(index, arrays, relabel=False)
+        loop.on_sealed(index, arrays, relabel=False)
         last = index
         show(status=f"episode {index} sealed: {'success' if label.success else 'failure'} ({out.end})")
         if out.end == "fault":
