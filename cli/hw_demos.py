@@ -47,7 +47,7 @@ def convert_demos_for_workflow(path: Path, kind: str, workflow: Path, task: str 
     from accrue.robot.demos import check_robot_dataset
     from accrue.robot.mapping import RobotMapping
     from accrue.sim.demos import get_task_spec
-    from stages.steps.hw_plan import robot_config
+    from stages.steps.robot_plan import robot_config
 
     r = robot_config(wf)
     # the keys the robot itself declares (building its driver object connects nothing): the dataset must hold

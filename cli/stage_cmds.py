@@ -31,9 +31,9 @@ def run_mode(cont: bool, rerun: bool) -> str:
 
 @contextlib.contextmanager
 def session_stops():
-    """A hardware step stopped by Ctrl-C or SIGTERM (stages.steps.hw_session.SessionStop): its one line
+    """A hardware step stopped by Ctrl-C or SIGTERM (stages.steps.robot_session.SessionStop): its one line
     on stderr and exit 130 / 143; the session is already closed and the robot disconnected."""
-    from stages.steps.hw_session import SessionStop
+    from stages.steps.robot_session import SessionStop
 
     try:
         yield

@@ -54,9 +54,9 @@ MUTATIONS = (
     ),
     Mutation(
         "train-step-drops-teacher",
-        "stages/steps/train.py",
-        'teacher = load_teacher(ctx.input_path("teacher")) if ctx.has_input("teacher") else None',
-        "teacher = None",
+        "stages/steps/stage_io.py",
+        "return load_teacher(self.teacher_dir) if self.teacher_dir else None",
+        "return None",
         ("tests/test_train_step_wiring.py",),
         "the train step stops loading the cached Eq. 3 targets (ACCRUE cannot distil at stage 2)",
     ),

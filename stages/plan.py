@@ -233,10 +233,10 @@ def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
         {"stage": k, "retained_episodes": b.retained_episodes, "method": method, "ablation": ablation, "seed": wf.seed},
         handoff_inputs,
     )
-    if wf.robot is not None:  # warmup, train and evaluate-all on a lerobot robot (stages/steps/hw_plan.py)
-        from stages.steps.hw_plan import hardware_steps
+    if wf.robot is not None:  # warmup, train and evaluate-all on a lerobot robot (stages/steps/robot_plan.py)
+        from stages.steps.robot_plan import bind_robot
 
-        steps = hardware_steps(wf, k, steps)
+        steps = bind_robot(wf, k, steps)
     from stages.steps.train import bind_tracking  # the workflow's tracking: section, outside the cache key
 
     steps = bind_tracking(steps, wf.tracking, wf.name)

@@ -83,7 +83,7 @@ class Budgets(_Strict):
 
 
 class HoldSpec(_Strict):
-    """When the actor stops acting for want of a learner (stages.steps.hw_session.LearnerHold)."""
+    """When the actor stops acting for want of a learner (stages.steps.robot_session.LearnerHold)."""
 
     # robot time (s) the actor may act while the learner does not answer; past it the episode in progress
     # is discarded and the robot held (no commands)

@@ -1,4 +1,4 @@
-"""The robot section's unkeyed settings reach the session (stages.steps.hw_plan.session_settings): the
+"""The robot section's unkeyed settings reach the session (stages.steps.robot_plan.session_settings): the
 takeover (robot.intervention) and the workflow's tracking: section, which the actor's and the learner's
 TensorBoard runs read. Without them a workflow's takeover would silently be off and its tracking the
 defaults."""
@@ -9,7 +9,7 @@ import json
 
 from test_robot_hold import hold_workflow
 
-from stages.steps.hw_plan import session_settings
+from stages.steps.robot_plan import session_settings
 from stages.workflow import load_workflow
 
 
@@ -41,7 +41,7 @@ def test_the_terminal_operator_of_a_session_audits_every_key(monkeypatch):
 
     from rich.console import Console
 
-    from stages.steps.hw_session import SessionSettings, make_operator
+    from stages.steps.robot_session import SessionSettings, make_operator
 
     master, slave = pty.openpty()
     tty_in = os.fdopen(slave, "r")

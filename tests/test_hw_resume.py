@@ -130,7 +130,7 @@ def setup(tmp_path_factory):
 
 
 def test_kill_actor_mid_episode_then_learner_mid_update(setup, monkeypatch):
-    from stages.steps import hw_train
+    from stages.steps import robot_env
 
     store, fast, slow = setup
     run_stage(store, fast, 1, step="warmup")
@@ -151,7 +151,7 @@ def test_kill_actor_mid_episode_then_learner_mid_update(setup, monkeypatch):
     # reported lost and started again: its stop rule is held until then, so the "learner lost" checks
     # below always run (issue 23: they were skipped when the stage ended too soon after the kill)
     cycle_done = threading.Event()
-    stop_state = hw_train.stop_state
+    stop_state = robot_env.stop_state
 
     def held_stop_state(session, c):
         done, why = stop_state(session, c)
@@ -159,7 +159,7 @@ def test_kill_actor_mid_episode_then_learner_mid_update(setup, monkeypatch):
             return False, ""
         return done, why
 
-    monkeypatch.setattr(hw_train, "stop_state", held_stop_state)
+    monkeypatch.setattr(robot_env, "stop_state", held_stop_state)
     # the restart takes seconds of wall time, many more of robot time at the fast clock: past
     # robot.hold.staleness_s the actor would hold and discard an episode (tests/test_robot_hold.py covers
     # that); a session setting, so the cache keys stay those of `fast`

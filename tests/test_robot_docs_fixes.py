@@ -39,7 +39,7 @@ def test_an_abandoned_attempt_names_what_stopped_it(tmp_path, sig, recorded):
     from artifacts.store import Store
     from stages.runner import Runner
     from stages.runner_types import StepDef, StepInvocation
-    from stages.steps.hw_session import StopSignals
+    from stages.steps.robot_session import StopSignals
 
     store = Store.init(tmp_path / "store")[0]
 

@@ -24,7 +24,7 @@ import pytest
 from hw_workflow import robot_events, run_stage
 from test_robot_hold import fake_link, hold_workflow, train_events, use_link
 
-from stages.steps.hw_session import SessionStop
+from stages.steps.robot_session import SessionStop
 
 pytestmark = pytest.mark.timeout(600)
 ROOT = Path(__file__).resolve().parents[1]
