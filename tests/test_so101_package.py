@@ -86,3 +86,20 @@ def test_its_scripted_controllers_still_succeed():
         if terminated:
             break
     assert info.get("succeed") is True  # lifted, carried and set down at the goal
+
+
+def test_lerobot_finds_it_as_a_lerobot_env_plugin():
+    """lerobot 0.6 auto-detects installed `lerobot_env_*` distributions: the package's EnvConfig `so101`
+    is registered by lerobot's own plugin discovery, without an import of ours."""
+    import subprocess
+    import sys
+
+    code = (
+        "from lerobot.envs.configs import EnvConfig\n"
+        "before = 'so101' in EnvConfig.get_known_choices()\n"
+        "from lerobot.utils.import_utils import register_third_party_plugins\n"
+        "register_third_party_plugins()\n"
+        "print(before, 'so101' in EnvConfig.get_known_choices())\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300, check=True)
+    assert out.stdout.split() == ["False", "True"]

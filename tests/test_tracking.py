@@ -7,6 +7,7 @@ from __future__ import annotations
 import glob
 import importlib.util
 import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -138,7 +139,15 @@ def test_wandb_offline_writes_its_run_without_a_network(tmp_path, monkeypatch):
     assert lines == []
     runs = glob.glob(str(tmp_path / "run" / "wandb" / "offline-run-*" / "run-*.wandb"))
     assert len(runs) == 1
-    data = Path(runs[0]).read_bytes()
+    # wandb-core (its own process) may still be writing the records when run.finish() returns: seen here
+    # as a 7-byte file (the header only) right after finish and ~1.3 kB a moment later. Wait for the
+    # records to land, up to a deadline no machine misses, instead of reading once.
+    deadline = time.monotonic() + 60
+    while True:
+        data = Path(runs[0]).read_bytes()
+        if (b"train/critic_loss" in data and b"eval/success/a" in data) or time.monotonic() > deadline:
+            break
+        time.sleep(0.1)
     assert b"train/critic_loss" in data and b"eval/success/a" in data
 
 
