@@ -49,10 +49,10 @@ def check_workflow(wf: Workflow) -> None:
     """Values the schema cannot check alone (task ids exist, given demos name a task of the workflow)."""
     from accrue.sim import list_tasks
 
-    if wf.robot is not None:  # a robot's modules register its type and may add its tasks (so101_env: so101/*)
+    if wf.robot is not None:  # a robot's modules may add its tasks (so101_env: accrue.robot.sim_robot.so101_tasks)
         from accrue.robot.robot_types import import_robot_module
 
-        for name in ("accrue.robot.sim_robot", *wf.robot.imports):
+        for name in wf.robot.imports:
             import_robot_module(name, "robot.imports")
     known = list_tasks()
     for i, task in enumerate(wf.tasks):

