@@ -396,7 +396,13 @@ class RobotEnvironment:
             link.start()
         bridge = make_bridge(c, settings, task, lambda line: report(line, {"event": "robot-fault"}))
         operator = make_operator(settings, bridge, ctx.console, store_root=ctx.store.root, audit=session.audit)
-        hold = LearnerHold(lambda: link_healthy(link), settings.hold_staleness_s, settings.hold_wait_s, "train")
+        hold = LearnerHold(
+            lambda: link_healthy(link),
+            settings.hold_staleness_s,
+            settings.hold_wait_s,
+            "train",
+            refused=lambda: getattr(link, "refused", None),  # a LearnerLink's LinkRefused (its token, TLS)
+        )
 
         def between():
             with lock:

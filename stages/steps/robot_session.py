@@ -151,10 +151,21 @@ class LearnerHold:
     `staleness_s` the episode in progress is discarded (as at a kill), no command is sent (the robot holds
     its last target), the operator is told, and the actor waits up to `wait_s` of wall time for the learner:
     back in time, the session goes on; else the step ends in one line, every sealed episode kept. A learner
-    that answers is training on every sealed episode, so its weights are as fresh as it can make them."""
+    that answers is training on every sealed episode, so its weights are as fresh as it can make them.
+    A learner that refuses this actor (`refused()` returns its LinkRefused: a wrong link token, or TLS)
+    cannot come back by waiting, so the hold ends at once, in one line saying what to fix."""
 
-    def __init__(self, healthy, staleness_s: float, wait_s: float, step: str, poll_s: float = 0.1):
+    def __init__(
+        self,
+        healthy: Callable[[], bool],
+        staleness_s: float,
+        wait_s: float,
+        step: str,
+        poll_s: float = 0.1,
+        refused: Callable[[], Exception | None] = lambda: None,
+    ):
         self.healthy, self.staleness_s, self.wait_s, self.step, self.poll_s = healthy, staleness_s, wait_s, step, poll_s
+        self.refused = refused
         self.stale_s = 0.0
         self.holding = False
 
@@ -182,6 +193,14 @@ class LearnerHold:
         started = time.monotonic()
         try:
             while not self.healthy():
+                err = self.refused()
+                if err is not None:
+                    session._log("robot-hold-ended", outcome="refused", held_s=round(time.monotonic() - started, 3))
+                    session.close(f"held: {err}")
+                    raise StageError(
+                        f"{self.step}: {err}; {len(session.episodes)} episodes are sealed: fix that and resume "
+                        f"with `accrue stage run ... --step {self.step} --continue`"
+                    )
                 if time.monotonic() - started >= self.wait_s:
                     session._log("robot-hold-ended", outcome="gave up", held_s=round(time.monotonic() - started, 3))
                     session.close(f"held: learner unreachable for {self.wait_s:g} s")
