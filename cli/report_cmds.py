@@ -147,12 +147,12 @@ def register(app: typer.Typer) -> None:
 
 def _print_hardware(summary: dict) -> None:
     for k, st in summary["stages"].items():
-        reached = st["reached_robot_time_s"]
+        reached, rule = st["reached_robot_time_s"], st["stop_rule"]
         typer.echo(
             f"stage {k}: warmup {st['warmup_robot_time_s']:.1f} s, RL {st['rl_robot_time_s']:.1f} s over "
             f"{st['episodes']} episodes; "
             + (
-                f"19/20 reached at {reached:.1f} s of RL robot time"
+                f"{rule['successes']}/{rule['window']} reached at {reached:.1f} s of RL robot time"
                 if reached is not None
                 else f"not reached ({st['stopped']})"
             )

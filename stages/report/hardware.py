@@ -4,9 +4,10 @@
 
 Fig. 4 (`fig4.png`): per stage, the running success over the last `stop_window` episodes against the
 cumulative robot interaction time for RL (demonstration collection excluded), warmup rollouts of the base
-policy shaded grey at the left, dashed while fewer than `stop_window` episodes exist, the 95% line and a
-dotted line where the stop rule was reached. With `single_task` (a Single-task workflow of the same task
-sequence, run in the same store) its curves are drawn too, and the robot time saved is shaded and given.
+policy shaded grey at the left, dashed while fewer than `stop_window` episodes exist, the stop rule's
+line (stop_successes / stop_window: 0.95 for the default 19/20) and a dotted line where it was reached.
+With `single_task` (a Single-task workflow of the same task sequence, run in the same store) its curves
+are drawn too, and the robot time saved is shaded and given. Every stage's stop rule is in report.json.
 Table III (`table3.md`): successes over the retention trials on each earlier task after each later stage.
 With robot.intervention (beyond the paper), `interventions.md`: the intervention rate per block of
 `stop_window` consecutive train episodes of each stage, and the sliding rate over the last `stop_window`
@@ -24,7 +25,7 @@ from artifacts.store import Store
 from stages.errors import StageError
 from stages.report.data import read_step_file
 from stages.runner import step_ref
-from stages.workflow import Workflow
+from stages.workflow import RobotSpec, Workflow
 
 
 def stage_curves(store: Store, wf: Workflow) -> dict[int, dict]:
@@ -146,8 +147,19 @@ def running_success(curve: dict) -> tuple[list[float], list[float], list[bool]]:
     return xs, ys, full
 
 
-def stage_summary(curve: dict) -> dict:
+def stop_rule(curve: dict, wf: Workflow) -> dict:
+    """{"successes", "window"}: the stop rule the stage's train step ran with (its curve.json), else the
+    workflow's robot.stop_successes / robot.stop_window."""
+    r = wf.robot if wf.robot is not None else RobotSpec.model_construct()  # its defaults
     return {
+        "successes": int(curve.get("stop_successes", r.stop_successes)),
+        "window": int(curve.get("stop_window", r.stop_window)),
+    }
+
+
+def stage_summary(curve: dict, wf: Workflow) -> dict:
+    return {
+        "stop_rule": stop_rule(curve, wf),
         "warmup_robot_time_s": curve.get("warmup_robot_time_s", 0.0),
         "rl_robot_time_s": curve["rl_robot_time_s"],
         "reached_robot_time_s": curve["reached_robot_time_s"],
@@ -181,7 +193,8 @@ def plot_fig4(curves: dict[int, dict], wf: Workflow, path: Path, other: dict[int
             b = other[k].get("warmup_robot_time_s", 0.0) + other[k]["reached_robot_time_s"]
             if b > a:
                 ax.axvspan(a, b, color="tab:green", alpha=0.15, label=f"saved {b - a:.0f} s")
-        ax.axhline(0.95, color="k", lw=0.8, ls="-.")
+        rule = stop_rule(curve, wf)
+        ax.axhline(rule["successes"] / rule["window"], color="k", lw=0.8, ls="-.")
         ax.set_title(f"stage {k}: {curve['task_ids'][-1]}", fontsize=9)
         ax.set_xlabel("robot interaction time for RL (s)")
         ax.set_ylim(-0.02, 1.02)
@@ -219,7 +232,7 @@ def write_hardware_report(
         "workflow": wf.name,
         "method": wf.method,
         "hardware": True,
-        "stages": {k: stage_summary(c) for k, c in curves.items()},
+        "stages": {k: stage_summary(c, wf) for k, c in curves.items()},
         "retention": {
             k: {t: {"successes": sum(v), "trials": len(v)} for t, v in row.items()} for k, row in table.items()
         },
@@ -242,7 +255,7 @@ def write_hardware_report(
                 }
         summary["single_task"] = {
             "workflow": single_task.name,
-            "stages": {k: stage_summary(c) for k, c in other.items()},
+            "stages": {k: stage_summary(c, single_task) for k, c in other.items()},
             "time_saved": saved,
         }
     files = {"fig4": str(plot_fig4(curves, wf, out / "fig4.png", other))}
