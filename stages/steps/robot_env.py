@@ -48,6 +48,7 @@ from stages.steps.stage_io import (
     WarmupResult,
 )
 
+# the robot steps' own code versions (their caches are not the simulator's: stages.steps.robot_plan.bind_robot)
 CODE_VERSIONS = {"warmup": "hw-warmup-1", "train": "hw-train-2", "evaluate-all": "hw-evaluate-all-1"}
 
 
@@ -190,9 +191,6 @@ class _Current:
 
 
 class RobotEnvironment:
-    name = "robot"
-    code_versions = CODE_VERSIONS
-
     def __init__(self, settings: SessionSettings | None = None):
         self.settings = settings or SessionSettings()
 

@@ -23,7 +23,6 @@ from stages.steps.stage_io import (
     WarmupResult,
 )
 
-CODE_VERSIONS = {"warmup": "warmup-2", "train": "train-3", "evaluate-all": "evaluate-all-1"}
 REPLAY_DIR, LOOP_FILE = "replay", "loop.json"  # train's intra-step checkpoints only
 
 
@@ -72,9 +71,6 @@ def loss_tracking(tracker, start_updates: int):
 
 
 class SimEnvironment:
-    name = "sim"
-    code_versions = CODE_VERSIONS
-
     def scope(self):
         return contextlib.nullcontext()
 

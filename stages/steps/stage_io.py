@@ -21,9 +21,8 @@ WARMUP_INFO_FILE = "warmup.json"  # in warmup's `replay` output, beside the shar
 
 @dataclass
 class BaseInputs:
-    """π_base^k (held fixed during the stage) and, per task, its reference chunks ã and s(obs)."""
+    """Per task, the reference chunks ã of π_base^k (held fixed during the stage) and s(obs)."""
 
-    policy: object
     references: dict
     features: dict
 
@@ -34,7 +33,7 @@ def base_inputs(ctx: StepContext, tasks: list[str]) -> BaseInputs:
     deterministic(c["seed"])
     policy = load_base_policy(ctx.input_path("base-policy"), c["seed"])
     references = {t: reference_fn(policy, t, c["horizon"]) for t in tasks}
-    return BaseInputs(policy, references, per_task_features(c, tasks))
+    return BaseInputs(references, per_task_features(c, tasks))
 
 
 @dataclass
