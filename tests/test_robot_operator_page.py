@@ -193,6 +193,49 @@ def test_listen_mistakes_are_one_line(page):
         PageOperator("ann", listen=f"127.0.0.1:{port}", terminal=False)
 
 
+@pytest.mark.parametrize("everywhere, here", [("0.0.0.0", "127.0.0.1"), ("::", "[::1]")])
+def test_listening_on_all_interfaces_gives_a_url_a_browser_can_open(everywhere, here):
+    import socket
+
+    from rich.console import Console
+
+    from accrue.robot.operator_page import PageOperator
+
+    out = io.StringIO()
+    audited: list[tuple[str, dict]] = []
+    try:
+        op = PageOperator(
+            "ann",
+            console=Console(file=out, width=300),
+            listen=f"{'[::]' if everywhere == '::' else everywhere}:0",
+            token="s3cret-token",
+            terminal=False,
+            audit=lambda e, f: audited.append((e, f)),
+        )
+    except AccrueError as exc:
+        if everywhere == "::":
+            pytest.skip(f"no IPv6 here: {exc}")
+        raise
+    try:
+        port = op._server.server_address[1]
+        assert op.url == f"http://{here}:{port}/"  # not http://{everywhere}:PORT/, which no browser opens
+        assert request(op.url, "/state.json", "s3cret-token")[0] == 200
+        said = out.getvalue()
+        assert f"listening on all interfaces ({everywhere} port {port})" in said
+        assert f"on this machine open {op.url}" in said
+        assert f"from another one http://{socket.gethostname()}:{port}/" in said
+        [started] = [f for e, f in audited if e == "robot-operator-page-started"]
+        assert started["url"] == op.url
+    finally:
+        op.close()
+
+
+def test_a_page_on_one_address_prints_no_all_interfaces_line(page):
+    op, _ = page
+    assert op.listening is None and op.url == f"http://127.0.0.1:{op._server.server_address[1]}/"
+    assert "all interfaces" not in op.console.file.getvalue()
+
+
 # ---------------------------------------------------------------------- a real browser, a whole session
 
 needs_chromium = pytest.mark.skipif(

@@ -122,8 +122,7 @@ class PageOperator(KeyOperator):
                 f"robot.operator_page.listen: cannot listen on {listen} ({exc.strerror or exc})"
             ) from None
         bound_host, bound_port = self._server.server_address[:2]
-        shown_host = f"[{bound_host}]" if ":" in bound_host else bound_host
-        self.url = f"http://{shown_host}:{bound_port}/"
+        self.url, self.listening = page_urls(bound_host, bound_port)
         self._serving = threading.Thread(
             target=self._server.serve_forever, kwargs={"poll_interval": 0.2}, name="operator-page", daemon=True
         )
@@ -142,6 +141,8 @@ class PageOperator(KeyOperator):
         import atexit
 
         atexit.register(self.close)
+        if self.listening:
+            self.console.print(self.listening, markup=False, highlight=False)
         self.audit(STARTED_EVENT, {"via": "page", "operator": name, "url": self.url, "terminal": bool(terminal)})
 
     # ------------------------------------------------------------------ the views' keys
@@ -251,6 +252,20 @@ class PageOperator(KeyOperator):
             self._tty.restore()
         self._server.shutdown()
         self._server.server_close()
+
+
+def page_urls(host: str, port: int) -> tuple[str, str | None]:
+    """(the URL to open on this machine, a line for the operator or None) for the address the page is bound
+    to. Bound to all interfaces (0.0.0.0 or ::), http://0.0.0.0:PORT/ is no address a browser can open: the
+    URL is loopback's, and the line says it listens on all interfaces and gives this host's name for a
+    browser elsewhere on the network."""
+    if host not in ("0.0.0.0", "::"):
+        return f"http://{f'[{host}]' if ':' in host else host}:{port}/", None
+    url = f"http://{'127.0.0.1' if host == '0.0.0.0' else '[::1]'}:{port}/"
+    return url, (
+        f"operator page: listening on all interfaces ({host} port {port}); on this machine open {url}, "
+        f"from another one http://{socket.gethostname()}:{port}/ (or this machine's address on that network)"
+    )
 
 
 class _Server(ThreadingHTTPServer):
