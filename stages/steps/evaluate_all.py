@@ -20,7 +20,7 @@ def run(ctx: StepContext, robot=None) -> None:
     c = ctx.config
     tasks = c["task_ids"]
     env = environment_for(c, robot)
-    with env.scope():
+    with env.scope(ctx):
         base = base_inputs(ctx, tasks)
         learners = deployed(ctx, tasks)
         result = env.evaluate(ctx, base, learners)

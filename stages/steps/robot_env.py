@@ -193,21 +193,40 @@ class _Current:
 class RobotEnvironment:
     def __init__(self, settings: SessionSettings | None = None):
         self.settings = settings or SessionSettings()
+        self.session: HardwareSession | None = None  # the step's, once opened (scope() tells a stop with it)
 
-    def scope(self):
-        """Ctrl-C / SIGTERM while the step runs: a clean stop (SessionStop), a second one forces."""
-        return StopSignals()
+    @contextlib.contextmanager
+    def scope(self, ctx: StepContext):
+        """Ctrl-C / SIGTERM while the step runs: a clean stop (SessionStop), a second one forces. Wherever
+        it comes - reading the inputs, in the session, writing the outputs - its one line says what is
+        sealed and how to resume."""
+        self.session = None
+        with StopSignals():
+            try:
+                yield
+            except SessionStop as stop:
+                raise self._stopped(ctx, stop) from None
+
+    def _stopped(self, ctx: StepContext, stop: SessionStop) -> SessionStop:
+        if self.session is not None:  # the episode in progress discarded, the session closed
+            return self.session.stopped(stop)
+        return SessionStop(
+            f"{ctx.step}: {stop.how}{' (forced)' if stop.forced else ''}; before its session opened "
+            f"(resume with `accrue stage run ... --step {ctx.step} --continue`)",
+            stop.how,
+            stop.code,
+            stop.forced,
+        )
 
     def learner_device(self) -> str:
         return "cpu"  # not pinned by the workflow: the actor acts on CPU (the learner's device is its own)
 
     @contextlib.contextmanager
     def _session(self, ctx: StepContext):
-        session = HardwareSession(ctx, self.settings)
-        try:
-            yield session
-        except SessionStop as stop:
-            raise session.stopped(stop) from None
+        """The step's session; a stop in it, or after it while the step writes its outputs, is told by
+        scope() with this session's count of sealed episodes."""
+        self.session = HardwareSession(ctx, self.settings)
+        yield self.session
 
     def _fault(self, ctx: StepContext):
         return lambda line: ctx.log_event("robot-fault", message=line, stage=ctx.config["stage"])

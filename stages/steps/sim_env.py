@@ -71,7 +71,7 @@ def loss_tracking(tracker, start_updates: int):
 
 
 class SimEnvironment:
-    def scope(self):
+    def scope(self, ctx: StepContext):
         return contextlib.nullcontext()
 
     def learner_device(self) -> str:

@@ -52,7 +52,7 @@ def run(ctx: StepContext, tracking: dict | None = None, robot=None) -> None:
     c = ctx.config
     k, tasks, seed = c["stage"], c["task_ids"], c["seed"]
     env = environment_for(c, robot)
-    with env.scope():
+    with env.scope(ctx):
         settings = dict(c["learner"])
         if "device" not in settings:  # not pinned by the workflow: the environment's default
             settings["device"] = env.learner_device()

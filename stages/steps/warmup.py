@@ -20,7 +20,7 @@ def run(ctx: StepContext, robot=None) -> None:
 
     c = ctx.config
     env = environment_for(c, robot)
-    with env.scope():
+    with env.scope(ctx):
         base = base_inputs(ctx, [c["task"]])
         result = env.warmup(ctx, base, lambda state_dim: ReplayBuffer(state_dim, c["horizon"]))
         out = ctx.new_output("replay", "replay")
