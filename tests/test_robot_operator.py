@@ -15,24 +15,31 @@ from accrue.errors import AccrueError
 
 
 @pytest.fixture
-def terminal(monkeypatch):
+def tty_keys(monkeypatch):
+    """sys.stdin is a pseudo-terminal; yields type_keys(keys), what a person types at it (also used by
+    tests/test_robot_operator_page.py)."""
+    master, slave = pty.openpty()
+    tty_in = os.fdopen(slave, "r")
+    monkeypatch.setattr(sys, "stdin", tty_in)
+    yield lambda keys: os.write(master, keys.encode())
+    tty_in.close()
+    os.close(master)
+
+
+@pytest.fixture
+def terminal(tty_keys):
     """A TerminalOperator on a pty; yields (operator, type_keys, console output, audit records)."""
     from rich.console import Console
 
     from accrue.robot.operator import TerminalOperator
 
-    master, slave = pty.openpty()
-    tty_in = os.fdopen(slave, "r")
-    monkeypatch.setattr(sys, "stdin", tty_in)
     out = io.StringIO()
     audited: list[tuple[str, dict]] = []
     op = TerminalOperator(
         "ann", console=Console(file=out, width=300), audit=lambda event, fields: audited.append((event, fields))
     )
-    yield op, (lambda keys: os.write(master, keys.encode())), out, audited
+    yield op, tty_keys, out, audited
     op.close()
-    tty_in.close()
-    os.close(master)
 
 
 def lines(out: io.StringIO) -> list[str]:

@@ -10,10 +10,8 @@ from __future__ import annotations
 import io
 import json
 import os
-import pty
 import queue
 import shutil
-import sys
 import threading
 import urllib.error
 import urllib.request
@@ -21,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_robot_operator import tty_keys  # noqa: F401 - a fixture (its pty), shared with that file
 
 from accrue.errors import AccrueError
 
@@ -45,21 +44,33 @@ def request(url: str, path: str, token: str | None = None, data: dict | None = N
 
 
 @pytest.fixture
-def page():
+def make_page():
+    """make(**PageOperator keywords) -> (a PageOperator "ann", its console output, its audit records); every
+    page made is closed after the test."""
     from rich.console import Console
 
     from accrue.robot.operator_page import PageOperator
 
-    audited: list[tuple[str, dict]] = []
-    op = PageOperator(
-        "ann",
-        console=Console(file=io.StringIO()),
-        token="s3cret-token",
-        terminal=False,
-        audit=lambda e, f: audited.append((e, f)),
-    )
-    yield op, audited
-    op.close()
+    made = []
+
+    def make(**kwargs):
+        out, audited = io.StringIO(), []
+        op = PageOperator(
+            "ann",
+            **{"console": Console(file=out, width=300), "audit": lambda e, f: audited.append((e, f)), **kwargs},
+        )
+        made.append(op)
+        return op, out, audited
+
+    yield make
+    for op in made:
+        op.close()
+
+
+@pytest.fixture
+def page(make_page):
+    op, _, audited = make_page(token="s3cret-token", terminal=False)
+    return op, audited
 
 
 def test_every_request_needs_the_token_and_a_refusal_is_audited(page):
@@ -152,31 +163,18 @@ def test_page_keys_drive_the_operator_and_are_audited(page):
     assert actions == [("relabel", "page", 0), ("reset", "page", 1), ("end", "page", 1)]
 
 
-def test_the_terminal_and_the_page_are_one_operator(monkeypatch):
-    from rich.console import Console
-
-    from accrue.robot.operator_page import PageOperator
-
-    master, slave = pty.openpty()
-    tty_in = os.fdopen(slave, "r")
-    monkeypatch.setattr(sys, "stdin", tty_in)
-    audited: list[tuple[str, dict]] = []
-    console = io.StringIO()
-    op = PageOperator("ann", console=Console(file=console, width=300), audit=lambda e, f: audited.append((e, f)))
-    try:
-        assert op._tty is not None  # terminal None: a tty is there, so it is read too
-        os.write(master, b"xr")  # a stray key at the terminal, then reset done there
-        assert op.wait_reset(0, "nist/rect_peg", None).go
-        assert "key 'x' does nothing here" in console.getvalue()
-        state = json.loads(request(op.url, "/state.json", op.token)[1])
-        assert any("key 'x' does nothing here" in m for m in state["messages"])  # the page sees the same lines
-        request(op.url, "/action", op.token, data={"key": "s"})  # labelled on the page
-        label = op.label(0, "done, 40 steps")
-        assert label.success and label.via == "page"
-    finally:
-        op.close()
-        tty_in.close()
-        os.close(master)
+def test_the_terminal_and_the_page_are_one_operator(tty_keys, make_page):
+    op, console, audited = make_page()
+    assert op._tty is not None  # terminal None: a tty is there, so it is read too
+    tty_keys("xr")  # a stray key at the terminal, then reset done there
+    assert op.wait_reset(0, "nist/rect_peg", None).go
+    assert "key 'x' does nothing here" in console.getvalue()
+    state = json.loads(request(op.url, "/state.json", op.token)[1])
+    assert any("key 'x' does nothing here" in m for m in state["messages"])  # the page sees the same lines
+    request(op.url, "/action", op.token, data={"key": "s"})  # labelled on the page
+    label = op.label(0, "done, 40 steps")
+    assert label.success and label.via == "page"
+    op.close()
     actions = [(f["action"], f["via"]) for e, f in audited if e == "robot-operator-action"]
     assert actions == [("reset", "terminal"), ("label", "page")]
     with pytest.raises(urllib.error.URLError):  # closed: the server is gone
@@ -195,40 +193,26 @@ def test_listen_mistakes_are_one_line(page):
 
 
 @pytest.mark.parametrize("everywhere, here", [("0.0.0.0", "127.0.0.1"), ("::", "[::1]")])
-def test_listening_on_all_interfaces_gives_a_url_a_browser_can_open(everywhere, here):
+def test_listening_on_all_interfaces_gives_a_url_a_browser_can_open(make_page, everywhere, here):
     import socket
 
-    from rich.console import Console
-
-    from accrue.robot.operator_page import PageOperator
-
-    out = io.StringIO()
-    audited: list[tuple[str, dict]] = []
     try:
-        op = PageOperator(
-            "ann",
-            console=Console(file=out, width=300),
-            listen=f"{'[::]' if everywhere == '::' else everywhere}:0",
-            token="s3cret-token",
-            terminal=False,
-            audit=lambda e, f: audited.append((e, f)),
+        op, out, audited = make_page(
+            listen=f"{'[::]' if everywhere == '::' else everywhere}:0", token="s3cret-token", terminal=False
         )
     except AccrueError as exc:
         if everywhere == "::":
             pytest.skip(f"no IPv6 here: {exc}")
         raise
-    try:
-        port = op._server.server_address[1]
-        assert op.url == f"http://{here}:{port}/"  # not http://{everywhere}:PORT/, which no browser opens
-        assert request(op.url, "/state.json", "s3cret-token")[0] == 200
-        said = out.getvalue()
-        assert f"listening on all interfaces ({everywhere} port {port})" in said
-        assert f"on this machine open {op.url}" in said
-        assert f"from another one http://{socket.gethostname()}:{port}/" in said
-        [started] = [f for e, f in audited if e == "robot-operator-page-started"]
-        assert started["url"] == op.url
-    finally:
-        op.close()
+    port = op._server.server_address[1]
+    assert op.url == f"http://{here}:{port}/"  # not http://{everywhere}:PORT/, which no browser opens
+    assert request(op.url, "/state.json", "s3cret-token")[0] == 200
+    said = out.getvalue()
+    assert f"listening on all interfaces ({everywhere} port {port})" in said
+    assert f"on this machine open {op.url}" in said
+    assert f"from another one http://{socket.gethostname()}:{port}/" in said
+    [started] = [f for e, f in audited if e == "robot-operator-page-started"]
+    assert started["url"] == op.url
 
 
 def test_a_page_on_one_address_prints_no_all_interfaces_line(page):
@@ -355,75 +339,92 @@ def wait_prompt(pg, expect: str, episode: int | None = None) -> None:
     pg.wait_for_function(cond, timeout=60_000)
 
 
-def browser(playwright, chromium: str):
-    return playwright.chromium.launch(executable_path=chromium, args=["--no-sandbox", "--disable-gpu"])
+@pytest.fixture
+def headless(chromium):
+    """Headless Chromium (playwright), closed after the test. expect() waits up to 60 s: the page follows the
+    session, which waits on nothing but the page, and on a loaded machine (a cold first episode renders the
+    camera) a state can take longer than playwright's 5 s default to appear."""
+    from playwright.sync_api import expect, sync_playwright
+
+    expect.set_options(timeout=60_000)
+    with sync_playwright() as p:
+        b = p.chromium.launch(executable_path=chromium, args=["--no-sandbox", "--disable-gpu"])
+        yield b
+        b.close()
+
+
+@pytest.fixture
+def store(tmp_path) -> Path:
+    """An empty store at tmp_path/store."""
+    from artifacts.store import Store
+
+    Store.init(tmp_path / "store")
+    return tmp_path / "store"
+
+
+def open_page(b, url: str, store: Path, height: int = 760):
+    """A tab of browser `b` on the operator page at `url`, with the store's link token."""
+    from accrue.robot.link_auth import store_token
+
+    pg = b.new_page(viewport={"width": 1100, "height": height})
+    pg.goto(url + f"?token={store_token(store)}")
+    return pg
 
 
 @pytest.mark.slow
-def test_a_whole_simulated_session_from_the_page(tmp_path, monkeypatch, chromium):
+def test_a_whole_simulated_session_from_the_page(tmp_path, monkeypatch, store, headless):
     from hw_workflow import robot_events
-    from playwright.sync_api import expect, sync_playwright
+    from playwright.sync_api import expect
 
-    from accrue.robot.link_auth import store_token
-
-    # the page follows the session, which waits on nothing but the page: on a loaded machine (a cold first
-    # episode renders the camera) a state can take longer than playwright's 5 s default to appear
-    expect.set_options(timeout=60_000)
     from artifacts.manifests import materialize
     from artifacts.store import Store
     from stages.errors import StageError
 
-    Store.init(tmp_path / "store")
     wf = page_workflow(tmp_path)
-    session = SessionThread(tmp_path / "store", wf, "warmup", monkeypatch, hold_episode=1)
+    session = SessionThread(store, wf, "warmup", monkeypatch, hold_episode=1)
     op = session.operator()
-    token = store_token(tmp_path / "store")
     assert request(op.url, "/state.json")[0] == 403  # no token: refused and in the store's audit log
-    with sync_playwright() as p:
-        b = browser(p, chromium)
-        pg = b.new_page(viewport={"width": 1100, "height": 760})
-        pg.goto(op.url + f"?token={token}")
-        wait_prompt(pg, "reset", 0)
-        expect(pg.locator("#task")).to_have_text("nist/rect_peg")
-        expect(pg.locator("#conn")).to_have_text("live")
-        pg.keyboard.press("l")  # nothing to re-label before the first episode: the page says so
-        expect(pg.locator("#messages")).to_contain_text("no episode to re-label yet")
-        pg.click("#btn-r")
-        wait_prompt(pg, "label", 0)
-        expect(pg.locator("#phase")).to_have_text("warmup")
-        if CAMERA:
-            expect(pg.locator("#frame")).to_be_visible()  # the simulated camera's frame
-        pg.click("#btn-s")
-        wait_prompt(pg, "reset", 1)
-        expect(pg.locator("#window-text")).to_have_text("1/1")
-        expect(pg.locator("#marks span.ok")).to_have_count(1)
-        pg.keyboard.press("p")
-        expect(pg.locator("#paused")).to_be_visible()
-        expect(pg.locator("#btn-r")).to_be_disabled()  # paused: no reset until resumed
-        pg.click("#btn-p")
-        expect(pg.locator("#paused")).to_be_hidden()
-        pg.click("#btn-l")  # re-label episode 0 a failure
-        wait_prompt(pg, "relabel", 0)
-        expect(pg.locator("#btn-f")).to_have_text("re-label failuref")
-        pg.keyboard.press("f")
-        wait_prompt(pg, "reset", 1)
-        expect(pg.locator("#messages")).to_contain_text("episode 0 re-labelled failure")
-        pg.keyboard.press("r")
-        wait_prompt(pg, "episode", 1)
-        pg.click("#btn-e")  # end episode 1 early
-        wait_prompt(pg, "label", 1)
-        pg.click("#btn-f")
-        wait_prompt(pg, "reset", 2)
-        expect(pg.locator("#window-text")).to_have_text("0/2")
-        expect(pg.locator("#marks span.bad")).to_have_count(2)
-        pg.click("#btn-a")
-        session.thread.join(timeout=60)
-        assert not session.thread.is_alive()
-        expect(pg.locator("#conn")).to_contain_text("no connection")  # the step ended, its server with it
-        b.close()
+    pg = open_page(headless, op.url, store)
+    wait_prompt(pg, "reset", 0)
+    expect(pg.locator("#task")).to_have_text("nist/rect_peg")
+    expect(pg.locator("#conn")).to_have_text("live")
+    pg.keyboard.press("l")  # nothing to re-label before the first episode: the page says so
+    expect(pg.locator("#messages")).to_contain_text("no episode to re-label yet")
+    pg.click("#btn-r")
+    wait_prompt(pg, "label", 0)
+    expect(pg.locator("#phase")).to_have_text("warmup")
+    if CAMERA:
+        expect(pg.locator("#frame")).to_be_visible()  # the simulated camera's frame
+    pg.click("#btn-s")
+    wait_prompt(pg, "reset", 1)
+    expect(pg.locator("#window-text")).to_have_text("1/1")
+    expect(pg.locator("#marks span.ok")).to_have_count(1)
+    pg.keyboard.press("p")
+    expect(pg.locator("#paused")).to_be_visible()
+    expect(pg.locator("#btn-r")).to_be_disabled()  # paused: no reset until resumed
+    pg.click("#btn-p")
+    expect(pg.locator("#paused")).to_be_hidden()
+    pg.click("#btn-l")  # re-label episode 0 a failure
+    wait_prompt(pg, "relabel", 0)
+    expect(pg.locator("#btn-f")).to_have_text("re-label failuref")
+    pg.keyboard.press("f")
+    wait_prompt(pg, "reset", 1)
+    expect(pg.locator("#messages")).to_contain_text("episode 0 re-labelled failure")
+    pg.keyboard.press("r")
+    wait_prompt(pg, "episode", 1)
+    pg.click("#btn-e")  # end episode 1 early
+    wait_prompt(pg, "label", 1)
+    pg.click("#btn-f")
+    wait_prompt(pg, "reset", 2)
+    expect(pg.locator("#window-text")).to_have_text("0/2")
+    expect(pg.locator("#marks span.bad")).to_have_count(2)
+    pg.click("#btn-a")
+    session.thread.join(timeout=60)
+    assert not session.thread.is_alive()
+    expect(pg.locator("#conn")).to_contain_text("no connection")  # the step ended, its server with it
     assert isinstance(session.error, StageError) and "aborted by the operator" in str(session.error)
 
-    actions = [e for e in robot_events(tmp_path / "store", "robot-operator-action")]
+    actions = [e for e in robot_events(store, "robot-operator-action")]
     assert [(e["action"], e.get("episode"), e.get("success")) for e in actions] == [
         ("reset", 0, None),
         ("label", 0, True),
@@ -436,19 +437,19 @@ def test_a_whole_simulated_session_from_the_page(tmp_path, monkeypatch, chromium
         ("abort", 2, None),
     ]
     assert all(e["via"] == "page" and e["phase"] == "warmup" and e["stage"] == 1 for e in actions)
-    refused = robot_events(tmp_path / "store", "robot-operator-page-refused")
+    refused = robot_events(store, "robot-operator-page-refused")
     assert [(e["path"], e["reason"]) for e in refused] == [("/state.json", "no token")]
-    sealed = robot_events(tmp_path / "store", "robot-episode-sealed")
+    sealed = robot_events(store, "robot-episode-sealed")
     assert [(e["index"], e["success"], e["end"]) for e in sealed] == [(0, True, "done"), (1, False, "operator")]
-    relabelled = robot_events(tmp_path / "store", "robot-episode-relabelled")
+    relabelled = robot_events(store, "robot-episode-relabelled")
     assert [(e["index"], e["success"], e["was"]) for e in relabelled] == [(0, False, True)]
-    ended = robot_events(tmp_path / "store", "robot-session-ended")
+    ended = robot_events(store, "robot-session-ended")
     assert [e["how"] for e in ended] == ["aborted by the operator"]
-    discarded = robot_events(tmp_path / "store", "robot-episode-discarded")
+    discarded = robot_events(store, "robot-episode-discarded")
     assert discarded == []  # aborted at the reset prompt: no episode was in progress
     # the sealed labels themselves say they came from the page
     last = sealed[-1]["checkpoint"]  # episode 1 was sealed after episode 0's re-label
-    sealed_dir = materialize(Store.open(tmp_path / "store"), last, tmp_path / "sealed")
+    sealed_dir = materialize(Store.open(store), last, tmp_path / "sealed")
     ep0 = json.loads((sealed_dir / "episodes" / "000000" / "episode.json").read_text())
     ep1 = json.loads((sealed_dir / "episodes" / "000001" / "episode.json").read_text())
     assert ep0["label"]["via"] == "page" and ep0["label"]["success"] is False
@@ -461,39 +462,32 @@ SCREENSHOT = os.environ.get("ACCRUE_OPERATOR_SCREENSHOT")
 
 
 @pytest.mark.skipif(not SCREENSHOT, reason="makes docs/operator-page.png: ACCRUE_OPERATOR_SCREENSHOT=PATH")
-def test_screenshot_of_a_training_session(tmp_path, monkeypatch, chromium):
+def test_screenshot_of_a_training_session(tmp_path, monkeypatch, store, headless):
     """docs/operator-page.png: stage 1 warmup and training driven from the page (labels as the simulated
     robot reports them, as a person watching would), photographed at a label prompt mid-training."""
-    from playwright.sync_api import sync_playwright
-
     from accrue.robot.link_auth import store_token
-    from artifacts.store import Store
 
-    Store.init(tmp_path / "store")
     wf = page_workflow(tmp_path)
-    session = SessionThread(tmp_path / "store", wf, "train", monkeypatch)
-    token = store_token(tmp_path / "store")
-    with sync_playwright() as p:
-        b = browser(p, chromium)
-        pg = b.new_page(viewport={"width": 1100, "height": 720})
-        for phase, episodes in (("warmup", 3), ("train", 9)):
-            op = session.operator()
-            pg.goto(op.url + f"?token={token}")
-            for _ in range(episodes):
-                wait_prompt(pg, "reset")
-                pg.click("#btn-r")
-                wait_prompt(pg, "label")
-                ok = bool(op_success(pg))
-                pg.click("#btn-s" if ok else "#btn-f")
-            if phase == "train":
-                wait_prompt(pg, "reset")
-                pg.click("#btn-r")
-                wait_prompt(pg, "label")
-                pg.wait_for_function("document.getElementById('frame').complete")
-                Path(SCREENSHOT).parent.mkdir(parents=True, exist_ok=True)
-                pg.screenshot(path=SCREENSHOT)
-                pg.click("#btn-a")
-        b.close()
+    session = SessionThread(store, wf, "train", monkeypatch)
+    token = store_token(store)
+    pg = headless.new_page(viewport={"width": 1100, "height": 720})
+    for phase, episodes in (("warmup", 3), ("train", 9)):
+        op = session.operator()
+        pg.goto(op.url + f"?token={token}")
+        for _ in range(episodes):
+            wait_prompt(pg, "reset")
+            pg.click("#btn-r")
+            wait_prompt(pg, "label")
+            ok = bool(op_success(pg))
+            pg.click("#btn-s" if ok else "#btn-f")
+        if phase == "train":
+            wait_prompt(pg, "reset")
+            pg.click("#btn-r")
+            wait_prompt(pg, "label")
+            pg.wait_for_function("document.getElementById('frame').complete")
+            Path(SCREENSHOT).parent.mkdir(parents=True, exist_ok=True)
+            pg.screenshot(path=SCREENSHOT)
+            pg.click("#btn-a")
     session.thread.join(timeout=60)
 
 
@@ -518,64 +512,54 @@ def intervention_page_workflow(tmp_path: Path) -> Path:
 
 
 @pytest.mark.slow
-def test_the_page_shows_interventions_and_its_i_button_takes_over(tmp_path, monkeypatch, chromium):
+def test_the_page_shows_interventions_and_its_i_button_takes_over(tmp_path, monkeypatch, store, headless):
     """With robot.intervention (signal: key) the page's `i` button, enabled only during an episode, hands the
     robot to the teleop from the next chunk: the page shows OPERATOR DRIVING while it drives, then the
     episode's count and the window rate the sealed episode gives; the audit log has the takeover from the
     page, and the sealed transitions mark exactly the chunks after it."""
     from hw_workflow import robot_events
-    from playwright.sync_api import expect, sync_playwright
+    from playwright.sync_api import expect
 
-    from accrue.robot.link_auth import store_token
     from artifacts.manifests import materialize
     from artifacts.store import Store
     from stages.errors import StageError
 
-    expect.set_options(timeout=60_000)
-    Store.init(tmp_path / "store")
     seen = threading.Event()
-    session = SessionThread(
-        tmp_path / "store", intervention_page_workflow(tmp_path), "warmup", monkeypatch, 0, "i", seen
-    )
+    session = SessionThread(store, intervention_page_workflow(tmp_path), "warmup", monkeypatch, 0, "i", seen)
     op = session.operator()
-    token = store_token(tmp_path / "store")
-    with sync_playwright() as p:
-        b = browser(p, chromium)
-        pg = b.new_page(viewport={"width": 1100, "height": 760})
-        pg.goto(op.url + f"?token={token}")
-        wait_prompt(pg, "reset", 0)
-        expect(pg.locator("#interventions")).to_have_text("0 steps this episode")
-        expect(pg.locator("#intervention-rate")).to_have_text("window rate 0.0% of steps")
-        expect(pg.locator("#btn-i")).to_be_disabled()  # no episode running: nothing to take over
-        pg.click("#btn-r")
-        wait_prompt(pg, "episode", 0)
-        expect(pg.locator("#intervening")).to_have_text("")
-        expect(pg.locator("#btn-i")).to_be_enabled()
-        pg.click("#btn-i")
-        expect(pg.locator("#intervening")).to_have_text("OPERATOR DRIVING")
-        driving = pg.text_content("#interventions")
-        seen.set()  # the episode goes on, the expert driving it to its end
-        wait_prompt(pg, "label", 0)
-        pg.click("#btn-s")
-        wait_prompt(pg, "reset", 1)
-        expect(pg.locator("#intervening")).to_have_text("")  # the takeover ended with its episode
-        expect(pg.locator("#btn-i")).to_be_disabled()
-        count, rate = pg.text_content("#interventions"), pg.text_content("#intervention-rate")
-        pg.click("#btn-a")
-        session.thread.join(timeout=60)
-        assert not session.thread.is_alive()
-        b.close()
+    pg = open_page(headless, op.url, store)
+    wait_prompt(pg, "reset", 0)
+    expect(pg.locator("#interventions")).to_have_text("0 steps this episode")
+    expect(pg.locator("#intervention-rate")).to_have_text("window rate 0.0% of steps")
+    expect(pg.locator("#btn-i")).to_be_disabled()  # no episode running: nothing to take over
+    pg.click("#btn-r")
+    wait_prompt(pg, "episode", 0)
+    expect(pg.locator("#intervening")).to_have_text("")
+    expect(pg.locator("#btn-i")).to_be_enabled()
+    pg.click("#btn-i")
+    expect(pg.locator("#intervening")).to_have_text("OPERATOR DRIVING")
+    driving = pg.text_content("#interventions")
+    seen.set()  # the episode goes on, the expert driving it to its end
+    wait_prompt(pg, "label", 0)
+    pg.click("#btn-s")
+    wait_prompt(pg, "reset", 1)
+    expect(pg.locator("#intervening")).to_have_text("")  # the takeover ended with its episode
+    expect(pg.locator("#btn-i")).to_be_disabled()
+    count, rate = pg.text_content("#interventions"), pg.text_content("#intervention-rate")
+    pg.click("#btn-a")
+    session.thread.join(timeout=60)
+    assert not session.thread.is_alive()
     assert isinstance(session.error, StageError) and "aborted by the operator" in str(session.error)
 
-    actions = robot_events(tmp_path / "store", "robot-operator-action")
+    actions = robot_events(store, "robot-operator-action")
     assert [(e["action"], e.get("episode"), e["via"]) for e in actions] == [
         ("reset", 0, "page"),
         ("takeover", 0, "page"),
         ("label", 0, "page"),
         ("abort", 1, "page"),
     ]
-    [sealed] = robot_events(tmp_path / "store", "robot-episode-sealed")
-    ep = materialize(Store.open(tmp_path / "store"), sealed["checkpoint"], tmp_path / "sealed") / "episodes" / "000000"
+    [sealed] = robot_events(store, "robot-episode-sealed")
+    ep = materialize(Store.open(store), sealed["checkpoint"], tmp_path / "sealed") / "episodes" / "000000"
     e = json.loads((ep / "episode.json").read_text())
     with np.load(ep / "transitions.npz") as z:
         marks, steps = z["intervention"], z["steps"]
