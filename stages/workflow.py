@@ -106,12 +106,24 @@ class InterventionSpec(_Strict):
     timeout_s: float = Field(1.0, gt=0)
 
 
+class ScriptedSpec(_Strict):
+    """The scripted operator (accrue.robot.operator.ScriptedOperator): labels from the robot's own success."""
+
+    delay_s: float = Field(0.0, ge=0)  # wall time it takes to answer each label
+    mistakes: list[int] = []  # episode indices it labels wrongly
+    corrects: list[int] = []  # of those, the ones it re-labels at the next reset
+    abort_before: Optional[int] = None  # it aborts the session before this episode index
+
+
 class RobotSpec(_Strict):
     """A lerobot robot runs warmup, train and evaluate-all (paper Sec. V-C; accrue/robot, stages/steps/hw_*).
     The fields from `operator` down are session settings: they do not enter any cache key."""
 
     type: str  # a lerobot RobotConfig registry name, e.g. accrue_sim
     config: dict[str, Any] = {}  # that robot config's fields
+    # {task id: {field: value}}: fields of the robot's config that differ per task (a scene, a fixture, a
+    # camera), merged over `config` wherever the robot is built for that task (stages.steps.robot_session)
+    task_config: dict[str, dict[str, Any]] = {}
     imports: list[str] = []  # modules registering a third-party robot type
     # s = (E(I), q) and actions from the robot's own lerobot features (accrue.robot.mapping): by default q is
     # every scalar observation it declares, I its cameras, a its action keys; these pick and order a subset
@@ -136,7 +148,7 @@ class RobotSpec(_Strict):
     publish_every: int = Field(20, gt=0)  # learner updates between weight snapshots for the actor
     operator: Literal["terminal", "scripted", "page"] = "terminal"
     operator_name: str = ""
-    scripted: dict[str, Any] = {}  # scripted operator: delay_s, mistakes [episode], corrects, abort_before
+    scripted: ScriptedSpec = ScriptedSpec()
     operator_page: dict[str, Any] = {}  # page: listen HOST:PORT (default 127.0.0.1:0), insecure (off loopback)
     learner_address: Optional[str] = None  # host:port of `accrue robot learner` (two hosts); none: local process
     link: Optional[dict[str, Any]] = None  # token_file, tls {cert, key, ca} (accrue.robot.link_auth)
@@ -311,8 +323,35 @@ def _check_robot(wf: Workflow, source: str) -> None:
                     "true (a trusted LAN only)"
                 )
         validate_link_section(r.link, "robot.link")
+        if r.task_config:
+            _check_task_config(wf)
     except AccrueError as exc:
         raise StageError(f"{source}: {exc}") from None
+
+
+def _check_task_config(wf: Workflow) -> None:
+    """robot.task_config names the workflow's tasks and fields of the robot's config class (importing the
+    robot's modules, so only when the section is there)."""
+    import dataclasses
+
+    from accrue.errors import AccrueError
+    from accrue.robot.robot_types import config_class
+
+    r = wf.robot
+    for task in r.task_config:
+        if task not in wf.tasks:
+            raise AccrueError(f"robot.task_config: {task!r} is not one of the workflow's tasks ({', '.join(wf.tasks)})")
+    cls = config_class("robot", r.type, tuple(r.imports), where="robot", type_key="type")
+    fields = sorted(f.name for f in dataclasses.fields(cls))
+    for task, overrides in r.task_config.items():
+        unknown = sorted(set(overrides) - set(fields))
+        if unknown:
+            raise AccrueError(
+                f"robot.task_config.{task}: {unknown[0]!r} is not a field of {cls.__name__}, robot.type "
+                f"{r.type}'s config (fields: {', '.join(fields)})"
+            )
+        if r.type == "accrue_sim" and "task" in overrides:  # robot_session.robot_config_for sets it per stage
+            raise AccrueError(f"robot.task_config.{task}: task is the stage's own task on accrue_sim; leave it out")
 
 
 def _check_learner(wf: Workflow, source: str) -> None:

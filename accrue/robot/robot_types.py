@@ -117,24 +117,9 @@ def lerobot_factory(
     lerobot 0.6's own scripts find it (register_third_party_plugins). Every user mistake is one line: an
     unknown type, a config field the type's config class refuses, a package the device needs (with the
     extra that installs it; raised by the returned function, where lerobot checks it)."""
+    cls = config_class(kind, type_name, imports, where=where, type_key=type_key)
+    make_from_config = _lerobot_kind(kind)[1]
     field = f"{where}.{type_key}"
-    for name in ("accrue.robot.sim_robot", *imports):
-        import_robot_module(name, f"{where}.imports")
-    registry, make_from_config, builtin = _lerobot_kind(kind)
-    if type_name not in registry.get_known_choices() and type_name in builtin:
-        # one of lerobot's own: its module registers it (and names the extra it lacks)
-        import_robot_module(builtin[type_name], f"{field} {type_name}")
-    if type_name not in registry.get_known_choices():
-        from lerobot.utils.import_utils import register_third_party_plugins
-
-        register_third_party_plugins()  # imports every installed lerobot_{robot,teleoperator,...}_* distribution
-    if type_name not in registry.get_known_choices():
-        known = sorted(set(registry.get_known_choices()) | set(builtin))
-        raise AccrueError(
-            f"{field}: unknown lerobot {kind} type {type_name!r} (known: {', '.join(known)}; "
-            f"a third-party {kind}'s module goes in {where}.imports)"
-        )
-    cls = registry.get_choice_class(type_name)
     try:
         import draccus
 
@@ -156,3 +141,27 @@ def lerobot_factory(
             raise line from None
 
     return make
+
+
+def config_class(kind: str, type_name: str, imports: tuple[str, ...], *, where: str, type_key: str) -> type:
+    """The lerobot config class of `kind` ("robot" or "teleoperator") `type_name`, found as lerobot_factory
+    finds it: the `imports` first, then lerobot's own types, then installed plugins (one AccrueError line
+    for an unknown type or a module that cannot be imported)."""
+    field = f"{where}.{type_key}"
+    for name in ("accrue.robot.sim_robot", *imports):
+        import_robot_module(name, f"{where}.imports")
+    registry, _, builtin = _lerobot_kind(kind)
+    if type_name not in registry.get_known_choices() and type_name in builtin:
+        # one of lerobot's own: its module registers it (and names the extra it lacks)
+        import_robot_module(builtin[type_name], f"{field} {type_name}")
+    if type_name not in registry.get_known_choices():
+        from lerobot.utils.import_utils import register_third_party_plugins
+
+        register_third_party_plugins()  # imports every installed lerobot_{robot,teleoperator,...}_* distribution
+    if type_name not in registry.get_known_choices():
+        known = sorted(set(registry.get_known_choices()) | set(builtin))
+        raise AccrueError(
+            f"{field}: unknown lerobot {kind} type {type_name!r} (known: {', '.join(known)}; "
+            f"a third-party {kind}'s module goes in {where}.imports)"
+        )
+    return registry.get_choice_class(type_name)

@@ -41,7 +41,7 @@ def session_settings(wf: Workflow):
     return SessionSettings(
         operator=r.operator,
         operator_name=r.operator_name,
-        scripted=dict(r.scripted),
+        scripted=r.scripted.model_dump(),
         operator_page=dict(r.operator_page),
         learner_address=r.learner_address,
         link=dict(r.link) if r.link is not None else None,
@@ -63,6 +63,14 @@ def robot_config(wf: Workflow) -> dict:
         keyed["done_key"] = "episode.done"  # the simulated robot says when the plug is seated or time is up
     return keyed
 
+
+# what the robot's warmup, train and evaluate-all do (the simulator's descriptions name vector envs and an
+# evaluation grid, which a robot stage has not)
+DESCRIPTIONS = {
+    "warmup": "base-policy episodes on the robot seeding B^k (operator-labelled, sealed)",
+    "train": "off-policy RL on the robot in real time until the stop rule or the robot-time budget",
+    "evaluate-all": "retention trials on the robot of base policy + actor on tasks 1..k-1",
+}
 
 SIM_ONLY = ("num_envs", "env_steps", "eval_every", "eval_episodes", "checkpoint_every", "episodes", "record_episodes")
 
@@ -92,6 +100,11 @@ def robot_step_config(wf: Workflow, name: str, config: dict) -> dict:
     r = wf.robot
     c = {k: v for k, v in config.items() if k not in SIM_ONLY}
     c.update(robot=robot_config(wf), workflow=wf.name)
+    # robot.task_config of the tasks up to this stage's (a later task's fields do not change its key), and
+    # in the key only when there is some, so workflows without it keep theirs
+    per_task = {t: dict(r.task_config[t]) for t in wf.tasks[: config["stage"]] if t in r.task_config}
+    if per_task:
+        c["robot"]["task_config"] = per_task
     if name == "warmup":
         c.update(phase="warmup", episodes=wf.budgets.warmup_episodes)
     elif name == "train":
@@ -126,6 +139,7 @@ def bind_robot(wf: Workflow, stage: int, steps: list[StepInvocation]) -> list[St
             inv.step,
             run=functools.partial(inv.step.run, robot=settings),
             code_version=CODE_VERSIONS[name],  # the robot's episodes are not the simulator's: their own caches
+            description=DESCRIPTIONS[name],
             outputs={**inv.step.outputs, "episodes": "episodes"},  # every sealed episode and the sessions
         )
         out.append(dataclasses.replace(inv, step=step, config=robot_step_config(wf, name, dict(inv.config))))

@@ -233,17 +233,35 @@ def release_robot(bridge, session: "HardwareSession") -> None:
     session._log("robot-disconnected", session=session.session["id"])
 
 
+def robot_config_for(c: dict, task: str) -> dict:
+    """The fields of the robot's config for `task` (the rule any robot follows, a lab's arm included):
+    robot.config, with robot.task_config's fields for that task over it; then, where the robot's config
+    class has a `seed` field the workflow leaves unset, a seed per workflow seed, stage and phase (warmup,
+    train, evaluate-all each see other scenes). accrue_sim also gets the task id and the session's faults."""
+    import dataclasses
+
+    from accrue.robot.robot_types import config_class
+
+    r = c["robot"]
+    config = {**r["config"], **r.get("task_config", {}).get(task, {})}
+    if r["type"] == "accrue_sim":
+        config.update(task=task)
+    cls = config_class("robot", r["type"], tuple(r.get("imports", ())), where="robot", type_key="type")
+    if "seed" in {f.name for f in dataclasses.fields(cls)}:
+        config.setdefault("seed", c["seed"] * 1000 + c["stage"] * 10 + {"warmup": 1, "train": 2}.get(c["phase"], 3))
+    return config
+
+
 def make_bridge(c: dict, settings: SessionSettings, task: str, report):
-    """The robot of the workflow behind deadlines; accrue_sim gets the task, seed and faults injected."""
+    """The robot of the workflow for `task` (robot_config_for) behind deadlines."""
     from accrue.robot.bridge import RobotBridge, Timeouts, robot_factory
     from accrue.robot.mapping import RobotMapping
     from accrue.robot.safety import ActionEnvelope, SafetyEnvelope
 
     r = c["robot"]
-    config = dict(r["config"])
+    config = robot_config_for(c, task)
     if r["type"] == "accrue_sim":
-        config.update(task=task, **settings.faults)
-        config.setdefault("seed", c["seed"] * 1000 + c["stage"] * 10 + {"warmup": 1, "train": 2}.get(c["phase"], 3))
+        config.update(settings.faults)
     return RobotBridge(
         robot_factory(r["type"], config, tuple(r.get("imports", ()))),
         RobotMapping.from_dict(r),

@@ -7,7 +7,7 @@ what it was told: the joint targets the package's IK commanded for its controlle
 [-1, 1] over the workflow's robot.action_bounds (accrue.robot.mapping, the same map that drives the arm
 live). Only episodes that reach the scene's own success signal are kept (the others are counted).
 
-    python -m accrue.robot.sim_robot.so101_demos OUT --workflow workflows/so101-sim.yaml --episodes 4
+    python -m accrue.robot.sim_robot.so101_demos OUT --workflow workflows/so101-sim.yaml --task so101/reach_close --episodes 4
 """
 
 from __future__ import annotations
@@ -162,16 +162,39 @@ def write_so101_demos(
     return meta
 
 
-def _workflow_robot(path: Path) -> dict:
+def _workflow_robot(path: Path) -> tuple[dict, list]:
+    """The workflow's robot: section and its tasks."""
     import yaml
 
     try:
-        robot = (yaml.safe_load(path.read_text()) or {}).get("robot") or {}
+        data = yaml.safe_load(path.read_text()) or {}
     except (OSError, yaml.YAMLError) as exc:
         raise AccrueError(f"{path}: unreadable workflow ({type(exc).__name__})") from None
+    robot = (data.get("robot") if isinstance(data, dict) else None) or {}
     if robot.get("type") != "so101_env":
         raise AccrueError(f"{path}: robot.type is {robot.get('type')!r}; these demos are for so101_env")
-    return robot
+    tasks = data.get("tasks") or []
+    return robot, tasks if isinstance(tasks, list) else []
+
+
+def task_robot_config(path: Path, robot: dict, tasks: list, task: str | None) -> dict:
+    """The so101_env config fields the workflow gives `task` (robot.task_config over robot.config, as the
+    stages build the robot for it); `task` may be left out when the workflow has one task."""
+    if task is None:
+        if len(tasks) > 1:
+            raise AccrueError(f"{path}: name the task to record with --task (one of {', '.join(map(str, tasks))})")
+        task = tasks[0] if tasks else None
+    elif task not in tasks:
+        raise AccrueError(f"--task {task!r}: not one of {path}'s tasks ({', '.join(map(str, tasks))})")
+    config = dict(robot.get("config") or {})
+    config.update((robot.get("task_config") or {}).get(task) or {})
+    scene = config.get("scene", SO101EnvConfig.scene)
+    if task is not None and task_id(scene) != task:
+        raise AccrueError(
+            f"{path}: the config for task {task} has scene {scene!r}, whose demos are {task_id(scene)}'s; "
+            f"set robot.task_config.{task}.scene"
+        )
+    return config
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -185,13 +208,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("out", type=Path, help="new directory for the dataset")
     parser.add_argument("--workflow", type=Path, required=True, help="a workflow whose robot is so101_env")
     parser.add_argument("--episodes", type=int, default=4)
-    parser.add_argument("--scene", help="record this scene instead of the workflow's robot.config scene")
+    parser.add_argument(
+        "--task", help="the workflow's task to record (its robot.task_config over robot.config); needed with 2+ tasks"
+    )
+    parser.add_argument("--scene", help="record this scene instead of the workflow's (--task is then ignored)")
     args = parser.parse_args(argv)
     try:
-        robot = _workflow_robot(args.workflow)
-        config = dict(robot.get("config") or {})
-        if args.scene:
-            config["scene"] = args.scene
+        robot, tasks = _workflow_robot(args.workflow)
+        if args.scene:  # another scene than the workflow's: its tasks do not say which
+            config = {**(robot.get("config") or {}), "scene": args.scene}
+        else:
+            config = task_robot_config(args.workflow, robot, tasks, args.task)
         meta = write_so101_demos(args.out, config, robot, args.episodes)
     except AccrueError as exc:
         print(f"error: {exc}", file=sys.stderr)
