@@ -98,3 +98,61 @@ def test_a_stop_while_a_robot_step_writes_its_outputs_says_how_to_resume(store, 
         before = len(robot_events(store / "store", "robot-episode-sealed"))
         assert run_stage(store / "store", wf, 1, step=step, mode="continue")[step].record_id
         assert len(robot_events(store / "store", "robot-episode-sealed")) == before
+
+
+# ------------------------------------------------------------------ Isolated on a robot
+
+
+def test_isolated_keeps_each_tasks_learner_on_a_robot(store, monkeypatch):
+    """Isolated (accrue.methods: checkpoint_per_task) serves task i with the learner kept after stage i. On a
+    robot stage 2's train dropped stage 1's kept learner (its checkpoint had no per_task/1) and evaluate-all
+    ran every retention trial with the current learner; now task 1's trials act with the learner kept for it."""
+    import json
+
+    from test_robot_hold import fake_link, hold_workflow, run_stage, use_link
+
+    from accrue import rl_loop
+    from artifacts.manifests import materialize
+    from artifacts.store import Store
+    from stages.steps import evaluate_all
+
+    wf = hold_workflow(store / "hw.yaml", store / "calib")
+    wf.write_text(wf.read_text().replace("method: accrue\n", "method: isolated\n"))
+    use_link(monkeypatch, store / "store", fake_link())
+    run_stage(store / "store", wf, 1)
+    seen: dict = {}
+    acted: list = []
+    real_deployed, real_act = evaluate_all.deployed, rl_loop.actor_act
+    monkeypatch.setattr(evaluate_all, "deployed", lambda ctx, tasks: seen.setdefault("d", real_deployed(ctx, tasks)))
+    monkeypatch.setattr(rl_loop, "actor_act", lambda learner: acted.append(learner) or real_act(learner))
+    results = run_stage(store / "store", wf, 2)
+
+    s = Store.open(store / "store")
+    ck = json.loads(
+        (materialize(s, results["train"].outputs["checkpoint"], store / "ck") / "checkpoint.json").read_text()
+    )
+    assert ck["method"] == "isolated" and ck["per_task"] == [1]
+    ev = json.loads((materialize(s, results["evaluate-all"].outputs["eval"], store / "ev") / "eval.json").read_text())
+    assert ev["per_task_checkpoint"] == ["nist/rect_peg"] and len(ev["trials"]["nist/rect_peg"]) == 3
+    kept = seen["d"].learners["nist/rect_peg"]
+    assert kept is not seen["d"].current
+    assert any(learner is kept for learner in acted) and not any(learner is seen["d"].current for learner in acted)
+
+
+def test_the_robot_learner_writes_its_scalars_where_the_plan_bound_trains_run(tmp_path):
+    """One path for the run a train step's scalars go to (stage_io.tracking_run): the robot's learner took
+    the session's tracking and the store's log dir and ignored the run the plan bound (its root)."""
+    from types import SimpleNamespace
+
+    from stages.steps.robot_env import learner_tracking
+    from stages.steps.robot_session import SessionSettings
+
+    ctx = SimpleNamespace(step="train", config={"workflow": "hw"}, store=SimpleNamespace(root=tmp_path / "store"))
+    bound = {"spec": {"every": 7, "tensorboard": False}, "workflow": "hw", "root": str(tmp_path / "runs")}
+    got = learner_tracking(ctx, bound, SessionSettings(), 2)
+    assert got["run_name"] == "hw/stage-2/train/learner"
+    assert got["log_dir"] == str(tmp_path / "runs" / "hw" / "stage-2" / "train" / "learner")
+    assert got["spec"]["every"] == 7 and got["spec"]["tensorboard"] is False
+    unbound = learner_tracking(ctx, None, SessionSettings(tracking={"every": 3}), 2)
+    assert unbound["log_dir"] == str(tmp_path / "store" / "log" / "tracking" / "hw" / "stage-2" / "train" / "learner")
+    assert unbound["spec"]["every"] == 3

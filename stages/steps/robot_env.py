@@ -46,6 +46,7 @@ from stages.steps.stage_io import (
     TrainResult,
     Warmup,
     WarmupResult,
+    tracking_run,
 )
 
 # the robot steps' own code versions (their caches are not the simulator's: stages.steps.robot_plan.bind_robot)
@@ -108,15 +109,14 @@ def shortfall(ctx: StepContext, session: HardwareSession, target: int, waited_s:
         session._log("robot-learner-shortfall", updates=int(info["updates"]), target=target, short=short)
 
 
-def learner_tracking(ctx: StepContext, settings: SessionSettings, stage: int) -> dict:
-    """What the learner needs to write its scalars (accrue.robot.learner_service): the workflow's
-    tracking section (SessionSettings.tracking where the plan binds it, else the defaults) and the
-    run .../stage-<k>/train/learner beside the actor's .../train/actor (docs/TRACKING.md)."""
-    from accrue.tracking import run_name, settings_of, tracking_dir
+def learner_tracking(ctx: StepContext, tracking: dict | None, settings: SessionSettings, stage: int) -> dict:
+    """What the learner needs to write its scalars (accrue.robot.learner_service): the run the plan bound to
+    train (stages.steps.stage_io.tracking_run, as the simulator's train; unbound, the session's tracking
+    section) with /learner after it, beside the actor's (docs/TRACKING.md)."""
+    from accrue.tracking import settings_of
 
-    name = run_name(ctx.config["workflow"], stage, ctx.step) + "/learner"
-    spec = settings_of(getattr(settings, "tracking", None))
-    return {"spec": spec, "run_name": name, "log_dir": str(tracking_dir(ctx.store.root, name))}
+    spec, name, log_dir = tracking_run(ctx, tracking or {"spec": settings.tracking}, stage, ctx.config["workflow"])
+    return {"spec": settings_of(spec), "run_name": name + "/learner", "log_dir": str(log_dir / "learner")}
 
 
 def link_healthy(link) -> bool:
@@ -289,14 +289,14 @@ class RobotEnvironment:
     def train(
         self, ctx: StepContext, cfg, base: BaseInputs, warm: Warmup, inherited: Inherited, tracking
     ) -> TrainResult:
-        """The actor here, the learner in its own process (tracking: SessionSettings.tracking, as each
-        sealed episode's scalars; the learner writes its own)."""
+        """The actor here, the learner in its own process (`tracking`: the run the plan bound, where the
+        learner writes its scalars; the actor's, each sealed episode's, follow SessionSettings.tracking)."""
         warm_buffer = warm.buffer()
         with self._session(ctx) as session:
-            why = self._train(ctx, session, cfg, base, warm, warm_buffer, inherited)
-            return self._trained(ctx, session, warm, warm_buffer, why)
+            why = self._train(ctx, session, cfg, base, warm, warm_buffer, inherited, tracking)
+            return self._trained(ctx, session, warm, warm_buffer, inherited, why)
 
-    def _trained(self, ctx, session, warm, warm_buffer, why) -> TrainResult:
+    def _trained(self, ctx, session, warm, warm_buffer, inherited, why) -> TrainResult:
         import torch
 
         from accrue.learner import end_stage, load_learner
@@ -315,7 +315,7 @@ class RobotEnvironment:
         return TrainResult(
             learner,
             buffer,
-            {},  # one learner on a robot: Isolated's per-task learners are not kept
+            inherited.per_task,  # Isolated: the learners kept for tasks 1..k-1 go on (handoff adds task k's)
             {
                 "updates": info["updates"],
                 "update_target": info.get("update_target"),
@@ -326,7 +326,7 @@ class RobotEnvironment:
             curve_json(c, session, warm.info, why, info),
         )
 
-    def _train(self, ctx, session, cfg, base, warm, warm_buffer, inherited) -> str:
+    def _train(self, ctx, session, cfg, base, warm, warm_buffer, inherited, tracking) -> str:
         from accrue.learner import begin_stage, load_learner, save_learner
         from accrue.robot.learner_client import LearnerLink
         from accrue.robot.learner_service import episode_npz
@@ -369,7 +369,7 @@ class RobotEnvironment:
                     "task_index": k - 1,
                     "device": cfg.device,
                     "torch_threads": 1,
-                    "tracking": learner_tracking(ctx, settings, k),
+                    "tracking": learner_tracking(ctx, tracking, settings, k),
                 },
             )
             return {}, tar_dir(tmp)
@@ -492,7 +492,6 @@ class RobotEnvironment:
 
         c, settings = ctx.config, self.settings
         k, tasks, n = c["stage"], c["task_ids"], c["trials"]
-        act = rl_loop.actor_act(deployed.current)  # the deterministic actor the method deploys
         with self._session(ctx) as session:
             current = _Current()  # one operator (one page) for every task's bridge
             operator = None
@@ -510,7 +509,8 @@ class RobotEnvironment:
                     loop = EpisodeLoop(
                         task=task,
                         done=lambda mine=mine: len(mine()) >= n,
-                        policy_now=lambda: (act, None),
+                        # the deterministic actor the method deploys for this task (Isolated: task i's own)
+                        policy_now=lambda act=rl_loop.actor_act(deployed.learners[task]): (act, None),
                         reference=base.references[task],
                         features=base.features[task],
                         settings=episode_settings(c, task, settings.clock),

@@ -21,27 +21,20 @@ from stages.steps.stage_io import (
     TrainResult,
     Warmup,
     WarmupResult,
+    tracking_run,
 )
 
 REPLAY_DIR, LOOP_FILE = "replay", "loop.json"  # train's intra-step checkpoints only
 
 
 def open_step_tracker(ctx: StepContext, tracking: dict | None, stage: int, fallback_workflow: str):
-    """The step's tracker (accrue.tracking) at <root>/<workflow>/stage-<k>/<step>/, root by default
-    <store>/log/tracking.
+    """The step's tracker (accrue.tracking) for the run the plan bound (stage_io.tracking_run)."""
+    from accrue.tracking import open_tracker
 
-    `tracking` is bound by bind_tracking: {"spec": the workflow's tracking section, "workflow": its name,
-    "root": None or a directory}. Unbound, the defaults apply (TensorBoard on) under `fallback_workflow`."""
-    from pathlib import Path
-
-    from accrue.tracking import open_tracker, run_name, tracking_dir
-
-    tracking = tracking or {}
-    name = run_name(tracking.get("workflow") or fallback_workflow, stage, ctx.step)
-    root = tracking.get("root")
+    spec, name, log_dir = tracking_run(ctx, tracking, stage, fallback_workflow)
     return open_tracker(
-        tracking.get("spec"),
-        Path(root) / name if root else tracking_dir(ctx.store.root, name),
+        spec,
+        log_dir,
         name,
         warn=lambda line: ctx.console.print(f"warning: {line}", style="yellow", markup=False, soft_wrap=True),
     )

@@ -123,6 +123,21 @@ def deployed(ctx: StepContext, tasks: list[str]) -> Deployed:
     return Deployed(current, learners)
 
 
+def tracking_run(ctx: StepContext, tracking: dict | None, stage: int, fallback_workflow: str) -> tuple:
+    """(the tracking section, the run's name, its directory) of the step: the run
+    <workflow>/stage-<k>/<step> under <root>, by default <store>/log/tracking (docs/TRACKING.md).
+
+    `tracking` is bound by stages.steps.train.bind_tracking: {"spec": the workflow's tracking section,
+    "workflow": its name, "root": None or a directory}. Unbound, the defaults apply (TensorBoard on) under
+    `fallback_workflow`."""
+    from accrue.tracking import run_name, tracking_dir
+
+    tracking = tracking or {}
+    name = run_name(tracking.get("workflow") or fallback_workflow, stage, ctx.step)
+    root = tracking.get("root")
+    return tracking.get("spec"), name, (Path(root) / name if root else tracking_dir(ctx.store.root, name))
+
+
 # ---------------------------------------------------------------- what an environment hands back
 
 
