@@ -156,3 +156,55 @@ def test_the_robot_learner_writes_its_scalars_where_the_plan_bound_trains_run(tm
     unbound = learner_tracking(ctx, None, SessionSettings(tracking={"every": 3}), 2)
     assert unbound["log_dir"] == str(tmp_path / "store" / "log" / "tracking" / "hw" / "stage-2" / "train" / "learner")
     assert unbound["spec"]["every"] == 3
+
+
+# ------------------------------------------------------------------ the simulator's optional episode logs
+
+TINY_SIM = """
+name: logs
+tasks: [nist/rect_peg]
+method: accrue
+seed: 1
+horizon: 4
+base_policy: {init: "scripted-reference:0.0"}
+learner: {actor_hidden: [32, 32], critic_hidden: [32, 32], projector_dim: 16, batch_size: 32, num_atoms: 11, utd: 1}
+budgets: {env_steps: 80, eval_every: 40, eval_episodes: 2, num_envs: 2, warmup_episodes: 2,
+          retained_episodes: 2, checkpoint_every: 40, log_episodes: 1}
+"""
+
+
+def test_a_crash_in_the_simulators_episode_logs_keeps_the_evaluation(tmp_path, monkeypatch):
+    """evaluate-all's success rates are sealed before its MCAP episode logs are written: after a crash in
+    those, --continue writes the logs and the same eval.json without evaluating again (it evaluated every
+    task again). A rerun from scratch gives the same eval artifact."""
+    from test_robot_hold import run_stage
+
+    from accrue import rl_loop
+    from artifacts.manifests import materialize
+    from artifacts.store import Store
+
+    (tmp_path / "logs.yaml").write_text(TINY_SIM)
+    Store.init(tmp_path / "store")
+    wf = tmp_path / "logs.yaml"
+    real_record = rl_loop.record_episodes
+    with monkeypatch.context() as m:
+
+        def broken(*a, **kw):
+            raise OSError("disk full")
+
+        m.setattr(rl_loop, "record_episodes", broken)
+        with pytest.raises(OSError, match="disk full"):
+            run_stage(tmp_path / "store", wf, 1, step="evaluate-all")
+    with monkeypatch.context() as m:
+
+        def evaluated_again(*a, **kw):
+            raise AssertionError("evaluated again")
+
+        m.setattr(rl_loop.Evaluator, "success_rate", evaluated_again)
+        m.setattr(rl_loop, "record_episodes", real_record)
+        resumed = run_stage(tmp_path / "store", wf, 1, step="evaluate-all", mode="continue")["evaluate-all"]
+    s = Store.open(tmp_path / "store")
+    logs = materialize(s, resumed.outputs["episodes"], tmp_path / "episodes")
+    assert list(logs.rglob("*.mcap"))
+    fresh = run_stage(tmp_path / "store", wf, 1, step="evaluate-all", mode="rerun")["evaluate-all"]
+    assert fresh.outputs["eval"] == resumed.outputs["eval"]

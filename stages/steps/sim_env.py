@@ -25,6 +25,7 @@ from stages.steps.stage_io import (
 )
 
 REPLAY_DIR, LOOP_FILE = "replay", "loop.json"  # train's intra-step checkpoints only
+EVAL_RESULT_FILE = "evaluation.json"  # evaluate-all's checkpoint: the success rates, before the episode logs
 
 
 def open_step_tracker(ctx: StepContext, tracking: dict | None, stage: int, fallback_workflow: str):
@@ -223,7 +224,9 @@ class SimEnvironment:
     def evaluate(self, ctx: StepContext, base: BaseInputs, deployed: Deployed) -> EvaluateResult:
         """Success of π_base^k + θ^k and of the base policy alone on M episodes per task; with
         budgets.report_episodes the disjoint report set (never the selection set train's curves choose
-        checkpoints on). The `episodes` output: MCAP logs of a few episodes per task."""
+        checkpoints on). The `episodes` output: MCAP logs of a few episodes per task, written after the
+        success rates are sealed in a checkpoint, so `--continue` after a crash in them evaluates nothing
+        again."""
         from accrue import rl_loop
         from accrue.logs.mcap_episodes import EpisodeRecorder
         from accrue.sim import STATE_NAMES, get_task
@@ -234,24 +237,17 @@ class SimEnvironment:
         episode_set, episodes = (
             ("report", c["report_episodes"]) if c.get("report_episodes") else ("eval", c["episodes"])
         )
-        evaluator = rl_loop.Evaluator(
-            lambda t, n: make_env(t, n, rl_loop.env_seed(seed, k, episode_set, tasks.index(t)), c["obs_mode"]),
-            references,
-            features,
-            episodes,
-            c["num_envs"],
-            horizon,
-            c["gamma"],
-        )
-        success, base_success = {}, {}
-        for t in tasks:
-            success[t] = evaluator.success_rate(t, rl_loop.actor_act(learners[t]))
-            base_success[t] = evaluator.success_rate(t)
-            ctx.console.print(
-                f"evaluate-all: {t}: actor {success[t]:.2f}  base policy alone {base_success[t]:.2f} "
-                f"({episodes} {episode_set} episodes)"
-            )
-        evaluator.close()
+        checkpoint = ctx.last_checkpoint()
+        if checkpoint is not None:  # an attempt whose episode logs failed: its success rates are sealed
+            done = read_json(checkpoint[0] / EVAL_RESULT_FILE)
+            success, base_success = done["success"], done["base_success"]
+            ctx.console.print("evaluate-all: resumed with the success rates its checkpoint holds")
+        else:
+            success, base_success = self._success(ctx, base, deployed, episode_set, episodes)
+            if c["record_episodes"] >= 1:  # a crash in the episode logs below must not cost the evaluation
+                staging = ctx.scratch_dir("checkpoint")
+                write_json(staging / EVAL_RESULT_FILE, {"success": success, "base_success": base_success})
+                ctx.save_checkpoint(staging, {"evaluated_tasks": len(tasks)})
 
         logs = ctx.new_output("episodes", "episodes")
         for i, t in enumerate(tasks):
@@ -275,3 +271,29 @@ class SimEnvironment:
         return EvaluateResult(
             success, base_success, episodes, {"episode_set": episode_set} if episode_set == "report" else {}
         )
+
+    def _success(self, ctx: StepContext, base: BaseInputs, deployed: Deployed, episode_set: str, episodes: int):
+        """Per task, the success of π_base^k + θ^k and of the base policy alone."""
+        from accrue import rl_loop
+
+        c = ctx.config
+        k, tasks, seed = c["stage"], c["task_ids"], c["seed"]
+        evaluator = rl_loop.Evaluator(
+            lambda t, n: make_env(t, n, rl_loop.env_seed(seed, k, episode_set, tasks.index(t)), c["obs_mode"]),
+            base.references,
+            base.features,
+            episodes,
+            c["num_envs"],
+            c["horizon"],
+            c["gamma"],
+        )
+        success, base_success = {}, {}
+        for t in tasks:
+            success[t] = evaluator.success_rate(t, rl_loop.actor_act(deployed.learners[t]))
+            base_success[t] = evaluator.success_rate(t)
+            ctx.console.print(
+                f"evaluate-all: {t}: actor {success[t]:.2f}  base policy alone {base_success[t]:.2f} "
+                f"({episodes} {episode_set} episodes)"
+            )
+        evaluator.close()
+        return success, base_success
