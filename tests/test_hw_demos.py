@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hw_workflow import write_hw_workflow
+from robot_workflow import write_hw_workflow
 from test_cli_store import accrue, one_line_error
 
 pytestmark = pytest.mark.slow  # lerobot writes the datasets and lerobot-train fine-tunes: ~30 s of imports each

@@ -7,7 +7,7 @@ look, in one line naming the refusal, with every sealed episode kept once (a --c
 from __future__ import annotations
 
 import pytest
-from hw_workflow import run_stage
+from robot_workflow import run_stage
 from test_robot_hold import fake_link, hold_workflow, store, train_events, use_link, warm_store  # noqa: F401
 
 from stages.errors import StageError

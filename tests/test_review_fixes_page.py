@@ -8,13 +8,13 @@ import json
 from pathlib import Path
 
 import pytest
-from hw_workflow import write_hw_workflow
+from robot_workflow import write_hw_workflow
 
 from stages.errors import StageError
 
 
 def robot_workflow(tmp_path: Path, **robot) -> Path:
-    """tests/hw_workflow's workflow with extra robot.* keys."""
+    """tests/robot_workflow's workflow with extra robot.* keys."""
     wf = write_hw_workflow(tmp_path / "hw.yaml", tmp_path / "calib")
     lines = "".join(f"  {k}: {json.dumps(v)}\n" for k, v in robot.items())
     wf.write_text(wf.read_text().replace("  publish_every: 10\n", "  publish_every: 10\n" + lines))

@@ -116,7 +116,7 @@ def tiny_encoder(tmp_path_factory):
 
 
 def test_hardware_warmup_stores_encoder_features_with_each_transition(tmp_path, tiny_encoder):
-    from hw_workflow import run_stage, write_hw_workflow
+    from robot_workflow import run_stage, write_hw_workflow
 
     from accrue.encoders import make_encoder
     from artifacts.manifests import materialize
@@ -144,7 +144,7 @@ def test_encoder_identity_is_in_every_cache_key(tmp_path, tiny_encoder):
     """A new weights file under the same path is a new encoder: every step that computes s re-keys."""
     import shutil
 
-    from hw_workflow import write_hw_workflow
+    from robot_workflow import write_hw_workflow
 
     from stages.plan import plan_stage
     from stages.workflow import load_workflow
@@ -210,7 +210,7 @@ def random_image_act(out, state_dim: int = 29, size: int = 32, chunk: int = 4):
 def test_an_image_policy_is_pi_base_on_the_robot(tmp_path, tiny_encoder, mode):
     """π_base = a lerobot ACT reading the robot's camera, loaded by accrue's own loader (BasePolicy.load via
     finetune-base), drives warmup on the simulated robot; E(I) through the frozen encoder goes with each row."""
-    from hw_workflow import robot_events, run_stage, write_hw_workflow
+    from robot_workflow import robot_events, run_stage, write_hw_workflow
 
     from accrue.policy import BasePolicy
     from artifacts.store import Store
@@ -254,7 +254,7 @@ def test_an_image_policy_is_pi_base_on_the_robot(tmp_path, tiny_encoder, mode):
 
 
 def test_joint_targets_refuse_an_end_effector_base_policy(tmp_path):
-    from hw_workflow import write_hw_workflow
+    from robot_workflow import write_hw_workflow
 
     from stages.errors import StageError
     from stages.plan import plan_stage

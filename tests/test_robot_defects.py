@@ -58,7 +58,7 @@ def keyed_terminal():
 
 def test_r_at_the_terminal_resets_the_simulated_scene(tmp_path, monkeypatch):
     """Every warmup episode starts from a fresh scene: before the fix, episode 2 on was 'done, 0 steps'."""
-    from hw_workflow import robot_events, run_stage, write_hw_workflow
+    from robot_workflow import robot_events, run_stage, write_hw_workflow
 
     from accrue.robot import operator as operator_module
     from artifacts.store import Store

@@ -17,7 +17,7 @@ import tempfile
 from pathlib import Path
 
 import pytest
-from hw_workflow import robot_events, run_stage, write_hw_workflow
+from robot_workflow import robot_events, run_stage, write_hw_workflow
 
 from stages.errors import StageError
 
@@ -26,7 +26,7 @@ CHUNK_S = 4 / 20.0  # horizon 4 at nist/rect_peg's 20 Hz: the robot time between
 
 
 def hold_workflow(path: Path, calib: Path, **robot) -> Path:
-    """tests/hw_workflow's workflow, train limited to a few episodes, with extra robot.* keys."""
+    """tests/robot_workflow's workflow, train limited to a few episodes, with extra robot.* keys."""
     scripted = json.dumps(robot.pop("scripted", {}))
     wf = write_hw_workflow(path, calib, scripted=scripted)
     extra = {"max_episodes": 3, "handoff_wait_s": 0, "hold": {"staleness_s": 1.0, "wait_s": 0}, **robot}

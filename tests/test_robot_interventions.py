@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hw_workflow import run_stage
+from robot_workflow import run_stage
 from test_robot_hold import fake_link, hold_workflow, use_link
 
 from accrue.errors import AccrueError

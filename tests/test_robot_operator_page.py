@@ -260,7 +260,7 @@ def test_a_missing_browser_fails_under_ci_and_is_skipped_naming_it_elsewhere(mon
 
 def page_workflow(tmp_path: Path) -> Path:
     """The tests' tiny hardware workflow with the page operator and the simulated robot's front camera."""
-    from hw_workflow import write_hw_workflow
+    from robot_workflow import write_hw_workflow
 
     wf = write_hw_workflow(tmp_path / "hw.yaml", tmp_path / "calib")
     text = wf.read_text()
@@ -284,7 +284,7 @@ class SessionThread:
         hold_key: str = "e",
         seen: threading.Event | None = None,
     ):
-        from hw_workflow import run_stage
+        from robot_workflow import run_stage
 
         from accrue.robot import operator_page
 
@@ -373,7 +373,7 @@ def open_page(b, url: str, store: Path, height: int = 760):
 
 @pytest.mark.slow
 def test_a_whole_simulated_session_from_the_page(tmp_path, monkeypatch, store, headless):
-    from hw_workflow import robot_events
+    from robot_workflow import robot_events
     from playwright.sync_api import expect
 
     from artifacts.manifests import materialize
@@ -499,7 +499,7 @@ def op_success(pg) -> bool:
 def intervention_page_workflow(tmp_path: Path) -> Path:
     """The page workflow without a camera, with the simulated expert as the teleop the operator's `i` hands
     the robot to (robot.intervention signal: key)."""
-    from hw_workflow import write_hw_workflow
+    from robot_workflow import write_hw_workflow
 
     wf = write_hw_workflow(tmp_path / "hw.yaml", tmp_path / "calib")
     take = {"teleop": "accrue_sim_expert", "config": {"calibration_dir": str(tmp_path / "tcalib")}, "signal": "key"}
@@ -517,7 +517,7 @@ def test_the_page_shows_interventions_and_its_i_button_takes_over(tmp_path, monk
     robot to the teleop from the next chunk: the page shows OPERATOR DRIVING while it drives, then the
     episode's count and the window rate the sealed episode gives; the audit log has the takeover from the
     page, and the sealed transitions mark exactly the chunks after it."""
-    from hw_workflow import robot_events
+    from robot_workflow import robot_events
     from playwright.sync_api import expect
 
     from artifacts.manifests import materialize

@@ -221,7 +221,7 @@ def documented_runs(workflow: str, stage: int) -> set[str]:
 def test_robot_learner_writes_losses_q_updates_and_version(tmp_path, monkeypatch):
     """Stage 1 of the tiny hardware workflow on the simulated robot: the learner process the actor
     starts writes its run beside the actor's, under the store's log directory."""
-    from hw_workflow import run_stage, write_hw_workflow
+    from robot_workflow import run_stage, write_hw_workflow
 
     from artifacts.store import Store
 

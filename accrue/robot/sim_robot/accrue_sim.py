@@ -13,6 +13,8 @@ with lerobot's own record loop. Faults are injected from the config (see config_
 
 from __future__ import annotations
 
+import os
+import signal
 import time
 
 import numpy as np
@@ -166,6 +168,8 @@ class AccrueSim(Robot):
         if self.config.disconnect_after_steps and steps == self.config.disconnect_after_steps:
             self._connected = False
             raise DeviceNotConnectedError(f"{self}: link lost (injected fault at step {steps})")
+        if self.config.stop_at_step and steps == self.config.stop_at_step:
+            os.kill(os.getpid(), signal.SIGSTOP)  # frozen mid-episode until a SIGCONT or the test's SIGKILL
         if steps in self.config.drop_command_steps:
             return {}  # the command never reached the controller
         if not self._done:

@@ -26,3 +26,5 @@ class AccrueSimConfig(RobotConfig):
     late_observation_steps: list[int] = field(default_factory=list)  # get_observation answers late here
     late_by_s: float = 2.0
     drop_command_steps: list[int] = field(default_factory=list)  # send_action ignores these commands
+    # the process stops itself (SIGSTOP) at this control step (0: never): a test kills -9 the actor exactly here
+    stop_at_step: int = 0

@@ -15,10 +15,11 @@ import time
 from pathlib import Path
 
 import pytest
-from hw_workflow import robot_events, run_stage, write_hw_workflow
+from robot_workflow import robot_events, run_stage, write_hw_workflow
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(900)]
 ROOT = Path(__file__).resolve().parents[1]
+STOP_AT_STEP = 241
 
 
 def alive(pid: int) -> bool:
@@ -53,29 +54,44 @@ def start_actor(store: Path, wf: Path, stage: int) -> subprocess.Popen:
     )
 
 
-def mid_episode(store: Path, stage: int, after: int) -> int:
-    """Wait until a train episode has started and is not sealed yet (at least `after` sealed); its index."""
-
-    def check():
-        sealed = {
-            e["index"]
-            for e in robot_events(store, "robot-episode-sealed")
-            if e["stage"] == stage and e["phase"] == "train"
-        }
-        started = [
-            e["index"]
-            for e in robot_events(store, "robot-episode-started")
-            if e["stage"] == stage and e["phase"] == "train"
-        ]
-        if len(sealed) >= after and started and started[-1] not in sealed:
-            return started[-1]
-        return None
-
-    return wait_for(check, 400, f"a train episode of stage {stage} in progress")
+def stopped_mid_episode(actor: subprocess.Popen, store: Path, stage: int, after: int) -> int:
+    """Wait until the actor has stopped itself at robot.faults.stop_at_step (a SIGSTOP inside a train
+    episode: it stays there, so the kill lands exactly at that step however busy the machine is; issue 23:
+    a polled 'episode in progress' could be sealed before the kill); the index of that episode."""
+    _, status = os.waitpid(actor.pid, os.WUNTRACED)  # blocks until the child stops (or ends)
+    assert os.WIFSTOPPED(status), f"the actor ended (wait status {status}) before its stop step"
+    sealed = sealed_train(store, stage)
+    started = [
+        e["index"]
+        for e in robot_events(store, "robot-episode-started")
+        if e["stage"] == stage and e["phase"] == "train"
+    ]
+    assert len(sealed) >= after, f"only {len(sealed)} train episodes sealed before the stop step"
+    assert started and started[-1] not in sealed, "the actor did not stop inside a train episode"
+    return started[-1]
 
 
 def learner_pids(store: Path, stage: int) -> list[int]:
     return [e["pid"] for e in robot_events(store, "robot-learner-started") if e["stage"] == stage]
+
+
+def children(pid: int) -> list[int]:
+    """The live processes whose parent is pid (from /proc: the learner an actor spawned shows there before
+    it has started up far enough for its robot-learner-started event)."""
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue  # gone meanwhile
+        if int(fields[1]) == pid:
+            out.append(int(stat.parent.name))
+    return out
+
+
+def actor_learners(actor: subprocess.Popen, store: Path, stage: int) -> list[int]:
+    """The learner processes of a stopped actor: those it logged and its child processes."""
+    return sorted(set(learner_pids(store, stage)) | set(children(actor.pid)))
 
 
 def sealed_train(store: Path, stage: int) -> dict[int, dict]:
@@ -124,8 +140,18 @@ def setup(tmp_path_factory):
     root = tmp_path_factory.mktemp("hwk")
     Store.init(root / "store")
     fast = write_hw_workflow(root / "fast.yaml", root / "calib", name="hwk")
-    # the same workflow (same cache keys): only session settings differ - real time x4, a slower operator
-    slow = write_hw_workflow(root / "slow.yaml", root / "calib", name="hwk", clock=4, scripted="{delay_s: 0.2}")
+    # the same workflow (same cache keys): only session settings differ - real time x4, a slower operator,
+    # and the robot's fault stop_at_step: the actor stops itself (SIGSTOP) at that control step of its
+    # train step. An episode has at most 80 control steps (the tasks' max_steps), so step 241 is inside
+    # the 4th train episode or a later one: at least 3 are sealed when it stops
+    slow = write_hw_workflow(
+        root / "slow.yaml",
+        root / "calib",
+        name="hwk",
+        clock=4,
+        scripted="{delay_s: 0.2}",
+        faults=f"{{stop_at_step: {STOP_AT_STEP}}}",
+    )
     return root / "store", fast, slow
 
 
@@ -135,14 +161,15 @@ def test_kill_actor_mid_episode_then_learner_mid_update(setup, monkeypatch):
     store, fast, slow = setup
     run_stage(store, fast, 1, step="warmup")
     actor = start_actor(store, slow, 1)
-    killed = mid_episode(store, 1, after=3)
-    time.sleep(0.1)
+    killed = stopped_mid_episode(actor, store, 1, after=3)
+    its_learners = actor_learners(actor, store, 1)
+    assert its_learners, "the actor started no learner"
     actor.send_signal(signal.SIGKILL)
-    actor.wait(timeout=30)
+    actor.wait(timeout=60)
     before = sealed_train(store, 1)
     assert killed not in before
-    for pid in learner_pids(store, 1):  # its learner notices and exits
-        wait_for(lambda pid=pid: not alive(pid), 30, f"learner {pid} to exit after its actor died")
+    for pid in its_learners:  # its learner notices and exits
+        wait_for(lambda pid=pid: not alive(pid), 120, f"learner {pid} to exit after its actor died")
 
     old = set(learner_pids(store, 1))
     killed_learner = {}
@@ -225,13 +252,14 @@ def test_kill_both_then_continue(setup):
     run_stage(store, fast, 1)  # the rest of stage 1 (its train step is done)
     run_stage(store, fast, 2, step="warmup")
     actor = start_actor(store, slow, 2)
-    killed = mid_episode(store, 2, after=2)
-    pids = learner_pids(store, 2)
+    killed = stopped_mid_episode(actor, store, 2, after=2)
+    pids = actor_learners(actor, store, 2)
+    assert pids, "the actor started no learner"
     for pid in pids:
         if alive(pid):
             os.kill(pid, signal.SIGKILL)
     actor.send_signal(signal.SIGKILL)
-    actor.wait(timeout=30)
+    actor.wait(timeout=60)
     before = sealed_train(store, 2)
     result = run_stage(store, fast, 2, step="train", mode="continue")["train"]
     check_resumed(store, 2, before, killed, result)
