@@ -373,8 +373,8 @@ def open_page(b, url: str, store: Path, height: int = 760):
 
 @pytest.mark.slow
 def test_a_whole_simulated_session_from_the_page(tmp_path, monkeypatch, store, headless):
-    from robot_workflow import robot_events
     from playwright.sync_api import expect
+    from robot_workflow import robot_events
 
     from artifacts.manifests import materialize
     from artifacts.store import Store
@@ -517,8 +517,8 @@ def test_the_page_shows_interventions_and_its_i_button_takes_over(tmp_path, monk
     robot to the teleop from the next chunk: the page shows OPERATOR DRIVING while it drives, then the
     episode's count and the window rate the sealed episode gives; the audit log has the takeover from the
     page, and the sealed transitions mark exactly the chunks after it."""
-    from robot_workflow import robot_events
     from playwright.sync_api import expect
+    from robot_workflow import robot_events
 
     from artifacts.manifests import materialize
     from artifacts.store import Store
