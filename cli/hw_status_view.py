@@ -8,9 +8,9 @@ from cli.store_cmds import console
 
 
 def print_hardware_status(store, wf) -> None:
-    from stages.steps.hw_status import hardware_status
+    from stages.steps.robot_status import robot_status
 
-    rows = hardware_status(store, wf)
+    rows = robot_status(store, wf)
     if not rows:
         console().print("robot: no hardware step has run yet")
         return

@@ -31,7 +31,7 @@ def run_mode(cont: bool, rerun: bool) -> str:
 
 @contextlib.contextmanager
 def session_stops():
-    """A hardware step stopped by Ctrl-C or SIGTERM (stages.steps.robot_session.SessionStop): its one line
+    """A robot step stopped by Ctrl-C or SIGTERM (stages.steps.robot_session.SessionStop): its one line
     on stderr and exit 130 / 143; the session is already closed and the robot disconnected."""
     from stages.steps.robot_session import SessionStop
 
@@ -112,10 +112,10 @@ def status(workflow: WorkflowArg, store: StoreOpt = None, as_json: JsonOpt = Fal
     wf = load_workflow(workflow)
     rows = workflow_status(open_store(store), wf)
     if as_json:
-        if wf.robot is not None:  # a hardware workflow: {"steps": [...], "hardware": sessions per step}
-            from stages.steps.hw_status import hardware_status
+        if wf.robot is not None:  # a workflow with a robot: {"steps": [...], "hardware": sessions per step}
+            from stages.steps.robot_status import robot_status
 
-            print_json({"steps": rows, "hardware": hardware_status(open_store(store), wf)})
+            print_json({"steps": rows, "hardware": robot_status(open_store(store), wf)})
         else:
             print_json(rows)
         return
@@ -135,7 +135,7 @@ def status(workflow: WorkflowArg, store: StoreOpt = None, as_json: JsonOpt = Fal
             r["detail"],
         )
     console().print(table)
-    if wf.robot is not None:  # a hardware workflow: sessions, running success, robot time, stop rule
+    if wf.robot is not None:  # a workflow with a robot: sessions, running success, robot time, stop rule
         from cli.hw_status_view import print_hardware_status
 
         print_hardware_status(open_store(store), wf)

@@ -208,3 +208,12 @@ def test_a_crash_in_the_simulators_episode_logs_keeps_the_evaluation(tmp_path, m
     assert list(logs.rglob("*.mcap"))
     fresh = run_stage(tmp_path / "store", wf, 1, step="evaluate-all", mode="rerun")["evaluate-all"]
     assert fresh.outputs["eval"] == resumed.outputs["eval"]
+
+
+def test_robot_status_finds_every_robot_steps_attempts():
+    """`accrue stage status` tells the robot steps' attempts from the simulator's by their code version."""
+    from stages.steps.robot_env import CODE_VERSIONS
+    from stages.steps.robot_status import ROBOT_CODE_VERSION_PREFIX, ROBOT_STEPS
+
+    assert set(ROBOT_STEPS) == set(CODE_VERSIONS)
+    assert all(v.startswith(ROBOT_CODE_VERSION_PREFIX) for v in CODE_VERSIONS.values())

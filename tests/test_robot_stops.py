@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 import pytest
-from robot_workflow import robot_events, run_stage
+from hw_workflow import robot_events, run_stage
 from test_robot_hold import fake_link, hold_workflow, train_events, use_link
 
 from stages.steps.robot_session import SessionStop
@@ -105,10 +105,10 @@ def test_ctrl_c_discards_the_episode_disconnects_and_closes_the_session(store, m
     assert [e["index"] for e in events if e["event"] == "robot-episode-discarded"] == [1]
     assert len([e for e in events if e["event"] == "robot-episode-sealed"]) == 3
     from artifacts.store import Store
-    from stages.steps.hw_status import hardware_status
+    from stages.steps.robot_status import robot_status
     from stages.workflow import load_workflow
 
-    [row] = [r for r in hardware_status(Store.open(store / "store"), load_workflow(wf)) if r["step"] == "warmup"]
+    [row] = [r for r in robot_status(Store.open(store / "store"), load_workflow(wf)) if r["step"] == "warmup"]
     assert [s["ended"] for s in row["sessions"]][0] == "stopped by operator (Ctrl-C)"
 
 

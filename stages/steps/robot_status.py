@@ -1,4 +1,4 @@
-"""What `accrue stage status` adds for a workflow with a robot: each hardware step's sessions (start, end,
+"""What `accrue stage status` adds for a workflow with a robot: each robot step's sessions (start, end,
 host, operator, episodes, robot time, how it ended), its running success and robot time so far, and how
 far training is from the stop rule. Read from the step's newest sealed checkpoint (a step in progress
 or interrupted) or its committed `episodes` output, without materialising transitions or logs."""
@@ -13,7 +13,10 @@ from artifacts.records import list_attempts
 from artifacts.store import Store
 from stages.workflow import Workflow
 
-HW_STEPS = ("warmup", "train", "evaluate-all")
+ROBOT_STEPS = ("warmup", "train", "evaluate-all")  # the steps a robot runs (stages.steps.robot_plan.bind_robot)
+# what every robot step's code version starts with (stages.steps.robot_env.CODE_VERSIONS), older ones too: the
+# simulator's attempts of the same steps are not the robot's
+ROBOT_CODE_VERSION_PREFIX = "hw-"
 
 
 def _sealed(store: Store, artifact_id: str) -> tuple[list[dict], list[dict]]:
@@ -29,15 +32,17 @@ def _sealed(store: Store, artifact_id: str) -> tuple[list[dict], list[dict]]:
     return sessions, sorted(episodes, key=lambda e: e["index"])
 
 
-def hardware_status(store: Store, wf: Workflow) -> list[dict]:
+def robot_status(store: Store, wf: Workflow) -> list[dict]:
+    """Per stage and robot step run so far: its sessions, episodes, successes, robot time, faults (train:
+    the running success and the stop rule)."""
     rows = []
     attempts = [
         a
         for a in list_attempts(store, problems=[])
-        if a.get("workflow") == wf.name and str(a.get("code_version", "")).startswith("hw-")
+        if a.get("workflow") == wf.name and str(a.get("code_version", "")).startswith(ROBOT_CODE_VERSION_PREFIX)
     ]
     for k in range(1, wf.num_stages + 1):
-        for step in HW_STEPS:
+        for step in ROBOT_STEPS:
             mine = sorted(
                 (a for a in attempts if a.get("stage") == k and a["step"] == step), key=lambda a: a.get("started", "")
             )
