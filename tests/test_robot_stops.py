@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 import pytest
-from hw_workflow import robot_events, run_stage
+from robot_workflow import robot_events, run_stage
 from test_robot_hold import fake_link, hold_workflow, train_events, use_link
 
 from stages.steps.robot_session import SessionStop
