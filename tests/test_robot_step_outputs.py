@@ -7,6 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from test_robot_stops import base_store, store  # noqa: F401 - stage 1's finetune-base done, a copy per test
 
 pytestmark = pytest.mark.timeout(600)
 ROOT = Path(__file__).resolve().parents[1]
@@ -37,27 +38,6 @@ def test_step_code_versions_are_those_the_caches_key_on(tmp_path):
 
 
 # ------------------------------------------------------------------ a stop while a robot step writes its outputs
-
-
-@pytest.fixture(scope="module")
-def base_store(tmp_path_factory):
-    """A store with stage 1's finetune-base done on tests/test_robot_hold's workflow (train: 3 episodes)."""
-    from test_robot_hold import hold_workflow, run_stage
-
-    from artifacts.store import Store
-
-    root = tmp_path_factory.mktemp("outputs-base")
-    Store.init(root / "store")
-    run_stage(root / "store", hold_workflow(root / "hw.yaml", root / "calib"), 1, step="finetune-base")
-    return root
-
-
-@pytest.fixture
-def store(base_store, tmp_path):
-    import shutil
-
-    shutil.copytree(base_store / "store", tmp_path / "store")
-    return tmp_path
 
 
 def ctrl_c_at_write_json(monkeypatch, module) -> None:
