@@ -5,6 +5,7 @@ and a new learner at the same address is re-initialised with every sealed episod
 
 from __future__ import annotations
 
+import json
 import threading
 import time
 
@@ -151,3 +152,66 @@ def test_link_trains_serves_weights_and_survives_a_learner_restart(tmp_path, one
     link.close()
     server2.stop(grace=0)
     service2.stop.set()
+
+
+def test_a_pull_between_any_two_trainer_writes_gets_every_checkpoint_marked(tmp_path, one_torch_thread):
+    """Pulls are answered on the server's threads while the trainer publishes (it drops the GIL in file
+    calls): an actor pulling between any two of the trainer's writes must still get each checkpoint marked.
+    A snapshot visible before its mark went out unmarked, and so did every later one, since the actor then
+    held its version: the link never saw the checkpoint at 12 (the restart test's rare timeout)."""
+    from accrue.robot.learner_service import LearnerService
+
+    received: list[tuple[int, int, bool]] = []  # version, updates, checkpoint: what the actor was given
+
+    class PulledBetweenWrites(LearnerService):
+        probing = False
+
+        def __setattr__(self, name, value):
+            super().__setattr__(name, value)
+            if self.probing and name != "probing":  # an actor's Pull answered right after this write
+                self.probing = False  # the Pull's own writes are not the trainer's
+                have = received[-1][0] if received else -1
+                h, _ = self.pull({"have": have}, b"")
+                if h["version"] is not None:
+                    received.append((h["version"], h["updates"], h["checkpoint"]))
+                self.probing = True
+
+    service = PulledBetweenWrites()
+    header, blob = init_payload(tmp_path)
+    service.init(dict(header, run_id="r"), blob)
+    for i in range(3):
+        service.episode({"index": i, "run_id": "r"}, episode(i))
+    service.probing = True
+    trainer = threading.Thread(target=service.train_forever, daemon=True)
+    trainer.start()
+    # 3 episodes x 5 chunks, utd 1: 15 updates, published every 2 (the last at 14), checkpoints at 4, 8, 12
+    wait_for(lambda: received and received[-1][1] == 14, 120, "the snapshot at 14")
+    service.stop.set()
+    trainer.join(timeout=10)
+    assert {4, 8, 12, 14} <= {u for _, u, _ in received}  # the actor got each snapshot as it came
+    assert [u for _, u, checkpoint in received if checkpoint] == [4, 8, 12], received
+
+
+def test_weights_that_arrive_after_newer_ones_do_not_replace_them(tmp_path):
+    """final_snapshot's Pull (on the actor's thread) and the link thread's Pull can be answered in either
+    order: the older answer, landing second, must not take the actor back to older weights (nor untar over
+    the snapshot it holds)."""
+    from accrue.robot.learner_client import LearnerLink
+    from accrue.robot.transport import tar_dir
+
+    def answer(version: int, updates: int) -> tuple[dict, bytes]:
+        d = tmp_path / f"snap{version}"
+        d.mkdir()
+        (d / "learner.json").write_text(json.dumps({"version": version, "updates": updates}))
+        return {"version": version, "updates": updates, "checkpoint": False}, tar_dir(d)
+
+    acted: list[int] = []
+    link = LearnerLink(lambda: ({}, b""), list, lambda h, d: acted.append(h["version"]), lambda line, fields: None)
+    try:
+        fresh, late = answer(6, 12), answer(5, 10)  # both asked with have=4; the fresh one is taken first
+        link._take(*fresh)
+        link._take(*late)
+        link._take(*fresh)  # the same weights twice: taken once
+        assert (link.version, link.updates, acted) == (6, 12, [6])
+    finally:
+        link.close()

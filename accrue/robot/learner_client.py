@@ -96,6 +96,8 @@ class LearnerLink:
         self.updates = 0
         self.queue: list[tuple[dict, bytes]] = []
         self.lock = threading.Lock()
+        # final_snapshot's Pull (the actor's thread) and the link thread's can answer at once: one takes
+        self.take_lock = threading.Lock()
         self.stop = threading.Event()
         self.lost_reported = False
         # the learner refused this actor (its token or TLS): a LinkRefused with the operator's line, until
@@ -249,12 +251,15 @@ class LearnerLink:
             shutil.rmtree(d, ignore_errors=True)
 
     def _take(self, h: dict, blob: bytes) -> None:
-        d = untar(blob, self.tmp / f"v{h['version']}")
-        self.version, self.updates = int(h["version"]), int(h["updates"])
-        self.weights_received_at = time.monotonic()
-        if h.get("checkpoint"):
-            self.checkpoint = d
-        self.on_snapshot(h, d)
+        with self.take_lock:
+            if int(h["version"]) <= self.version:  # the other Pull brought these weights or newer ones first
+                return
+            d = untar(blob, self.tmp / f"v{h['version']}")
+            self.version, self.updates = int(h["version"]), int(h["updates"])
+            self.weights_received_at = time.monotonic()
+            if h.get("checkpoint"):
+                self.checkpoint = d
+            self.on_snapshot(h, d)
 
     def check(self) -> None:
         """Raise the LinkRefused of a learner that refuses this actor (its token, or TLS): retrying with the

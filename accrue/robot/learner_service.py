@@ -106,7 +106,10 @@ class LearnerService:
         self.dirty = False  # episodes changed since the buffer was built
         self.intervened = 0  # transitions of the buffer the operator drove (its `intervention` column)
         self.updates = self.version = 0
-        self.snapshot: tuple[int, int, bool, bytes] | None = None  # version, updates, checkpoint, tar
+        # version, updates, the newest checkpoint's version (this one's when it is one), tar: one tuple,
+        # replaced whole, so that a Pull (on a server thread, without the lock) never sees a snapshot
+        # without its checkpoint mark
+        self.snapshot: tuple[int, int, int, bytes] | None = None
         self.checkpoint_version = -1  # the newest snapshot marked as a checkpoint
         self.want_snapshot = threading.Event()
         self.last_call = time.monotonic()
@@ -167,6 +170,7 @@ class LearnerService:
 
         self.last_call = time.monotonic()
         with self.lock:
+            self.snapshot = None  # no Pull is answered with the previous Init's weights from here on
             d = untar(blob, Path(tempfile.mkdtemp(dir=self.tmp)))
             info = json.loads((d / "init.json").read_text())
             torch.set_num_threads(int(info.get("torch_threads", 1)))
@@ -256,7 +260,7 @@ class LearnerService:
         if snap is None or snap[0] <= have:
             return {"version": None, "updates": self.updates}, b""
         # a checkpoint the actor has not pulled was overtaken by newer weights: those are one too
-        return {"version": snap[0], "updates": snap[1], "checkpoint": self.checkpoint_version > have}, snap[3]
+        return {"version": snap[0], "updates": snap[1], "checkpoint": snap[2] > have}, snap[3]
 
     def heartbeat(self, h: dict, blob: bytes):
         self.last_call = time.monotonic()
@@ -295,10 +299,12 @@ class LearnerService:
             json.dumps({"updates": self.updates, "version": self.version + 1, "episodes": sorted(self.episodes)})
         )
         self.version += 1
-        self.snapshot = (self.version, self.updates, checkpoint, tar_dir(d))
-        shutil.rmtree(d, ignore_errors=True)  # the tar is what is served
         if checkpoint:
             self.checkpoint_version = self.version
+        # published with its checkpoint mark in one assignment: a Pull answered in between would give the
+        # actor a checkpoint unmarked, and the later snapshots (above the version it then holds) unmarked too
+        self.snapshot = (self.version, self.updates, self.checkpoint_version, tar_dir(d))
+        shutil.rmtree(d, ignore_errors=True)  # the tar is what is served
 
     def train_forever(self):
         while not self.stop.is_set():
