@@ -43,7 +43,7 @@ def convert_demos_for_workflow(path: Path, kind: str, workflow: Path, task: str 
     if wf.robot is None:
         raise StageError(f"--workflow {workflow}: has no robot section to check the dataset against")
     from accrue.robot.bridge import robot_factory
-    from accrue.robot.demo_convert import convert_robot_dataset, recorded_tasks
+    from accrue.robot.demo_convert import carried_camera, convert_robot_dataset, recorded_tasks
     from accrue.robot.demos import check_robot_dataset
     from accrue.robot.mapping import RobotMapping
     from accrue.sim.demos import get_task_spec
@@ -56,9 +56,10 @@ def convert_demos_for_workflow(path: Path, kind: str, workflow: Path, task: str 
     mapping = RobotMapping.from_dict(r).bind(
         robot.observation_features, robot.action_features, f"robot {wf.robot.type}"
     )
-    mapping = dataclasses.replace(mapping, camera_keys=())  # demos are converted state-only
-    check_robot_dataset(path, mapping, wf.robot.type)  # metadata first: a misfit is refused before lerobot loads
+    camera = carried_camera(mapping, robot.observation_features, wf.obs_mode, f"robot {wf.robot.type}")
+    mapping = dataclasses.replace(mapping, camera_keys=())  # the camera (an image workflow's) goes separately
+    check_robot_dataset(path, mapping, wf.robot.type, camera)  # metadata first: refused before lerobot loads
     task_id = _task_of(wf, recorded_tasks(path), task)
     return convert_robot_dataset(
-        path, out_dir, mapping, wf.robot.type, task_id, get_task_spec(task_id).instruction, progress=True
+        path, out_dir, mapping, wf.robot.type, task_id, get_task_spec(task_id).instruction, progress=True, camera=camera
     )

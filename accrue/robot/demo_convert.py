@@ -8,15 +8,20 @@ action map (RobotMapping.normalise, clipped to [-1, 1]) gives the normalised act
 
 Frames keep lerobot-record's order and fps: frame t is the observation before action t, as in accrue's demos.
 A teleoperated demonstration counts as a success, so each episode's last frame is done and successful and
-its last SUCCESS_TAIL frames carry reward 1, like the simulator's demos. Cameras are not carried over
-(accrue's robot path is state-only). The result is built under a hidden sibling and renamed into place.
+its last SUCCESS_TAIL frames carry reward 1, like the simulator's demos.
+
+For a workflow with obs_mode state+image the robot's camera comes along: accrue's layout holds one camera,
+`observation.images.wrist` (IMAGE_KEY), and it is the one the base policy is fed live, the first of the
+mapping's camera_keys (accrue.robot.bridge). lerobot-record stored it as `observation.images.<key>`; its
+frames are written at the shape the robot declares for it (resized when recorded at another size of the
+same aspect), as images when it was recorded as images (lossless) and as video when it was recorded as
+video. A state workflow's demos stay state-only. The result is built under a hidden sibling and renamed
+into place.
 """
 
 from __future__ import annotations
 
 import os
-import shutil
-import warnings
 from dataclasses import replace
 from pathlib import Path
 
@@ -30,18 +35,34 @@ from accrue.sim.demos import (
     ACCRUE_META_FORMAT,
     ACTION_KEY,
     DONE_KEY,
+    IMAGE_KEY,
     REWARD_KEY,
     STATE_KEY,
     SUCCESS_KEY,
-    _check_out_dir,
-    _label_success_tail,
-    _publish,
-    _write_json_atomic,
+    check_out_dir,
     demo_features,
+    label_success_tail,
     repo_id_for,
+    save_episode,
+    staged_dataset,
+    write_json_atomic,
 )
 
 SOURCE = "lerobot-record"
+Camera = tuple[str, tuple[int, int, int]]  # a robot camera key and the (h, w, 3) frame shape it declares
+
+
+def carried_camera(mapping: RobotMapping, observation_features: dict, obs_mode: str, who: str) -> Camera | None:
+    """The camera converted demos carry for a workflow: None with obs_mode state; with state+image the first of
+    the bound mapping's camera_keys (the frame the base policy is fed live) and the shape the robot declares."""
+    if obs_mode != "state+image":
+        return None
+    if not mapping.camera_keys:
+        raise AccrueError(
+            f"{who}: declares no camera (robot.camera_keys), but the workflow's obs_mode state+image needs one"
+        )
+    key = mapping.camera_keys[0]
+    return key, tuple(int(s) for s in observation_features[key])
 
 
 def mapped_states(observation: np.ndarray, names: list[str], mapping: RobotMapping) -> np.ndarray:
@@ -84,8 +105,8 @@ def recorded_tasks(root: Path | str) -> list[str]:
         raise AccrueError(f"{path}: unreadable ({type(exc).__name__})") from None
 
 
-def _read_recorded(root: Path) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
-    """(fps, observation.state (N, S), action (N, A), episode_index (N,)) of a local LeRobotDataset v3."""
+def _read_recorded(root: Path):
+    """(dataset, fps, observation.state (N, S), action (N, A), episode_index (N,)) of a local LeRobotDataset v3."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     try:
@@ -97,7 +118,25 @@ def _read_recorded(root: Path) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]
     except Exception as exc:  # noqa: BLE001 - any load failure is a broken user dataset
         first_line = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise AccrueError(f"cannot read dataset {root}: {first_line}") from None
-    return int(dataset.meta.fps), states, actions, np.asarray(columns["episode_index"])
+    return dataset, int(dataset.meta.fps), states, actions, np.asarray(columns["episode_index"])
+
+
+def recorded_frame(dataset, row: int, key: str, shape: tuple[int, int, int], root: Path) -> np.ndarray:
+    """Frame `row` of camera feature `key` as (h, w, 3) uint8 of `shape`, resized when recorded at another size.
+
+    LeRobotDataset gives a frame as float (3, h, w) in [0, 1], decoded from its PNG or video; x 255 and
+    rounded, a PNG's frame is its stored bytes again."""
+    try:
+        chw = np.asarray(dataset[row][key], dtype=np.float32)
+    except Exception as exc:  # noqa: BLE001 - a missing or undecodable frame is a broken user dataset
+        first_line = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise AccrueError(f"{root}: frame {row} of {key} cannot be decoded: {first_line}") from None
+    frame = np.clip(np.rint(np.transpose(chw, (1, 2, 0)) * 255.0), 0, 255).astype(np.uint8)
+    if frame.shape[:2] != tuple(shape[:2]):
+        from PIL import Image
+
+        frame = np.asarray(Image.fromarray(frame).resize((shape[1], shape[0]), Image.Resampling.BILINEAR))
+    return frame
 
 
 def convert_robot_dataset(
@@ -108,19 +147,23 @@ def convert_robot_dataset(
     task_id: str,
     instruction: str,
     progress: bool = False,
+    camera: Camera | None = None,
 ) -> dict:
     """Write accrue demos of `task_id` to out_dir from the lerobot-record dataset at src; return its meta.
 
-    A dataset whose features do not fit the mapping, or whose mapped values are not finite, is a one-line
-    AccrueError and nothing is written.
+    `camera` (carried_camera) is the robot camera whose frames become IMAGE_KEY, at its declared shape; None
+    writes state-only demos. A dataset whose features do not fit the mapping or lack the camera, or whose
+    mapped values are not finite, is a one-line AccrueError and nothing is written.
     """
     src, out_dir = Path(src), Path(out_dir)
-    check = check_robot_dataset(src, mapping, robot)
-    # the keys as lerobot-record wrote them stand for what the robot declares (cameras are not converted)
+    check = check_robot_dataset(src, replace(mapping, camera_keys=()), robot, camera)
+    # the keys as lerobot-record wrote them stand for what the robot declares (the camera goes separately)
     mapping = replace(mapping, camera_keys=()).bind(
         {n: float for n in check["state_names"]}, {n: float for n in check["action_names"]}, f"{src}"
     )
-    fps, observation, action, episode_index = _read_recorded(src)
+    recorded_camera = check["camera"]
+    image_shape = tuple(camera[1]) if camera is not None else None
+    dataset, fps, observation, action, episode_index = _read_recorded(src)
     states = mapped_states(observation, check["state_names"], mapping)
     actions, clipped = normalised_actions(action, check["action_names"], mapping)
     bad = np.flatnonzero(~(np.isfinite(states).all(axis=1) & np.isfinite(actions).all(axis=1)))
@@ -133,88 +176,99 @@ def convert_robot_dataset(
     episodes = [rows for rows in episodes if rows.size]
     if not episodes:
         raise AccrueError(f"{src}: has no frames to convert")
-    _check_out_dir(out_dir)
+    check_out_dir(out_dir)
 
+    os.environ.setdefault("SVT_LOG", "1")  # the AV1 encoder prints its whole config per video otherwise
     import datasets
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    staging = out_dir.with_name(f".{out_dir.name}.partial-{os.getpid()}")
-    shutil.rmtree(staging, ignore_errors=True)
+    use_video = recorded_camera is not None and recorded_camera["dtype"] == "video"
+    features = demo_features(list(mapping.state_keys), image_shape, use_video=use_video)
     bars_were_on = not datasets.are_progress_bars_disabled()
     datasets.disable_progress_bars()
     bar = _bar(progress, len(episodes), f"demos {task_id} from {check['robot_type'] or robot}")
     try:
-        ds = LeRobotDataset.create(
-            repo_id=repo_id_for(task_id),
-            root=staging,
-            fps=fps,
-            features=demo_features(list(mapping.state_keys)),
-            use_videos=False,
-        )
-        try:
-            for n, rows in enumerate(episodes, 1):
-                last = rows.size - 1
-                frames = [
-                    {
-                        STATE_KEY: states[r],
-                        ACTION_KEY: actions[r],
-                        REWARD_KEY: np.zeros(1, dtype=np.float32),
-                        DONE_KEY: np.array([i == last]),
-                        SUCCESS_KEY: np.array([i == last]),
-                        "task": instruction,
-                    }
-                    for i, r in enumerate(rows)
-                ]
-                _label_success_tail(frames)
-                for frame in frames:
-                    ds.add_frame(frame)
-                with warnings.catch_warnings():
-                    warnings.filterwarnings("ignore", "Converting input from bool", RuntimeWarning)
-                    ds.save_episode()
-                if bar is not None:
-                    bar[0].update(bar[1], completed=n)
-        finally:
-            ds.finalize()
-        meta = {
-            "format": ACCRUE_META_FORMAT,
-            "source": SOURCE,
-            "task_id": task_id,
-            "instruction": instruction,
-            "recorded_tasks": recorded_tasks(src),
-            "robot_type": check["robot_type"],
-            "robot": robot,
-            "seed": None,
-            "quality": None,
-            "obs_mode": "state",
-            "requested": len(episodes),
-            "episodes": len(episodes),
-            "frames": int(sum(r.size for r in episodes)),
-            # a teleoperated demonstration is taken as a success: the operator kept only what worked
-            "attempts": len(episodes),
-            "successes": len(episodes),
-            "only_successful": True,
-            "fps": fps,
-            "clipped_action_values": clipped,
-            "state_names": list(mapping.state_keys),
-            "mapping": {
-                "state_keys": list(mapping.state_keys),
-                "action_keys": list(mapping.action_keys),
-                "action_mode": mapping.action_mode,
-                "action_limits": list(mapping.action_limits) if mapping.action_limits else None,
-                "action_bounds": [list(b) for b in mapping.action_bounds] if mapping.action_bounds else None,
-            },
-        }
-        _write_json_atomic(staging / ACCRUE_META, meta)
-        _publish(staging, out_dir)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
+        with staged_dataset(out_dir) as staging:
+            ds = LeRobotDataset.create(
+                repo_id=repo_id_for(task_id),
+                root=staging,
+                fps=fps,
+                features=features,
+                use_videos=any(f["dtype"] == "video" for f in features.values()),
+                video_backend="pyav",
+            )
+            try:
+                for n, rows in enumerate(episodes, 1):
+                    frames = _episode_frames(rows, states, actions, instruction)
+                    if recorded_camera is not None:
+                        for frame, r in zip(frames, rows):
+                            frame[IMAGE_KEY] = recorded_frame(dataset, int(r), recorded_camera["key"], image_shape, src)
+                    save_episode(ds, frames)
+                    if bar is not None:
+                        bar[0].update(bar[1], completed=n)
+            finally:
+                ds.finalize()
+            meta = {
+                "format": ACCRUE_META_FORMAT,
+                "source": SOURCE,
+                "task_id": task_id,
+                "instruction": instruction,
+                "recorded_tasks": recorded_tasks(src),
+                "robot_type": check["robot_type"],
+                "robot": robot,
+                "seed": None,
+                "quality": None,
+                "obs_mode": "state+image" if camera is not None else "state",
+                "requested": len(episodes),
+                "episodes": len(episodes),
+                "frames": int(sum(r.size for r in episodes)),
+                # a teleoperated demonstration is taken as a success: the operator kept only what worked
+                "attempts": len(episodes),
+                "successes": len(episodes),
+                "only_successful": True,
+                "fps": fps,
+                "clipped_action_values": clipped,
+                # the recorded camera feature and its frame shape there ((h, w, 3); IMAGE_KEY holds the robot's)
+                "recorded_camera": (
+                    {"key": recorded_camera["key"], "shape": list(recorded_camera["shape"])}
+                    if recorded_camera
+                    else None
+                ),
+                "state_names": list(mapping.state_keys),
+                "mapping": {
+                    "state_keys": list(mapping.state_keys),
+                    "camera_keys": [camera[0]] if camera is not None else [],
+                    "action_keys": list(mapping.action_keys),
+                    "action_mode": mapping.action_mode,
+                    "action_limits": list(mapping.action_limits) if mapping.action_limits else None,
+                    "action_bounds": [list(b) for b in mapping.action_bounds] if mapping.action_bounds else None,
+                },
+            }
+            write_json_atomic(staging / ACCRUE_META, meta)
     finally:
         if bar is not None:
             bar[0].stop()
         if bars_were_on:
             datasets.enable_progress_bars()
     return meta
+
+
+def _episode_frames(rows: np.ndarray, states: np.ndarray, actions: np.ndarray, instruction: str) -> list[dict]:
+    """accrue frames of one recorded episode (its frame indices `rows`): a success, the last frame done."""
+    last = rows.size - 1
+    frames = [
+        {
+            STATE_KEY: states[r],
+            ACTION_KEY: actions[r],
+            REWARD_KEY: np.zeros(1, dtype=np.float32),
+            DONE_KEY: np.array([i == last]),
+            SUCCESS_KEY: np.array([i == last]),
+            "task": instruction,
+        }
+        for i, r in enumerate(rows)
+    ]
+    label_success_tail(frames)
+    return frames
 
 
 def _bar(enabled: bool, total: int, label: str):

@@ -3,7 +3,9 @@
 A lerobot-record dataset of robot R has `observation.state` named by R's float observation keys and
 `action` named by R's action keys (lerobot's hw_to_dataset_features). It fits a workflow when those
 names include every key the workflow's robot mapping reads (`robot.state_keys`) and writes
-(`robot.action_keys`). Only meta/info.json is read: no lerobot import, no video decoding.
+(`robot.action_keys`), and, for an image workflow, the camera its base policy is fed: R's camera `key` is
+recorded as `observation.images.<key>` (an image or video feature of shape (h, w, 3)). Only
+meta/info.json is read: no lerobot import, no video decoding.
 """
 
 from __future__ import annotations
@@ -15,6 +17,8 @@ from accrue.errors import AccrueError
 from accrue.robot.mapping import RobotMapping
 
 LEROBOT_FORMAT = "v3.0"
+CAMERA_PREFIX = "observation.images."  # lerobot-record's name for a camera's frames (hw_to_dataset_features)
+ASPECT_TOLERANCE = 0.01  # a recorded frame is resized to the robot's declared one only at the same aspect
 
 
 def _names(features: dict, key: str, root: Path) -> list[str]:
@@ -32,9 +36,40 @@ def _names(features: dict, key: str, root: Path) -> list[str]:
     return [str(n) for n in names]
 
 
-def check_robot_dataset(root: Path | str, mapping: RobotMapping, robot: str) -> dict:
-    """{episodes, frames, fps, robot_type, state_names, action_names}; AccrueError (one line) when it does not
-    fit the mapping."""
+def _camera(features: dict, camera: tuple[str, tuple[int, int, int]], root: Path) -> dict:
+    """{key, shape, dtype} of the recorded feature of robot camera camera[0], whose declared frame shape is
+    camera[1]; one line when the dataset lacks it or its frames cannot become the declared ones."""
+    name, declared = camera
+    key = CAMERA_PREFIX + name
+    feature = features.get(key)
+    if not isinstance(feature, dict) or feature.get("dtype") not in ("image", "video"):
+        recorded = [k for k, f in features.items() if isinstance(f, dict) and f.get("dtype") in ("image", "video")]
+        raise AccrueError(
+            f"{root}: has no camera {name!r} ({key}), which the workflow's image policy is fed "
+            f"(the dataset's cameras: {', '.join(recorded) or 'none'})"
+        )
+    shape = [int(s) for s in feature.get("shape") or []]
+    if len(shape) != 3 or shape[2] != 3:
+        raise AccrueError(
+            f"{root}: camera {name!r} was recorded as {shape}, not RGB frames (h, w, 3) like the robot's "
+            f"{list(declared)}"
+        )
+    (h, w), (dh, dw) = shape[:2], declared[:2]
+    if abs(h * dw - dh * w) > ASPECT_TOLERANCE * dh * w:
+        raise AccrueError(
+            f"{root}: camera {name!r} was recorded at {h}x{w}, which cannot be resized to the robot's "
+            f"{dh}x{dw} without distorting it"
+        )
+    return {"key": key, "shape": tuple(shape), "dtype": feature["dtype"]}
+
+
+def check_robot_dataset(
+    root: Path | str, mapping: RobotMapping, robot: str, camera: tuple[str, tuple[int, int, int]] | None = None
+) -> dict:
+    """{episodes, frames, fps, robot_type, state_names, action_names, camera}; AccrueError (one line) when it
+    does not fit the mapping. `camera` is (robot camera key, declared (h, w, 3)) for an image workflow: the
+    dataset must hold that camera's RGB frames at the same aspect (`camera` in the result is then its
+    {key, shape, dtype}, else None)."""
     root = Path(root)
     info_path = root / "meta" / "info.json"
     if not info_path.is_file():
@@ -66,4 +101,5 @@ def check_robot_dataset(root: Path | str, mapping: RobotMapping, robot: str) -> 
         "robot_type": info.get("robot_type"),
         "state_names": recorded["observation.state"],
         "action_names": recorded["action"],
+        "camera": _camera(features, camera, root) if camera is not None else None,
     }

@@ -18,6 +18,13 @@ succeeded, and whether the requested count was reached.
 
 The dataset is built in a hidden sibling directory (`.<name>.partial-<pid>`) and renamed into
 place when complete; only a killed process (SIGKILL) can leave such a directory behind.
+
+The demo writers (this module's `write_demos`, accrue.robot.demo_convert's lerobot-record conversion,
+accrue.robot.sim_robot.so101_demos) share this layout and its writing rules through a small API:
+`demo_features` (the feature spec), `check_out_dir` (the output must be new or empty),
+`label_success_tail` (the sparse reward of a successful episode), `save_episode` (its frames into the
+dataset being written), `staged_dataset` (build in the hidden sibling, publish on success, remove on
+failure; `publish` is its rename step) and `write_json_atomic` (meta/accrue.json).
 """
 
 from __future__ import annotations
@@ -26,6 +33,7 @@ import json
 import os
 import shutil
 import warnings
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from types import ModuleType
@@ -128,7 +136,8 @@ def demo_features(
     return features
 
 
-def _check_out_dir(out_dir: Path) -> None:
+def check_out_dir(out_dir: Path) -> None:
+    """A demo writer's output: a new or empty directory (its parent is made); else a one-line AccrueError."""
     if out_dir.exists():
         if not out_dir.is_dir():
             raise AccrueError(f"output path {out_dir} exists and is not a directory")
@@ -137,8 +146,8 @@ def _check_out_dir(out_dir: Path) -> None:
     out_dir.parent.mkdir(parents=True, exist_ok=True)
 
 
-def _label_success_tail(frames: list[dict]) -> None:
-    """The paper's sparse reward: the last SUCCESS_TAIL steps of a successful episode carry 1.
+def label_success_tail(frames: list[dict]) -> None:
+    """The paper's sparse reward: the last SUCCESS_TAIL steps of a successful episode carry 1 (in place).
 
     A single env.step() can only reward the step that succeeded, so the tail is labelled here.
     """
@@ -146,7 +155,18 @@ def _label_success_tail(frames: list[dict]) -> None:
         frame[REWARD_KEY] = np.maximum(frame[REWARD_KEY], np.float32(1.0))
 
 
-def _write_json_atomic(path: Path, data: dict) -> None:
+def save_episode(ds: Any, frames: list[dict]) -> None:
+    """Add an episode's frames to the LeRobotDataset being written and save it as one episode."""
+    for frame in frames:
+        ds.add_frame(frame)
+    with warnings.catch_warnings():
+        # lerobot's histogram of bool columns warns on every episode; harmless
+        warnings.filterwarnings("ignore", "Converting input from bool", RuntimeWarning)
+        ds.save_episode()
+
+
+def write_json_atomic(path: Path, data: dict) -> None:
+    """`data` as indented JSON at `path`, written beside it and renamed over it (never half a file)."""
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(json.dumps(data, indent=2) + "\n")
     os.replace(tmp, path)
@@ -266,7 +286,7 @@ def write_demos(
     out_dir = Path(out_dir)
     sim = _sim_api()
     spec = get_task_spec(task_id)
-    _check_out_dir(out_dir)
+    check_out_dir(out_dir)
     max_attempts = max(3 * episodes, episodes + 8) if max_attempts is None else max(int(max_attempts), 1)
     n = max(1, min(num_envs or 8, episodes, max_attempts))
 
@@ -280,67 +300,57 @@ def write_demos(
     import datasets
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    _remove_stale_staging(out_dir)
-    staging = out_dir.with_name(f".{out_dir.name}.partial-{os.getpid()}")
     bars_were_on = not datasets.are_progress_bars_disabled()
     datasets.disable_progress_bars()  # one "Map" bar per saved episode otherwise; ours suffices
     bar = _Progress(progress, episodes, f"demos {task_id}")
     attempts = successes = written = total_frames = 0
     try:
-        ds = LeRobotDataset.create(
-            repo_id=repo_id_for(task_id),
-            root=staging,
-            fps=int(round(spec.control_hz)),
-            features=features,
-            use_videos=any(f["dtype"] == "video" for f in features.values()),
-            video_backend="pyav",
-        )
-        try:
-            still_needed = lambda: episodes - written  # noqa: E731,B023 - reads the count as it grows
-            for ep in _expert_episodes(env, expert, obs, spec.instruction, max_attempts, still_needed):
-                attempts += 1
-                successes += int(ep.success)
-                if (ep.success or not only_successful) and written < episodes:
-                    if ep.success:
-                        _label_success_tail(ep.frames)
-                    for frame in ep.frames:
-                        ds.add_frame(frame)
-                    with warnings.catch_warnings():
-                        # lerobot's histogram of bool columns warns on every episode; harmless
-                        warnings.filterwarnings("ignore", "Converting input from bool", RuntimeWarning)
-                        ds.save_episode()
-                    written += 1
-                    total_frames += len(ep.frames)
-                bar.update(written, attempts, successes)
-                if written == episodes:
-                    break
-        finally:
-            ds.finalize()
-        _sort_stats_keys(staging / "meta" / "stats.json")
-        if written == 0:
-            raise AccrueError(
-                f"the {task_id} expert (quality {quality}) succeeded in none of {attempts} episodes; nothing written"
+        with staged_dataset(out_dir) as staging:
+            ds = LeRobotDataset.create(
+                repo_id=repo_id_for(task_id),
+                root=staging,
+                fps=int(round(spec.control_hz)),
+                features=features,
+                use_videos=any(f["dtype"] == "video" for f in features.values()),
+                video_backend="pyav",
             )
-        summary = DemoSummary(
-            root=out_dir,
-            task_id=task_id,
-            instruction=spec.instruction,
-            requested=episodes,
-            episodes=written,
-            frames=total_frames,
-            attempts=attempts,
-            successes=successes,
-            seed=seed,
-            quality=float(quality),
-            obs_mode=obs_mode,
-            search=bool(search),
-            bias_known=float(bias_known),
-        )
-        _write_json_atomic(staging / ACCRUE_META, _accrue_meta(summary, only_successful, list(sim.STATE_NAMES)))
-        _publish(staging, out_dir)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
+            try:
+                still_needed = lambda: episodes - written  # noqa: E731,B023 - reads the count as it grows
+                for ep in _expert_episodes(env, expert, obs, spec.instruction, max_attempts, still_needed):
+                    attempts += 1
+                    successes += int(ep.success)
+                    if (ep.success or not only_successful) and written < episodes:
+                        if ep.success:
+                            label_success_tail(ep.frames)
+                        save_episode(ds, ep.frames)
+                        written += 1
+                        total_frames += len(ep.frames)
+                    bar.update(written, attempts, successes)
+                    if written == episodes:
+                        break
+            finally:
+                ds.finalize()
+            _sort_stats_keys(staging / "meta" / "stats.json")
+            if written == 0:
+                raise AccrueError(
+                    f"the {task_id} expert (quality {quality}) succeeded in none of {attempts} episodes; nothing written"
+                )
+            summary = DemoSummary(
+                root=out_dir,
+                task_id=task_id,
+                instruction=spec.instruction,
+                requested=episodes,
+                episodes=written,
+                frames=total_frames,
+                attempts=attempts,
+                successes=successes,
+                seed=seed,
+                quality=float(quality),
+                obs_mode=obs_mode,
+                search=bool(search),
+                bias_known=float(bias_known),
+            )
+            write_json_atomic(staging / ACCRUE_META, _accrue_meta(summary, only_successful, list(sim.STATE_NAMES)))
     finally:
         bar.stop()
         if bars_were_on:
@@ -374,10 +384,27 @@ def _remove_stale_staging(out_dir: Path) -> None:
             shutil.rmtree(path, ignore_errors=True)
 
 
-def _publish(staging: Path, out_dir: Path) -> None:
+def publish(staging: Path, out_dir: Path) -> None:
+    """Rename the finished dataset at `staging` to `out_dir` (absent, or the empty directory check_out_dir let
+    through)."""
     if out_dir.exists():
         out_dir.rmdir()  # still empty (checked at the start); fails loudly if someone wrote there since
     os.replace(staging, out_dir)
+
+
+@contextmanager
+def staged_dataset(out_dir: Path) -> Iterator[Path]:
+    """The hidden sibling `.<name>.partial-<pid>` of out_dir to build a dataset in (earlier runs' leftovers
+    removed first). When the block ends normally it is published as out_dir; when it raises, or is
+    interrupted, it is removed and out_dir stays as it was. Call check_out_dir(out_dir) before."""
+    _remove_stale_staging(out_dir)
+    staging = out_dir.with_name(f".{out_dir.name}.partial-{os.getpid()}")
+    try:
+        yield staging
+        publish(staging, out_dir)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
 
 
 def _accrue_meta(summary: DemoSummary, only_successful: bool, state_names: list[str]) -> dict:

@@ -31,12 +31,12 @@ from accrue.sim.demos import (
     REWARD_KEY,
     STATE_KEY,
     SUCCESS_KEY,
-    _check_out_dir,
-    _label_success_tail,
-    _publish,
-    _write_json_atomic,
+    check_out_dir,
     demo_features,
+    label_success_tail,
+    publish,
     repo_id_for,
+    write_json_atomic,
 )
 
 SOURCE = "so101_env scripted controller (lerobot-env-so101)"
@@ -87,7 +87,7 @@ def write_so101_demos(
     camera = mapping.camera_keys[0] if mapping.camera_keys else None
     scene = SCENES[robot.config.scene]
     tid = task_id(robot.config.scene)
-    _check_out_dir(out_dir)
+    check_out_dir(out_dir)
     max_attempts = max_attempts or episodes + 8
     size = int(robot.config.image_size)
     features = demo_features(list(mapping.state_keys), (size, size, 3) if camera else None, use_video=False)
@@ -112,7 +112,7 @@ def write_so101_demos(
                 attempts += 1
                 if not success:
                     continue
-                _label_success_tail(frames)
+                label_success_tail(frames)
                 for frame in frames:
                     ds.add_frame(frame)
                 with warnings.catch_warnings():
@@ -150,8 +150,8 @@ def write_so101_demos(
                 "action_bounds": [list(b) for b in mapping.action_bounds] if mapping.action_bounds else None,
             },
         }
-        _write_json_atomic(staging / ACCRUE_META, meta)
-        _publish(staging, out_dir)
+        write_json_atomic(staging / ACCRUE_META, meta)
+        publish(staging, out_dir)
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
