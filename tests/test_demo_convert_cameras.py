@@ -98,7 +98,9 @@ def store(tmp_path_factory):
 
 
 def test_the_recorded_camera_becomes_the_demos_image(store, tmp_path):
-    from accrue.policy.training_set import build_training_set
+    from test_so101_env import small_image_act
+
+    from accrue.policy import FinetuneSettings, finetune
     from accrue.sim.demos import IMAGE_KEY, read_demo_info
 
     dataset, images = record(tmp_path / "recorded", (32, 32, 3))
@@ -113,9 +115,13 @@ def test_the_recorded_camera_becomes_the_demos_image(store, tmp_path):
     assert frames.shape == (sum(EPISODE_FRAMES), 32, 32, 3)
     np.testing.assert_array_equal(frames, np.stack(images))  # frame t is the frame recorded with frame t
 
-    # finetune-base's training set of an image policy takes the camera from these demos
-    summary = build_training_set([demos], tmp_path / "training", 1.0, 0, 0, use_images=True)
-    assert summary.image_keys == [IMAGE_KEY] and summary.total_frames == sum(EPISODE_FRAMES)
+    # finetune-base fine-tunes the workflow's image policy (a small ACT reading the camera) on these demos
+    act = small_image_act(tmp_path / "act", size=32)
+    out = finetune(str(act), [demos], tmp_path / "policy", FinetuneSettings(steps=2, batch_size=4, num_workers=0))
+    trained = json.loads((out / "accrue_finetune.json").read_text())
+    assert trained["training_set"]["image_keys"] == [IMAGE_KEY]
+    assert trained["training_set"]["total_frames"] == sum(EPISODE_FRAMES)
+    assert (out / "model.safetensors").is_file()
 
 
 def test_a_camera_recorded_at_another_size_is_resized_to_the_robots(store, tmp_path):
