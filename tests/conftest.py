@@ -35,3 +35,18 @@ def cwd_is_left_as_found():
     if after != before:
         os.chdir(before)
         pytest.fail(f"the test left the working directory at {after}", pytrace=False)
+
+
+@pytest.fixture(autouse=True)
+def sim_task_list_left_as_found():
+    """An SO-101 workflow's robot.imports (accrue.robot.sim_robot.so101_tasks) adds so101/* to the process's
+    task list, and tests that iterate list_tasks() expect the simulator's tasks (with their USD files) only:
+    after each test those tasks go and the module is forgotten, so the next workflow that names it imports
+    it again and registers them anew."""
+    import sys
+
+    yield
+    tasks = sys.modules.get("accrue.sim.tasks")
+    if sys.modules.pop("accrue.robot.sim_robot.so101_tasks", None) is not None and tasks is not None:
+        for task_id in [t for t, spec in tasks._REGISTRY.items() if spec.family == "so101"]:
+            del tasks._REGISTRY[task_id]

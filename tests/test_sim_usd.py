@@ -15,9 +15,7 @@ def test_task_catalogue():
     assert list_tasks("nist") == ["nist/gear", "nist/rect_peg", "nist/round_peg"]
     plugs = list_tasks("plugs")
     assert len(plugs) >= 8
-    # the simulator's own tasks: so101/* (the SO-101 scenes, no USD) join the list in a process where an
-    # earlier test loaded an SO-101 workflow (its robot.imports registers them)
-    for tid in (t for t in list_tasks() if get_task(t).family != "so101"):
+    for tid in list_tasks():
         spec = get_task(tid)
         assert spec.plug_usd.is_file() and spec.socket_usd.is_file() and spec.instruction
     with pytest.raises(AccrueError) as e:
