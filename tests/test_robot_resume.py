@@ -43,15 +43,35 @@ def wait_for(check, timeout: float, what: str):
     raise AssertionError(f"timed out waiting for {what}")
 
 
+_ACTORS: list[subprocess.Popen] = []  # every actor a test started, for kill_leftover_actors
+
+
+@pytest.fixture(autouse=True)
+def kill_leftover_actors():
+    """An actor that stopped itself (SIGSTOP) stays stopped if a check fails before the test kills it: kill
+    it and its learners after every test, so a failure leaves no frozen processes behind."""
+    yield
+    while _ACTORS:
+        actor = _ACTORS.pop()
+        if actor.poll() is None:
+            for pid in children(actor.pid):
+                if alive(pid):
+                    os.kill(pid, signal.SIGKILL)
+            actor.kill()
+            actor.wait(timeout=60)
+
+
 def start_actor(store: Path, wf: Path, stage: int) -> subprocess.Popen:
     env = {**os.environ, "ACCRUE_STORE": str(store), "OMP_NUM_THREADS": "1"}
-    return subprocess.Popen(
+    actor = subprocess.Popen(
         [sys.executable, "-m", "cli.main", "stage", "run", str(wf), "--stage", str(stage), "--step", "train"],
         cwd=ROOT,
         env=env,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
     )
+    _ACTORS.append(actor)
+    return actor
 
 
 def stopped_mid_episode(actor: subprocess.Popen, store: Path, stage: int, after: int) -> int:
