@@ -13,8 +13,6 @@ live). Only episodes that reach the scene's own success signal are kept (the oth
 from __future__ import annotations
 
 import os
-import shutil
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -34,8 +32,9 @@ from accrue.sim.demos import (
     check_out_dir,
     demo_features,
     label_success_tail,
-    publish,
     repo_id_for,
+    save_episode,
+    staged_dataset,
     write_json_atomic,
 )
 
@@ -96,65 +95,58 @@ def write_so101_demos(
     import datasets
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    staging = out_dir.with_name(f".{out_dir.name}.partial-{os.getpid()}")
-    shutil.rmtree(staging, ignore_errors=True)
     bars_were_on = not datasets.are_progress_bars_disabled()
     datasets.disable_progress_bars()
     robot.connect()
     attempts = written = frames_total = 0
     try:
-        ds = LeRobotDataset.create(
-            repo_id=repo_id_for(tid), root=staging, fps=int(CONTROL_HZ), features=features, use_videos=False
-        )
-        try:
-            while written < episodes and attempts < max_attempts:
-                frames, success = _episode(robot, mapping, scene.instruction, camera)
-                attempts += 1
-                if not success:
-                    continue
-                label_success_tail(frames)
-                for frame in frames:
-                    ds.add_frame(frame)
-                with warnings.catch_warnings():
-                    warnings.filterwarnings("ignore", "Converting input from bool", RuntimeWarning)
-                    ds.save_episode()
-                written += 1
-                frames_total += len(frames)
-        finally:
-            ds.finalize()
-        if written == 0:
-            raise AccrueError(f"the package's {robot.config.scene} controller succeeded in none of {attempts} episodes")
-        meta = {
-            "format": ACCRUE_META_FORMAT,
-            "source": SOURCE,
-            "task_id": tid,
-            "instruction": scene.instruction,
-            "robot": "so101_env",
-            "seed": int(robot.config.seed),
-            "quality": 1.0,
-            "obs_mode": "state+image" if camera else "state",
-            "requested": episodes,
-            "episodes": written,
-            "frames": frames_total,
-            "attempts": attempts,
-            "successes": written,
-            "only_successful": True,
-            "expert_success_rate": written / attempts,
-            "fps": int(CONTROL_HZ),
-            "state_names": list(mapping.state_keys),
-            "mapping": {
-                "state_keys": list(mapping.state_keys),
-                "camera_keys": list(mapping.camera_keys),
-                "action_keys": list(mapping.action_keys),
-                "action_mode": mapping.action_mode,
-                "action_bounds": [list(b) for b in mapping.action_bounds] if mapping.action_bounds else None,
-            },
-        }
-        write_json_atomic(staging / ACCRUE_META, meta)
-        publish(staging, out_dir)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
+        with staged_dataset(out_dir) as staging:
+            ds = LeRobotDataset.create(
+                repo_id=repo_id_for(tid), root=staging, fps=int(CONTROL_HZ), features=features, use_videos=False
+            )
+            try:
+                while written < episodes and attempts < max_attempts:
+                    frames, success = _episode(robot, mapping, scene.instruction, camera)
+                    attempts += 1
+                    if not success:
+                        continue
+                    label_success_tail(frames)
+                    save_episode(ds, frames)
+                    written += 1
+                    frames_total += len(frames)
+            finally:
+                ds.finalize()
+            if written == 0:
+                raise AccrueError(
+                    f"the package's {robot.config.scene} controller succeeded in none of {attempts} episodes"
+                )
+            meta = {
+                "format": ACCRUE_META_FORMAT,
+                "source": SOURCE,
+                "task_id": tid,
+                "instruction": scene.instruction,
+                "robot": "so101_env",
+                "seed": int(robot.config.seed),
+                "quality": 1.0,
+                "obs_mode": "state+image" if camera else "state",
+                "requested": episodes,
+                "episodes": written,
+                "frames": frames_total,
+                "attempts": attempts,
+                "successes": written,
+                "only_successful": True,
+                "expert_success_rate": written / attempts,
+                "fps": int(CONTROL_HZ),
+                "state_names": list(mapping.state_keys),
+                "mapping": {
+                    "state_keys": list(mapping.state_keys),
+                    "camera_keys": list(mapping.camera_keys),
+                    "action_keys": list(mapping.action_keys),
+                    "action_mode": mapping.action_mode,
+                    "action_bounds": [list(b) for b in mapping.action_bounds] if mapping.action_bounds else None,
+                },
+            }
+            write_json_atomic(staging / ACCRUE_META, meta)
     finally:
         robot.disconnect()
         if bars_were_on:
