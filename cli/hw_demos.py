@@ -34,6 +34,7 @@ def convert_demos_for_workflow(path: Path, kind: str, workflow: Path, task: str 
     """
     import dataclasses
 
+    from accrue.errors import AccrueError
     from stages.errors import StageError
     from stages.workflow import load_workflow
 
@@ -46,20 +47,30 @@ def convert_demos_for_workflow(path: Path, kind: str, workflow: Path, task: str 
     from accrue.robot.demo_convert import carried_camera, convert_robot_dataset, recorded_tasks
     from accrue.robot.demos import check_robot_dataset
     from accrue.robot.mapping import RobotMapping
+    from accrue.robot.robot_types import config_class
     from accrue.sim.demos import get_task_spec
     from stages.steps.robot_plan import robot_config
+    from stages.steps.robot_session import task_fields
 
     r = robot_config(wf)
-    # the keys the robot itself declares (building its driver object connects nothing): the dataset must hold
-    # them, so demos recorded on another robot are refused
-    robot = robot_factory(r["type"], dict(r["config"]), tuple(r["imports"]))()
+    config_class("robot", r["type"], tuple(r["imports"]), where="robot", type_key="type")  # registers its tasks
+    try:
+        task_id, unnamed = _task_of(wf, recorded_tasks(path), task), None
+    except (StageError, AccrueError) as exc:  # said after the dataset check: a foreign robot's is refused first
+        task_id, unnamed = None, exc
+    # the keys the robot itself declares for that task (building its driver object connects nothing): the
+    # dataset must hold them, so demos recorded on another robot, or with another task's camera, are refused
+    robot = robot_factory(
+        r["type"], task_fields({**r, "task_config": wf.robot.task_config}, task_id), tuple(r["imports"])
+    )()
     mapping = RobotMapping.from_dict(r).bind(
         robot.observation_features, robot.action_features, f"robot {wf.robot.type}"
     )
     camera = carried_camera(mapping, robot.observation_features, wf.obs_mode, f"robot {wf.robot.type}")
     mapping = dataclasses.replace(mapping, camera_keys=())  # the camera (an image workflow's) goes separately
     check_robot_dataset(path, mapping, wf.robot.type, camera)  # metadata first: refused before lerobot loads
-    task_id = _task_of(wf, recorded_tasks(path), task)
+    if unnamed is not None:
+        raise unnamed
     return convert_robot_dataset(
         path, out_dir, mapping, wf.robot.type, task_id, get_task_spec(task_id).instruction, progress=True, camera=camera
     )

@@ -69,12 +69,12 @@ def record(root: Path, camera: tuple | None, pattern: str = "noise", seed: int =
     return root, images
 
 
-def converted(store: Path, ref: str, tmp_path: Path, dataset: Path) -> Path:
+def converted(store: Path, ref: str, tmp_path: Path, dataset: Path, workflow: Path = WORKFLOW) -> Path:
     """`accrue add` of dataset through the workflow; the stored demos as finetune-base is given them."""
     from artifacts.manifests import materialize
     from artifacts.store import Store
 
-    added = accrue("add", str(dataset), "--kind", "demos", "--workflow", str(WORKFLOW), "--ref", ref, store=store)
+    added = accrue("add", str(dataset), "--kind", "demos", "--workflow", str(workflow), "--ref", ref, store=store)
     assert added.returncode == 0, added.stderr
     return materialize(Store.open(store), added.stdout.strip(), tmp_path / ref)
 
@@ -132,6 +132,20 @@ def test_a_camera_recorded_at_another_size_is_resized_to_the_robots(store, tmp_p
     assert (frames[:, :, :14] == A).all() and (frames[:, :, 18:] == B).all()
     meta = json.loads((demos / "meta" / "accrue.json").read_text())
     assert meta["recorded_camera"]["shape"] == [64, 64, 3]
+
+
+def test_the_tasks_own_robot_config_sets_the_camera(store, tmp_path):
+    """robot.task_config over robot.config here too, as where the stages build the task's robot: the task's
+    camera is 16 px, so the demos are 16 px (they were 32, robot.config's, before the rule applied here)."""
+    line = "  config: {scene: reach_close, image_size: 32}\n"
+    text = WORKFLOW.read_text()
+    assert line in text
+    workflow = tmp_path / "per-task.yaml"
+    workflow.write_text(text.replace(line, line + "  task_config: {so101/reach_close: {image_size: 16}}\n"))
+    dataset, _ = record(tmp_path / "recorded", (64, 64, 3), pattern="halves")
+    frames = frames_of(converted(store, "so101-demos/per-task", tmp_path, dataset, workflow))
+    assert frames.shape == (sum(EPISODE_FRAMES), 16, 16, 3)
+    assert (frames[:, :, :7] == A).all() and (frames[:, :, 9:] == B).all()
 
 
 @pytest.mark.parametrize(

@@ -233,6 +233,11 @@ def release_robot(bridge, session: "HardwareSession") -> None:
     session._log("robot-disconnected", session=session.session["id"])
 
 
+def task_fields(r: dict, task: str) -> dict:
+    """robot.config with robot.task_config's fields for `task` over it: that task's robot, wherever it is built."""
+    return {**r["config"], **(r.get("task_config") or {}).get(task, {})}
+
+
 def robot_config_for(c: dict, task: str) -> dict:
     """The fields of the robot's config for `task` (the rule any robot follows, a lab's arm included):
     robot.config, with robot.task_config's fields for that task over it; then, where the robot's config
@@ -243,7 +248,7 @@ def robot_config_for(c: dict, task: str) -> dict:
     from accrue.robot.robot_types import config_class
 
     r = c["robot"]
-    config = {**r["config"], **r.get("task_config", {}).get(task, {})}
+    config = task_fields(r, task)
     if r["type"] == "accrue_sim":
         config.update(task=task)
     cls = config_class("robot", r["type"], tuple(r.get("imports", ())), where="robot", type_key="type")
