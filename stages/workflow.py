@@ -330,12 +330,13 @@ def _check_robot(wf: Workflow, source: str) -> None:
 
 
 def _check_task_config(wf: Workflow) -> None:
-    """robot.task_config names the workflow's tasks and fields of the robot's config class (importing the
-    robot's modules, so only when the section is there)."""
+    """robot.task_config names the workflow's tasks and fields of the robot's config class, with values the
+    class takes over robot.config (importing the robot's modules, so only when the section is there): a bad
+    value is refused at load, not when that task's stage first builds the robot."""
     import dataclasses
 
     from accrue.errors import AccrueError
-    from accrue.robot.robot_types import config_class
+    from accrue.robot.robot_types import config_class, decode_config
 
     r = wf.robot
     for task in r.task_config:
@@ -352,6 +353,7 @@ def _check_task_config(wf: Workflow) -> None:
             )
         if r.type == "accrue_sim" and "task" in overrides:  # robot_session.robot_config_for sets it per stage
             raise AccrueError(f"robot.task_config.{task}: task is the stage's own task on accrue_sim; leave it out")
+        decode_config(cls, {**r.config, **overrides}, f"robot.task_config.{task}")
 
 
 def _check_learner(wf: Workflow, source: str) -> None:

@@ -162,6 +162,10 @@ def test_bad_task_config_and_scripted_keys_are_one_line_refusals(tmp_path):
             "robot.task_config.nist/round_peg: 'estimate_nose' is not a field of AccrueSimConfig, robot.type "
             "accrue_sim's config (fields: ",
         ),
+        "value.yaml": (  # a value the config class refuses: at load, not when stage 2 builds the robot
+            {"task_config": {"nist/round_peg": {"estimate_noise": "half"}}},
+            "robot.task_config.nist/round_peg: not a valid AccrueSimConfig (",
+        ),
         "scripted.yaml": ({"scripted": {"mistake": [1]}}, "robot.scripted.mistake: unknown field"),
     }
     for name, (robot, line) in cases.items():

@@ -120,13 +120,7 @@ def lerobot_factory(
     cls = config_class(kind, type_name, imports, where=where, type_key=type_key)
     make_from_config = _lerobot_kind(kind)[1]
     field = f"{where}.{type_key}"
-    try:
-        import draccus
-
-        device_config = draccus.decode(cls, dict(config))
-    except Exception as exc:  # noqa: BLE001 - draccus raises many types for a bad field
-        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise AccrueError(f"{where}.config: not a valid {cls.__name__} ({first})") from None
+    device_config = decode_config(cls, config, f"{where}.config")
     package = cls.__module__.rsplit(".", 1)[0]
 
     def make():
@@ -141,6 +135,18 @@ def lerobot_factory(
             raise line from None
 
     return make
+
+
+def decode_config(cls: type, config: dict[str, Any], where: str):
+    """`config` as an instance of lerobot config class `cls` (draccus checks each value's type and the class's
+    own checks run); a value it refuses is one AccrueError line naming `where`."""
+    try:
+        import draccus
+
+        return draccus.decode(cls, dict(config))
+    except Exception as exc:  # noqa: BLE001 - draccus raises many types for a bad field
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise AccrueError(f"{where}: not a valid {cls.__name__} ({first})") from None
 
 
 def config_class(kind: str, type_name: str, imports: tuple[str, ...], *, where: str, type_key: str) -> type:
