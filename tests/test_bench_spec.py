@@ -253,3 +253,20 @@ def test_issue_18_specs_declare_their_predictions_and_protocol():
     assert ablations >= {"no-reference", "beta0", "reset-critic", "critic-all-replay"}
     predicted = {m for p in abl.predictions for m in p.than}
     assert predicted >= {"no-reference", "beta0", "reset-critic", "critic-all-replay", "beta0-old-optimiser"}
+
+
+def test_issue_18_specs_run_at_the_budget_the_single_task_rule_chose():
+    """The budget of each issue-18 spec is the one `accrue bench budget workflows/bench/contact-budget.yaml`
+    chose for its family (its output committed beside the budget report), with eval_every = B / 10:
+    a spec edited to another budget after the freeze fails here."""
+    bench = ROOT / "workflows" / "bench"
+    chosen = {}
+    for line in (ROOT / "benchmarks/results/bench/contact-budget/budget.txt").read_text().splitlines():
+        if " -> chosen " in line:
+            family, rest = line.split(":", 1)
+            chosen[family] = int(rest.split(" -> chosen ")[1].split()[0])
+    assert set(chosen) == {"contact", "nist"}
+    for name, family in (("contact-headline", "contact"), ("contact-ablations", "contact"), ("bias-control", "nist")):
+        for c in load_spec(bench / f"{name}.yaml").cells:
+            b = c.workflow.budgets
+            assert (b.env_steps, b.eval_every) == (chosen[family], chosen[family] // 10), (name, c.method)
