@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from artifacts.store import Store
-from stages.bench.report import build_report, markdown, write_report
+from stages.bench.report import build_report, markdown, missing_lines, write_report
 from stages.bench.spec import load_spec
 from stages.bench.state import cell_states, counts, record_outcome
 from stages.report.data import EVALUATE, SOURCES, TRAIN
@@ -277,3 +277,28 @@ def test_a_comparison_on_fewer_than_three_pairs_is_not_judged():
     [judged] = judge([Claim("x", "NBT", "lower", ("a", "b"))], diffs)
     assert [a["verdict"] for a in judged["against"]] == ["too few pairs", "holds"]
     assert judged["verdict"] == "not resolved"
+
+
+def test_missing_cells_not_started_are_one_line_per_method():
+    """A grid run in parts: the cells that have something to say (started, failed) keep a line each;
+    those not started yet are one line per method, orderings that miss the same seeds grouped."""
+
+    def cell(method, ordering, seed, state="pending", stages_done=0, error=None):
+        return dict(method=method, ordering=ordering, seed=seed, state=state, stages_done=stages_done, error=error)
+
+    missing = [
+        cell("accrue", "A", 0, "running", 1),
+        cell("accrue", "A", 1),
+        cell("accrue", "B", 0),
+        cell("accrue", "B", 1),
+        cell("accrue", "C", 0),
+        cell("accrue", "C", 1),
+        cell("ewc", "A", 0, "failed", 2, "step train: boom"),
+        cell("ewc", "B", 2),
+    ]
+    assert missing_lines(missing) == [
+        "- accrue · A · seed 0 — running (stages done: 1)",
+        "- ewc · A · seed 0 — failed (stages done: 2): step train: boom",
+        "- accrue — not started: 5 cells (A × seeds 1; B, C × seeds 0, 1)",
+        "- ewc — not started: 1 cell (B × seeds 2)",
+    ]

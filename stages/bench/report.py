@@ -263,15 +263,31 @@ def markdown(report: dict, command: str | None = None, heading_level: int = 3) -
             markdown_table(header, rows),
         ]
     if report["missing"]:
-        lines += [f"Missing cells ({len(report['missing'])}):", ""]
-        for m in report["missing"]:
-            why = f": {m['error']}" if m["error"] else ""
-            lines.append(
-                f"- {m['method']} · {m['ordering']} · seed {m['seed']} — {m['state']} "
-                f"(stages done: {m['stages_done']}){why}"
-            )
-        lines.append("")
+        lines += [f"Missing cells ({len(report['missing'])}):", "", *missing_lines(report["missing"]), ""]
     return "\n".join(lines)
+
+
+def missing_lines(missing: list[dict]) -> list[str]:
+    """One line per missing cell that has something to say (started, failed, unreadable); the cells not
+    started yet, per method, on one line by ordering and seeds: a large grid run in parts would otherwise
+    list every cell it has not reached."""
+    lines, untouched = [], {}
+    for m in missing:
+        if m["state"] == "pending" and not m["stages_done"] and not m["error"]:
+            untouched.setdefault(m["method"], {}).setdefault(m["ordering"], []).append(m["seed"])
+            continue
+        why = f": {m['error']}" if m["error"] else ""
+        lines.append(
+            f"- {m['method']} · {m['ordering']} · seed {m['seed']} — {m['state']} (stages done: {m['stages_done']}){why}"
+        )
+    for method, orderings in untouched.items():
+        by_seeds = {}  # orderings that miss the same seeds share one entry
+        for o, seeds in orderings.items():
+            by_seeds.setdefault(tuple(sorted(seeds)), []).append(o)
+        parts = "; ".join(f"{', '.join(os)} × seeds {', '.join(map(str, seeds))}" for seeds, os in by_seeds.items())
+        n = sum(len(v) for v in orderings.values())
+        lines.append(f"- {method} — not started: {n} cell{'s' if n != 1 else ''} ({parts})")
+    return lines
 
 
 def _transfer_lines(report: dict) -> list[str]:
@@ -281,8 +297,10 @@ def _transfer_lines(report: dict) -> list[str]:
         return []
     done, disjoint = report["cells_done"], report.get("runs_with_report_set", 0)
     sets = (
-        "every run's numbers are on a disjoint report set (best checkpoint chosen on the selection set)"
-        if done and disjoint == done
+        "no run is done yet"
+        if not done
+        else "every run's numbers are on a disjoint report set (best checkpoint chosen on the selection set)"
+        if disjoint == done
         else f"{disjoint} of {done} runs have a disjoint report set; the others' numbers are on the episodes "
         "their best checkpoint was chosen on (runs from before the split)"
     )
