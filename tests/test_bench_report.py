@@ -302,3 +302,14 @@ def test_missing_cells_not_started_are_one_line_per_method():
         "- accrue — not started: 5 cells (A × seeds 1; B, C × seeds 0, 1)",
         "- ewc — not started: 1 cell (B × seeds 2)",
     ]
+
+
+def test_a_spec_not_run_yet_shows_its_predictions_without_tables_of_dashes(tmp_path):
+    """bias-control before any cell: no metric table, every declared prediction listed as not resolved,
+    and the missing cells summed up per method."""
+    store = Store.init(tmp_path / "store")[0]
+    text = markdown(build_report(store, load_spec(ROOT / "workflows" / "bench" / "bias-control.yaml")))
+    assert "0 of 48 cells done" in text and "No cell is done yet" in text
+    assert "| method | runs | NBT" not in text and "Difference from" not in text
+    assert text.count("**not resolved**") == 3
+    assert "- accrue — not started: 24 cells (ROG, RGO, ORG, OGR, GRO, GOR × seeds 0, 1, 2, 3)" in text

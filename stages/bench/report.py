@@ -199,13 +199,18 @@ def markdown(report: dict, command: str | None = None, heading_level: int = 3) -
         f"Each entry: mean over runs (orderings × seeds) [{round(agg['confidence'] * 100)}% percentile-bootstrap CI "
         f"of the mean, {agg['resamples']} resamples, numpy seed {agg['bootstrap_seed']}]; — = undefined or no run.",
         "",
-        markdown_table(METHOD_HEADER, method_rows(agg, report["expected_runs"])),
-        "Per ordering (mean [CI] over its seeds):",
-        "",
-        markdown_table(ORDERING_HEADER, ordering_rows(agg, expected_o)),
     ]
-    lines += _transfer_lines(report)
-    if report.get("differences"):
+    if not report["cells_done"]:  # a spec not run yet: its declared predictions, without tables of dashes
+        lines += ["No cell is done yet: the metric tables appear as cells finish.", ""]
+    else:
+        lines += [
+            markdown_table(METHOD_HEADER, method_rows(agg, report["expected_runs"])),
+            "Per ordering (mean [CI] over its seeds):",
+            "",
+            markdown_table(ORDERING_HEADER, ordering_rows(agg, expected_o)),
+        ]
+        lines += _transfer_lines(report)
+    if report.get("differences") and report["cells_done"]:
         ref = report["reference"]
         lines += [
             f"Difference from `{ref}`, paired by ordering and seed (mean [CI] of method − {ref}; "
