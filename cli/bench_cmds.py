@@ -255,18 +255,28 @@ def budget(
     tolerance: Annotated[
         float, typer.Option("--tolerance", help="Plateau: within this much of the next budget's success.")
     ] = 0.03,
+    against: Annotated[
+        str,
+        typer.Option(
+            "--against",
+            help="every: within --tolerance of every larger budget (the rule); next: of the next larger "
+            "one only (the rule as first declared, 2026-12-02).",
+        ),
+    ] = "every",
     store: StoreOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
     """Issue 18's budget rule on a Single-task-only spec (workflows/bench/contact-budget.yaml): per ordering,
-    the smallest per-stage budget whose stage-end success is within --tolerance of the next larger one's."""
-    from stages.bench.budget import choose_budgets
+    the smallest per-stage budget whose stage-end success is within --tolerance of every larger one's."""
+    from stages.bench.budget import AGAINST, choose_budgets
     from stages.bench.spec import load_spec
     from stages.errors import StageError
 
     if not 0 <= tolerance < 1:
         raise StageError(f"--tolerance: must be in [0, 1) (got {tolerance})")
-    rows = choose_budgets(open_store(store), load_spec(spec), tolerance)
+    if against not in AGAINST:
+        raise StageError(f"--against: must be one of {', '.join(AGAINST)} (got {against!r})")
+    rows = choose_budgets(open_store(store), load_spec(spec), tolerance, against)
     if as_json:
         print_json(rows)
         return

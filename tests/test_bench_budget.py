@@ -28,6 +28,18 @@ def test_plateau_by_hand():
     assert plateau([(12000, 0.5), (24000, 0.6)], tolerance=0.1) == (12000, True)
 
 
+def test_plateau_compares_with_every_larger_budget():
+    """The contact family's measured points (contact-budget.yaml): 12k and 24k both precede learning, so
+    12k is within 0.03 of 24k, but 48k gains 0.077 over it. The rule takes 48k; compared with the next
+    budget only (the rule as first declared) it took 12k."""
+    contact = [(12000, 0.320), (24000, 0.342), (48000, 0.397)]
+    assert plateau(contact) == (48000, False)
+    assert plateau(contact, against="next") == (12000, True)
+    assert plateau([(12000, 0.5), (24000, 0.7), (48000, 0.71)]) == (24000, True)  # flat after 24k
+    with pytest.raises(ValueError, match="against"):
+        plateau(contact, against="all")
+
+
 SPEC = {
     "base": "base.yaml",
     "methods": {
@@ -97,3 +109,11 @@ def test_cli_prints_the_choice_and_a_bad_tolerance_is_one_line(budget_bench):
         env=env,
     )
     assert bad.returncode == 2 and bad.stderr.startswith("error: --tolerance") and bad.stderr.count("\n") == 1
+    worse = subprocess.run(
+        [sys.executable, "-m", "cli.main", "bench", "budget", str(path), "--against", "all"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        env=env,
+    )
+    assert worse.returncode == 2 and worse.stderr.startswith("error: --against") and worse.stderr.count("\n") == 1
