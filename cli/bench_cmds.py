@@ -253,7 +253,8 @@ def report(
 def budget(
     spec: SpecArg,
     tolerance: Annotated[
-        float, typer.Option("--tolerance", help="Plateau: within this much of the next budget's success.")
+        float,
+        typer.Option("--tolerance", help="Plateau: within this much of every larger budget's success (--against)."),
     ] = 0.03,
     against: Annotated[
         str,

@@ -90,30 +90,16 @@ def test_only_single_task_chooses_the_budget(tmp_path):
 def test_cli_prints_the_choice_and_a_bad_tolerance_is_one_line(budget_bench):
     spec, store, path = budget_bench
     env = {**os.environ, "ACCRUE_STORE": str(store.root)}
-    res = subprocess.run(
-        [sys.executable, "-m", "cli.main", "bench", "budget", str(path)],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        env=env,
-    )
+
+    def budget_cli(*args):
+        cmd = [sys.executable, "-m", "cli.main", "bench", "budget", str(path), *args]
+        return subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env)
+
+    res = budget_cli()
     assert res.returncode == 0, res.stderr
     assert res.stdout.strip() == (
         "S1: stage-end success by budget 100: 0.700 (2 of 2 runs), 200: 0.800 (1 of 2 runs) -> not chosen: cells missing"
     )
-    bad = subprocess.run(
-        [sys.executable, "-m", "cli.main", "bench", "budget", str(path), "--tolerance", "2"],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        env=env,
-    )
-    assert bad.returncode == 2 and bad.stderr.startswith("error: --tolerance") and bad.stderr.count("\n") == 1
-    worse = subprocess.run(
-        [sys.executable, "-m", "cli.main", "bench", "budget", str(path), "--against", "all"],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        env=env,
-    )
-    assert worse.returncode == 2 and worse.stderr.startswith("error: --against") and worse.stderr.count("\n") == 1
+    for args, option in ((["--tolerance", "2"], "--tolerance"), (["--against", "all"], "--against")):
+        bad = budget_cli(*args)
+        assert bad.returncode == 2 and bad.stderr.startswith(f"error: {option}") and bad.stderr.count("\n") == 1

@@ -302,10 +302,8 @@ def _transfer_lines(report: dict) -> list[str]:
         return []
     done, disjoint = report["cells_done"], report.get("runs_with_report_set", 0)
     sets = (
-        "no run is done yet"
-        if not done
-        else "every run's numbers are on a disjoint report set (best checkpoint chosen on the selection set)"
-        if disjoint == done
+        "every run's numbers are on a disjoint report set (best checkpoint chosen on the selection set)"
+        if done and disjoint == done
         else f"{disjoint} of {done} runs have a disjoint report set; the others' numbers are on the episodes "
         "their best checkpoint was chosen on (runs from before the split)"
     )
