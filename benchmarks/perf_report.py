@@ -519,14 +519,14 @@ def write_readme(results: dict) -> None:
 
 
 def _measuring_args(argv: list[str]) -> list[str]:
-    """argv without what does not change a figure (--note TEXT, --readme)."""
+    """argv without what does not change a figure (--note TEXT, --out FILE, --readme)."""
     kept, skip = [], False
     for a in argv:
         if skip:
             skip = False
-        elif a == "--note":
+        elif a in ("--note", "--out"):
             skip = True
-        elif not (a.startswith("--note=") or a == "--readme"):
+        elif not (a.startswith(("--note=", "--out=")) or a == "--readme"):
             kept.append(a)
     return kept
 
