@@ -70,6 +70,30 @@ def test_load_reports_missing_or_bad_shards(tmp_path):
         ReplayBuffer.load(tmp_path / "nowhere")
 
 
+@pytest.mark.parametrize(
+    "damage, message",
+    [
+        (lambda index, shard: index.update(shards=3), "malformed replay index \\(shard entry"),
+        (lambda index, shard: index["shards"][0].pop("file"), "malformed replay index \\(shard entry: 'file'"),
+        (lambda index, shard: index["shards"][0].update(count="three"), "malformed replay index \\(shard entry"),
+        (lambda index, shard: shard.write_bytes(b"not a safetensors file"), "corrupt replay shard"),
+    ],
+    ids=["shards-not-a-list", "entry-without-file", "count-not-a-number", "shard-file-garbage"],
+)
+def test_a_damaged_replay_directory_is_one_accrue_error_not_a_bare_exception(tmp_path, damage, message):
+    """Found by the mutation triage of replay.py: the shard entries and the shard files were read outside
+    the index's error handling, so these raised TypeError / KeyError / SafetensorError (a CLI traceback)."""
+    buf = ReplayBuffer(D, H, A)
+    add_rows(buf, 3, 0, 0)
+    buf.save_new_shards(tmp_path)
+    index_path = tmp_path / "index.json"
+    index = json.loads(index_path.read_text())
+    damage(index, tmp_path / "shard-0000000000-0000000003.safetensors")
+    index_path.write_text(json.dumps(index))
+    with pytest.raises(AccrueError, match=message):
+        ReplayBuffer.load(tmp_path)
+
+
 def test_sampling_is_deterministic_under_a_generator():
     buf = ReplayBuffer(D, H, A)
     add_rows(buf, 50, 0, torch.arange(50) // 5)

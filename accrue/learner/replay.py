@@ -310,6 +310,7 @@ class ReplayBuffer:
 
     @classmethod
     def load(cls, directory: str | Path, device: str | torch.device = "cpu") -> "ReplayBuffer":
+        from safetensors import SafetensorError
         from safetensors.torch import load_file
 
         directory = Path(directory)
@@ -327,17 +328,24 @@ class ReplayBuffer:
             raise AccrueError(f"{directory}: not a replay buffer (no {INDEX_FILE})") from None
         except (ValueError, KeyError, TypeError) as exc:
             raise AccrueError(f"{directory / INDEX_FILE}: malformed replay index ({exc})") from None
-        for shard in shards:
-            path = directory / shard["file"]
+        try:  # every shard entry is read before any shard, so a bad entry is the index's error
+            entries = [(directory / str(s["file"]), int(s["start"]), int(s["count"])) for s in shards]
+        except (ValueError, KeyError, TypeError) as exc:
+            raise AccrueError(f"{directory / INDEX_FILE}: malformed replay index (shard entry: {exc})") from None
+        for path, start, count in entries:
             if not path.exists():
                 raise AccrueError(f"{path}: replay shard listed in the index is missing")
-            rows = load_file(str(path))
-            rows.setdefault("ended", rows["done"].clone())  # shards written before episodes were marked
-            rows.setdefault("intervention", torch.zeros_like(rows["done"]))  # no row of the shard was taken over
-            if rows["state"].shape[0] != shard["count"] or shard["start"] != buf.size:
+            try:
+                rows = load_file(str(path))
+                rows.setdefault("ended", rows["done"].clone())  # shards written before episodes were marked
+                rows.setdefault("intervention", torch.zeros_like(rows["done"]))  # no row of it was taken over
+                rows_in_shard = rows["state"].shape[0]
+            except (SafetensorError, KeyError) as exc:
+                raise AccrueError(f"{path}: corrupt replay shard ({exc})") from None
+            if rows_in_shard != count or start != buf.size:
                 raise AccrueError(f"{path}: replay shard does not match the index")
             buf._write(rows)
-            buf._shards.append((int(shard["start"]), int(shard["count"])))
+            buf._shards.append((start, count))
         if buf.size != index["size"]:
             raise AccrueError(f"{directory / INDEX_FILE}: index size {index['size']} != rows in shards {buf.size}")
         return buf
