@@ -148,29 +148,36 @@ def row_finetune(args) -> dict:
 
 
 # --------------------------------------------------------------------------- cell
-def committed_attempts(store: Path) -> list[dict]:
-    """Every step attempt that committed, in order, from the store's event log: its workflow (the cell),
-    stage, step and seconds. A step found in the cache has no attempt, so it costs its cell nothing."""
+def step_attempts(store: Path) -> list[dict]:
+    """Every step attempt that started, in order, from the store's event log: its workflow (the cell), stage,
+    step and seconds (None when it never committed: cut off, or still running). A step found in the cache
+    has no attempt, so it costs its cell nothing."""
     from datetime import datetime
 
-    started, rows = {}, []
+    attempts, by_key = [], {}
     for line in (store / "log" / "events.jsonl").read_text().splitlines():
         event = json.loads(line)
         key = (event.get("cache_key"), event.get("attempt"))
         if event.get("event") == "step-started":
-            started[key] = event
-        elif event.get("event") == "step-committed" and key in started:
-            begun = started.pop(key)
-            seconds = (datetime.fromisoformat(event["ts"]) - datetime.fromisoformat(begun["ts"])).total_seconds()
-            rows.append(
-                {
-                    "workflow": begun.get("workflow"),
-                    "stage": begun.get("stage"),
-                    "step": event["step"],
-                    "seconds": seconds,
-                }
-            )
-    return rows
+            by_key[key] = {
+                "workflow": event.get("workflow"),
+                "stage": event.get("stage"),
+                "step": event.get("step"),
+                "seconds": None,
+                "ts": event["ts"],
+            }
+            attempts.append(by_key[key])
+        elif event.get("event") == "step-committed" and key in by_key and by_key[key]["seconds"] is None:
+            a = by_key[key]
+            a["seconds"] = (datetime.fromisoformat(event["ts"]) - datetime.fromisoformat(a["ts"])).total_seconds()
+    for a in attempts:
+        del a["ts"]
+    return attempts
+
+
+def committed_attempts(store: Path) -> list[dict]:
+    """The step attempts that committed (see step_attempts)."""
+    return [a for a in step_attempts(store) if a["seconds"] is not None]
 
 
 def step_seconds(store: Path) -> list[list]:
@@ -332,6 +339,18 @@ def project_grid(specs: list, done: dict[str, bool], spent: dict[str, float], co
     }
 
 
+def cell_costs(attempts: list[dict]) -> tuple[dict[str, float], set[str]]:
+    """Seconds per cell (workflow) of its committed steps, and the cells with a cut-off attempt. Such a cell
+    resumed from a checkpoint: the work before the cut has no end time, so its committed steps under-state
+    its cost, and it is left out (done, it still costs the grid nothing more)."""
+    cut = {a["workflow"] for a in attempts if a["seconds"] is None}
+    spent: dict[str, float] = {}
+    for a in attempts:
+        if a["seconds"] is not None and a["workflow"] not in cut:
+            spent[a["workflow"]] = spent.get(a["workflow"], 0.0) + a["seconds"]
+    return spent, cut
+
+
 def row_grid(args) -> dict:
     from artifacts.store import Store
     from stages.bench.spec import load_spec
@@ -340,14 +359,15 @@ def row_grid(args) -> dict:
     if args.store is None or not (args.store / "objects").is_dir():
         raise SystemExit("error: the grid row reads a bench store: give --store DIR (an accrue store)")
     store = Store.open(args.store)
-    spent: dict[str, float] = {}
-    for a in committed_attempts(args.store):
-        spent[a["workflow"]] = spent.get(a["workflow"], 0.0) + a["seconds"]
+    attempts = step_attempts(args.store)
+    spent, cut = cell_costs(attempts)
     specs = [load_spec(ROOT / "workflows" / "bench" / f"{name}.yaml") for name in GRID_SPECS]
     done = {name: st.state == "done" for spec in specs for name, st in cell_states(store, spec).items()}
     return {
         "what": f"issue 18's grid ({', '.join(GRID_SPECS)}) on {os.cpu_count()} cores, projected from the cells "
-        "run in the store (their committed steps' wall times, 2 cells side by side at nice 10)",
+        "run in the store without a cut-off attempt (their committed steps' wall times; as many cells at a time "
+        "as cores)",
+        "cells_cut_off": len(cut),
         **project_grid(specs, done, spent, os.cpu_count() or 1),
     }
 

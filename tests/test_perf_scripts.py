@@ -123,6 +123,10 @@ def test_committed_attempts_cost_a_cell_only_what_it_ran(tmp_path):
     (tmp_path / "log" / "events.jsonl").write_text("".join(json.dumps(e) + "\n" for e in events))
     assert pr.committed_attempts(tmp_path) == [{"workflow": "w", "stage": 1, "step": "train", "seconds": 90.0}]
     assert pr.step_seconds(tmp_path) == [["train", 90.0]]
+    # w has a cut-off attempt (k2): its committed 90 s under-state what it cost, so it measures nothing
+    assert pr.cell_costs(pr.step_attempts(tmp_path)) == ({}, {"w"})
+    whole = [{"workflow": "v", "seconds": 30.0}, {"workflow": "v", "seconds": 12.0}]
+    assert pr.cell_costs(whole + pr.step_attempts(tmp_path)) == ({"v": 42.0}, {"w"})
 
 
 def test_why_not_met_is_met_or_a_reason_from_the_stored_figures():
