@@ -231,22 +231,41 @@ def report(
             show_default=False,
         ),
     ] = None,
+    records: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--records",
+            help="Directory of cell records (<cell>.json): writes one for every cell the store has done, and "
+            "takes a cell the store has not done from its record, so results survive a change of machine.",
+            show_default=False,
+        ),
+    ] = None,
     store: StoreOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
     """Per method, mean over orderings x seeds of NBT, FWT, AUC, ACC_final, F_final with 95% bootstrap CIs;
     the per-ordering breakdown; missing cells listed; Markdown, CSV, JSON and plots written to --out."""
-    from stages.bench.report import build_report, default_out_dir, markdown, write_report
+    from stages.bench.records import load_records, write_records
+    from stages.bench.report import default_out_dir, markdown, report_and_records, write_report
     from stages.bench.spec import load_spec
+    from stages.errors import StageError
 
     sp = load_spec(spec)
-    rep = build_report(open_store(store), sp)
-    files = write_report(rep, out if out is not None else default_out_dir(sp), command=f"accrue bench report {spec}")
+    st = open_store(store)
+    if records is not None and records.resolve().is_relative_to(st.root.resolve()):
+        raise StageError(f"--records {records}: inside the store {st.root}; records go beside it (they outlive it)")
+    recorded = None if records is None else load_records(records, sp)  # a bad record stops before any write
+    rep, fresh = report_and_records(st, sp, recorded)
+    command = f"accrue bench report {spec}" + ("" if records is None else f" --records {records}")
+    files = write_report(rep, out if out is not None else default_out_dir(sp), command=command)
+    written = [] if records is None else write_records(records, fresh)
     if as_json:
-        print_json({**rep, "files": files})
+        print_json({**rep, "files": files, **({} if records is None else {"records_written": list(map(str, written))})})
         return
-    typer.echo(markdown(rep, command=f"accrue bench report {spec}"))
+    typer.echo(markdown(rep, command=command))
     typer.echo("wrote: " + ", ".join(p for p in files.values() if p))
+    if records is not None:
+        typer.echo(f"records: {len(written)} written or refreshed in {records} ({len(fresh) - len(written)} unchanged)")
 
 
 @bench_app.command("budget")

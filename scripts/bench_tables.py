@@ -3,11 +3,15 @@ command, seeds and orderings that made them), so README tables are generated, ne
 
     python scripts/bench_tables.py workflows/bench/nist-small.yaml [more specs] [--store PATH]
     python scripts/bench_tables.py workflows/bench/nist-small.yaml --readme README.md
+    python scripts/bench_tables.py workflows/bench/contact-headline.yaml --records-root benchmarks/results/bench
+
+With --records-root ROOT, cells the store has not done come from their records in ROOT/<spec name>/cells
+(stages/bench/records.py), and a record is written there for every cell the store has done.
 
 With --readme, each spec's tables replace what lies between the markers
     <!-- bench:<spec name> -->  and  <!-- /bench:<spec name> -->
 in that file (add the two marker lines where the table goes); without it they go to stdout.
-Exit 2 with one line on a bad spec, a missing store or missing markers.
+Exit 2 with one line on a bad spec, a missing store, a bad record or missing markers.
 """
 
 from __future__ import annotations
@@ -21,12 +25,19 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 
-def tables(spec_path: Path, store, command: str) -> tuple[str, str]:
-    from stages.bench.report import build_report, markdown
+def tables(spec_path: Path, store, command: str, records_root: Path | None = None) -> tuple[str, str]:
+    """A spec's Markdown tables; with records_root, from the store plus the cell records in
+    <records_root>/<spec name>/cells (refreshed from the store's done cells, as `bench report --records`)."""
+    from stages.bench.records import load_records, write_records
+    from stages.bench.report import markdown, report_and_records
     from stages.bench.spec import load_spec
 
     spec = load_spec(spec_path)
-    report = build_report(store, spec)
+    directory = None if records_root is None else records_root / spec.name / "cells"
+    recorded = None if directory is None else load_records(directory, spec)
+    report, fresh = report_and_records(store, spec, recorded)
+    if directory is not None:
+        write_records(directory, fresh)
     return spec.name, markdown(report, command=command, heading_level=3)
 
 
@@ -46,6 +57,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("specs", nargs="+", type=Path, help="bench spec YAML files")
     ap.add_argument("--store", type=Path, default=None, help="store (default $ACCRUE_STORE or ./.accrue)")
     ap.add_argument("--readme", type=Path, default=None, help="replace the marked blocks in this file")
+    ap.add_argument(
+        "--records-root",
+        type=Path,
+        default=None,
+        help="cell records in ROOT/<spec name>/cells: used for cells the store has not done, refreshed from the rest",
+    )
     args = ap.parse_args(argv)
     from accrue.errors import AccrueError
     from artifacts.errors import StoreError
@@ -55,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
     command = "python scripts/bench_tables.py " + " ".join(argv)
     try:
         store = Store.open(args.store)
-        blocks = [tables(p, store, command) for p in args.specs]
+        blocks = [tables(p, store, command, args.records_root) for p in args.specs]
         if args.readme is None:
             print("\n".join(b for _, b in blocks))
             return 0

@@ -5,7 +5,13 @@ and its predictions, each judged; every cell that is not done (or cannot be read
 with why. Runs with a disjoint report set are scored on it (best checkpoint chosen on the selection
 set); older runs, on the one set they have, and the report counts which is which.
 
+With cell records (stages/bench/records.py), a cell the store has not done is taken from its record
+(state `recorded`) and counts like a store cell everywhere; the report's "records" part says how many
+came from records and from where, which store cells' records disagree with the store (the store wins),
+and which records are not this spec's. `fresh` holds a record of every done store cell, to be written.
+
     report = build_report(store, spec)                   # JSON-able dict
+    report, fresh = report_and_records(store, spec, load_records(dir, spec))   # with cell records (above)
     files = write_report(report, out_dir)                # report.md, summary.csv, cells.csv, stage_curves.csv,
                                                          # report.json, PNGs
     text = markdown(report, command=...)                 # what scripts/bench_tables.py pastes into the README
@@ -23,6 +29,7 @@ from artifacts.errors import StoreError
 from artifacts.store import Store
 from stages.bench.claims import MIN_PAIRS, claims_markdown, judge, judge_against
 from stages.bench.curves import mean_stage_curves, stage_curves_csv, stage_success_rows
+from stages.bench.records import Recorded, metric_differences, provenance_label, store_record
 from stages.bench.spec import BenchSpec
 from stages.bench.state import cell_states
 from stages.errors import StageError
@@ -71,11 +78,24 @@ def _stage_curves(run) -> list[dict]:
     return out
 
 
-def build_report(store: Store, spec: BenchSpec) -> dict:
-    """The report: tables, paired differences, claims and mean stage curves, all JSON-able."""
+def _stage_artifacts(run) -> list[dict]:
+    """Per stage, the committed train step record and its curve artifact: what the metrics were read from."""
+    return [{"stage": sc.stage, "train_record": sc.record, "curve_artifact": sc.artifact} for sc in run.curves]
+
+
+def build_report(store: Store, spec: BenchSpec, recorded: Recorded | None = None) -> dict:
+    """The report: tables, paired differences, claims and mean stage curves, all JSON-able. With
+    `recorded` (stages.bench.records.load_records), a cell the store has not done is taken from its record."""
+    return report_and_records(store, spec, recorded)[0]
+
+
+def report_and_records(store: Store, spec: BenchSpec, recorded: Recorded | None = None) -> tuple[dict, list[dict]]:
+    """The report, and a cell record for every cell the store has done (for write_records); without
+    `recorded` the report is exactly the store's."""
     states = cell_states(store, spec)
-    cells, records, missing = [], [], []
+    cells, records, missing, fresh = [], [], [], []
     curves: dict[str, list] = {m: [] for m in spec.methods}
+    used, compared = [], []  # records that stand in for a cell; (cell, record file, differences) checks
     for cell in spec.cells:
         st = states[cell.name]
         row = {
@@ -109,6 +129,22 @@ def build_report(store: Store, spec: BenchSpec) -> dict:
                 row["disjoint_report"] = rec["disjoint_report"]
                 records.append(rec)
                 curves[cell.method].append(_stage_curves(run))
+                if recorded is not None:
+                    fresh.append(
+                        store_record(spec, cell, rec, _stage_curves(run), _stage_artifacts(run), str(store.root))
+                    )
+                    if cell.name in recorded.by_cell:
+                        diff = metric_differences(fresh[-1], recorded.by_cell[cell.name])
+                        compared.append({"cell": cell.name, "file": str(recorded.files[cell.name]), "differ": diff})
+        if row["metrics"] is None and recorded is not None and cell.name in recorded.by_cell:
+            saved = recorded.by_cell[cell.name]
+            rec = saved["run_record"]
+            row.update(state="recorded", error=None, metrics=rec["metrics"], disjoint_report=rec["disjoint_report"])
+            row["record"] = {"file": str(recorded.files[cell.name]), "provenance": provenance_label(saved)}
+            records.append(rec)
+            used.append(saved)
+            if saved["stage_curves"] is not None:
+                curves[cell.method].append(saved["stage_curves"])
         if row["metrics"] is None:
             missing.append({k: row[k] for k in ("cell", "method", "ordering", "seed", "state", "stages_done", "error")})
         cells.append(row)
@@ -152,7 +188,27 @@ def build_report(store: Store, spec: BenchSpec) -> dict:
         "runs_with_report_set": sum(1 for r in records if r["disjoint_report"]),
         "stage_curves": mean_stage_curves(curves),
     }
-    return report
+    if recorded is not None:
+        report["records"] = _records_summary(recorded, used, compared, fresh, curves)
+    return report, fresh
+
+
+def _records_summary(recorded: Recorded, used: list, compared: list, fresh: list, curves: dict) -> dict:
+    """What the cell records added to the report and what checking them against the store found."""
+    by_origin: dict[str, int] = {}
+    for r in used:
+        by_origin[provenance_label(r)] = by_origin.get(provenance_label(r), 0) + 1
+    return {
+        "directory": str(recorded.directory),
+        "cells_from_records": len(used),
+        "from": [{"provenance": k, "cells": n} for k, n in by_origin.items()],
+        "cells_recorded_from_store": len(fresh),
+        "checked_against_store": len(compared),
+        "differ": [c for c in compared if c["differ"]],
+        "ignored": recorded.ignored,
+        "runs_with_stage_curves": sum(len(runs) for runs in curves.values()),
+        "runs_without_stage_curves": sum(1 for r in used if r["stage_curves"] is None),
+    }
 
 
 def cells_csv(report: dict) -> str:
@@ -200,6 +256,7 @@ def markdown(report: dict, command: str | None = None, heading_level: int = 3) -
         f"of the mean, {agg['resamples']} resamples, numpy seed {agg['bootstrap_seed']}]; — = undefined or no run.",
         "",
     ]
+    lines += _records_lines(report)
     if not report["cells_done"]:  # a spec not run yet: its declared predictions, without tables of dashes
         lines += ["No cell is done yet: the metric tables appear as cells finish.", ""]
     else:
@@ -270,6 +327,42 @@ def markdown(report: dict, command: str | None = None, heading_level: int = 3) -
     if report["missing"]:
         lines += [f"Missing cells ({len(report['missing'])}):", "", *missing_lines(report["missing"]), ""]
     return "\n".join(lines)
+
+
+def _records_lines(report: dict) -> list[str]:
+    """With cell records: how many cells came from them and from where, the store-vs-record check, and
+    the records left out; nothing without records (the report is then exactly the store's)."""
+    rec = report.get("records")
+    if rec is None:
+        return []
+    origins = "; ".join(f"{o['cells']} from {o['provenance']}" for o in rec["from"])
+    lines = [
+        f"Cell records (`{rec['directory']}`): {rec['cells_from_records']} of the {report['cells_done']} done "
+        f"cells come from records{' (' + origins + ')' if origins else ''}"
+        f"{', the others from the store' if rec['cells_from_records'] < report['cells_done'] else ''}; "
+        f"{rec['cells_recorded_from_store']} store cells recorded there. "
+        + (
+            f"Store cells that also had a record: {rec['checked_against_store']}, metrics equal in "
+            f"{rec['checked_against_store'] - len(rec['differ'])}"
+            f"{', differ in ' + str(len(rec['differ'])) + ' (below)' if rec['differ'] else ''} (the store's are used)."
+            if rec["checked_against_store"]
+            else "No store cell had a record to check against."
+        )
+    ]
+    if rec["runs_without_stage_curves"]:
+        lines[-1] += (
+            f" Stage curves are means over the {rec['runs_with_stage_curves']} runs that kept them "
+            f"({rec['runs_without_stage_curves']} recorded cells hold metrics only)."
+        )
+    lines.append("")
+    for d in rec["differ"]:
+        values = ", ".join(f"{name} store {v['store']!r} record {v['record']!r}" for name, v in d["differ"].items())
+        lines.append(f"- differs: {d['cell']} ({d['file']}): {values}")
+    for i in rec["ignored"]:
+        lines.append(f"- ignored: {i['file']} (cell {i['cell']} of spec {i['spec']} is not a cell of this spec)")
+    if rec["differ"] or rec["ignored"]:
+        lines.append("")
+    return lines
 
 
 def missing_lines(missing: list[dict]) -> list[str]:
