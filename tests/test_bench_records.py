@@ -16,7 +16,7 @@ import yaml
 from test_bench_report import VALUES, bench  # noqa: F401 - tests/ is on sys.path; `bench` is a fixture
 
 from artifacts.store import Store
-from stages.bench.records import load_records, write_records
+from stages.bench.records import cpu_description, load_records, write_records
 from stages.bench.report import build_report, markdown, report_and_records, write_report
 from stages.bench.spec import load_spec
 from stages.errors import StageError
@@ -215,3 +215,19 @@ def test_records_from_a_file_that_is_not_a_report_is_one_line(tmp_path, capsys):
     bad.write_text(json.dumps({"spec": "x"}))
     assert bench_records_from_report.main([str(bad), "--out", str(tmp_path / "out")]) == 2
     assert capsys.readouterr().err.startswith(f"error: {bad}: not a bench report.json")
+
+
+def test_a_store_record_names_the_cpu_it_was_measured_on(recorded_bench, tmp_path):
+    """The same cell differs between CPUs (README: cell records), so a store record must say which CPU."""
+    spec, _, _, records = recorded_bench
+    provenance = json.loads(one_record(records, spec).read_text())["provenance"]
+    assert provenance["cpu"] == cpu_description()
+    cpuinfo = tmp_path / "cpuinfo"
+    cpuinfo.write_text(
+        "processor\t: 0\nmodel name\t: Example CPU 9000\ncpu family\t: 26\nmodel\t\t: 2\n"
+        "processor\t: 1\nmodel name\t: Example CPU 9000\ncpu family\t: 26\nmodel\t\t: 2\n"
+    )
+    described = cpu_description(cpuinfo)
+    assert described.startswith("Example CPU 9000 (") and "family 26 model 2" in described
+    assert f"{os.cpu_count()} cores" in described
+    assert "family" not in cpu_description(tmp_path / "no-such-file")  # no /proc: platform's words only

@@ -9,7 +9,7 @@ outlive the store they were measured in (only git survives a change of machine).
 A record holds the cell's run_record (method, ordering, seed, tasks, metrics, disjoint_report, and from a
 store also per_stage, c and best_checkpoint), its stage curves (None when they were not kept: a record
 made from a committed report) and its provenance: where it was read from (store artifacts and path, or
-the report file and its commit), the host, the code's git commit and when it was written. The cell name
+the report file and its commit), the host and its CPU, the code's git commit and when it was written. The cell name
 carries the hash of the cell's workflow, so a record is never taken for a cell of a changed workflow:
 a record whose cell is not in the spec is ignored (and listed), one that names a cell of the spec but
 disagrees with it (method, ordering, seed, tasks, success threshold) is an error.
@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import platform
 import socket
 import subprocess
 from dataclasses import dataclass, field
@@ -57,6 +59,25 @@ def code_commit() -> str | None:
     return (out.stdout.strip() or None) if out.returncode == 0 else None
 
 
+def cpu_description(cpuinfo: Path = Path("/proc/cpuinfo")) -> str:
+    """The CPU a cell ran on, e.g. "AMD EPYC (x86_64, family 26 model 2, 2 cores)": float results of the
+    same cell differ between CPUs, so a record names it (host names of cloud machines say nothing)."""
+    fields: dict[str, str] = {}
+    try:
+        for line in cpuinfo.read_text(encoding="utf-8", errors="replace").splitlines():
+            key, sep, value = line.partition(":")
+            if sep and key.strip() in ("model name", "cpu family", "model") and key.strip() not in fields:
+                fields[key.strip()] = value.strip()
+    except OSError:  # not Linux: platform's words are all there is
+        pass
+    name = fields.get("model name") or platform.processor() or "unknown CPU"
+    detail = [platform.machine() or "unknown architecture"]
+    if "cpu family" in fields and "model" in fields:
+        detail.append(f"family {fields['cpu family']} model {fields['model']}")
+    detail.append(f"{os.cpu_count() or '?'} cores")
+    return f"{name} ({', '.join(detail)})"
+
+
 def store_record(
     spec: BenchSpec, cell: Cell, run_record: dict, curves: list[dict], artifacts: list[dict], store_root: str
 ) -> dict:
@@ -75,6 +96,7 @@ def store_record(
             "store": store_root,
             "artifacts": artifacts,
             "host": socket.gethostname(),
+            "cpu": cpu_description(),
             "git_commit": code_commit(),
             "written": now_iso(),
         },
@@ -114,7 +136,8 @@ def provenance_label(record: dict) -> str:
     commit = (p.get("git_commit") or p.get("report_commit") or "")[:12] or "commit unknown"
     if p.get("source") == "report":
         return f"{p.get('report')} at {commit} ({p.get('note') or 'store not available'})"
-    return f"store {p.get('store')} on {p.get('host') or 'an unknown host'}, code at {commit}"
+    cpu = f" ({p['cpu']})" if p.get("cpu") else ""
+    return f"store {p.get('store')} on {p.get('host') or 'an unknown host'}{cpu}, code at {commit}"
 
 
 def _same_measurement(a: dict, b: dict) -> bool:
