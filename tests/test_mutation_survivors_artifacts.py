@@ -19,6 +19,8 @@ import pytest
 from artifacts.auditlog import append_event, head_path
 from artifacts.errors import QUOTE_LIMIT, StoreError, path_text
 from artifacts.hashing import canonical_json, hash_bytes
+from artifacts.ingest import add_path
+from artifacts.manifests import content_objects, read_artifact, verify_artifact
 from artifacts.remotes.backends import RefMoved
 from artifacts.remotes.config import parse_url
 from artifacts.remotes.directory import DirBackend
@@ -274,3 +276,44 @@ def test_a_ref_lock_held_past_the_wait_is_one_line_naming_the_file_to_remove(tmp
         f"remote nas ({root}): {KEY} is locked by another push ({lock}); remove that file if no push is running"
     )
     assert lock.exists() and not (root / KEY).exists()
+
+
+# ----------------------------------------------------------------------------- manifests.verify_artifact
+def _one_file_artifact(store: Store, tmp_path: Path) -> tuple[str, str]:
+    src = tmp_path / "demos"
+    src.mkdir()
+    (src / "a.bin").write_bytes(b"x" * 1000)
+    aid, _ = add_path(store, src, "demos")
+    [(oid, _, _)] = content_objects(store, read_artifact(store, aid))
+    path = store.object_path(oid)
+    os.chmod(path, 0o644)
+    os.chmod(path.parent, 0o755)
+    return aid, oid
+
+
+def _refusal(store: Store, aid: str, **kwargs) -> str:
+    with pytest.raises(StoreError) as exc:
+        verify_artifact(store, aid, **kwargs)
+    return str(exc.value)
+
+
+def test_an_artifact_whose_object_is_gone_names_artifact_object_and_file(store, tmp_path):
+    """verify_artifact 17, 18 (the artifact's and the object's 12-character ids in the message)."""
+    aid, oid = _one_file_artifact(store, tmp_path)
+    store.object_path(oid).unlink()
+    assert _refusal(store, aid) == f"artifact {aid[:12]}: object {oid[:12]} (a.bin) is missing"
+
+
+def test_a_damaged_object_is_named_corrupt_or_by_its_size_and_quarantined_on_request(store, tmp_path):
+    """verify_artifact 26–29 (quarantine moves the damaged object aside instead of crashing), 32, 33
+    (same size: 'is corrupt'; another size: both sizes), 37, 38 (the 12-character ids)."""
+    aid, oid = _one_file_artifact(store, tmp_path)
+    path = store.object_path(oid)
+    path.write_bytes(b"y" * 1000)
+    assert _refusal(store, aid) == f"artifact {aid[:12]}: object {oid[:12]} (a.bin) is corrupt"
+    assert _refusal(store, aid, quarantine=True) == f"artifact {aid[:12]}: object {oid[:12]} (a.bin) is corrupt"
+    assert not store.has_object(oid)
+    assert [p.name.split(".")[0] for p in store.quarantine_dir.iterdir()] == [oid]
+    path.write_bytes(b"x" * 1001)
+    expected = f"artifact {aid[:12]}: object {oid[:12]} (a.bin) has size 1001, expected 1000"
+    assert _refusal(store, aid, full=False) == expected
