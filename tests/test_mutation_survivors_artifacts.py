@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from artifacts.auditlog import append_event, head_path
+from artifacts.diff import _seconds
 from artifacts.errors import QUOTE_LIMIT, StoreError, path_text
 from artifacts.hashing import canonical_json, hash_bytes
 from artifacts.ingest import add_path
@@ -317,3 +318,14 @@ def test_a_damaged_object_is_named_corrupt_or_by_its_size_and_quarantined_on_req
     path.write_bytes(b"x" * 1001)
     expected = f"artifact {aid[:12]}: object {oid[:12]} (a.bin) has size 1001, expected 1000"
     assert _refusal(store, aid, full=False) == expected
+
+
+# ----------------------------------------------------------------------------- diff._seconds
+def test_a_step_duration_in_diff_is_end_minus_start_in_seconds_to_the_millisecond():
+    """diff._seconds 1–8 (end − start, not a sum, not None, rounded to 3 decimals, not to an integer);
+    a missing timestamp is no duration rather than an error."""
+    start, end = "2026-01-01T00:00:00.000+00:00", "2026-01-01T00:00:01.234567+00:00"
+    assert _seconds(start, end) == 1.235
+    assert _seconds(start, "2026-01-01T00:00:02.500+00:00") == 2.5
+    assert _seconds(start, None) is None
+    assert _seconds("not a time", end) is None
