@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from artifacts.auditlog import append_event, head_path
-from artifacts.diff import _seconds
+from artifacts.diff import METRICS_FILE_MAX, _seconds, describe
 from artifacts.errors import QUOTE_LIMIT, StoreError, path_text
 from artifacts.hashing import canonical_json, hash_bytes
 from artifacts.ingest import add_path
@@ -329,3 +329,46 @@ def test_a_step_duration_in_diff_is_end_minus_start_in_seconds_to_the_millisecon
     assert _seconds(start, "2026-01-01T00:00:02.500+00:00") == 2.5
     assert _seconds(start, None) is None
     assert _seconds("not a time", end) is None
+
+
+# ----------------------------------------------------------------------------- diff.describe
+STEP_RECORD = {
+    "type": "step-record",
+    "step": "train",
+    "code_version": "c0ffee",
+    "host": "lab-1",
+    "started": "2026-01-01T00:00:00.000+00:00",
+    "finished": "2026-01-01T00:01:30.250+00:00",
+    "config": {"lr": 0.001},
+    "inputs": {},
+    "outputs": {},
+}
+
+
+def test_diff_describes_a_step_record_by_step_code_host_and_duration(store):
+    """diff.describe 18–30, 33–38 (the step record's step, code_version, host and duration_s fields, read
+    from their own keys)."""
+    fields, metrics = describe(store, store.put_json(STEP_RECORD))
+    assert fields == {
+        "step": "train",
+        "code_version": "c0ffee",
+        "host": "lab-1",
+        "duration_s": 90.25,
+        "config.lr": 0.001,
+        "input": {},
+        "output": {},
+    }
+    assert metrics == {}
+
+
+def test_diff_refuses_a_data_object_over_the_metrics_limit_without_reading_it(store):
+    """diff.describe 1, 4, 5 (an object over METRICS_FILE_MAX bytes is named a data object; one of
+    exactly METRICS_FILE_MAX bytes is still read)."""
+    big = store.put_bytes(b"\0" * (METRICS_FILE_MAX + 1))
+    with pytest.raises(StoreError) as exc:
+        describe(store, big)
+    assert str(exc.value) == f"{big[:12]} is a data object; diff compares step records, artifacts or runs"
+    base = len(canonical_json({**STEP_RECORD, "pad": ""}))
+    exact = store.put_json({**STEP_RECORD, "pad": "x" * (METRICS_FILE_MAX - base)})
+    assert store.object_size(exact) == METRICS_FILE_MAX
+    assert describe(store, exact)[0]["step"] == "train"
