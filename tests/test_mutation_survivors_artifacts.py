@@ -347,22 +347,24 @@ STEP_RECORD = {
 
 def test_diff_describes_a_step_record_by_step_code_host_and_duration(store):
     """diff.describe 18–30, 33–38 (the step record's step, code_version, host and duration_s fields, read
-    from their own keys)."""
-    fields, metrics = describe(store, store.put_json(STEP_RECORD))
+    from their own keys), 51, 52, 57–64, 69–74 (its inputs and outputs flattened under input. / output.)."""
+    out = store.put_json({"type": "note"})  # an output that is no artifact: no metrics
+    record = {**STEP_RECORD, "inputs": {"demos": "d" * 64}, "outputs": {"model": out}}
+    fields, metrics = describe(store, store.put_json(record))
     assert fields == {
         "step": "train",
         "code_version": "c0ffee",
         "host": "lab-1",
         "duration_s": 90.25,
         "config.lr": 0.001,
-        "input": {},
-        "output": {},
+        "input.demos": "d" * 64,
+        "output.model": out,
     }
     assert metrics == {}
 
 
 def test_diff_refuses_a_data_object_over_the_metrics_limit_without_reading_it(store):
-    """diff.describe 1, 4, 5 (an object over METRICS_FILE_MAX bytes is named a data object; one of
+    """diff.describe 1, 4–6 (an object over METRICS_FILE_MAX bytes is named a data object; one of
     exactly METRICS_FILE_MAX bytes is still read)."""
     big = store.put_bytes(b"\0" * (METRICS_FILE_MAX + 1))
     with pytest.raises(StoreError) as exc:
