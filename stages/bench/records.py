@@ -9,7 +9,8 @@ outlive the store they were measured in (only git survives a change of machine).
 A record holds the cell's run_record (method, ordering, seed, tasks, metrics, disjoint_report, and from a
 store also per_stage, c and best_checkpoint), its stage curves (None when they were not kept: a record
 made from a committed report) and its provenance: where it was read from (store artifacts and path, or
-the report file and its commit), the host and its CPU, the code's git commit and when it was written. The cell name
+the report file and its commit), the host and its CPU, the git commit of the checkout that wrote the
+record (the store keeps no commit for the code that ran the cell) and when it was written. The cell name
 carries the hash of the cell's workflow, so a record is never taken for a cell of a changed workflow:
 a record whose cell is not in the spec is ignored (and listed), one that names a cell of the spec but
 disagrees with it (method, ordering, seed, tasks, success threshold) is an error.
