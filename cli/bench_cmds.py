@@ -245,17 +245,12 @@ def report(
 ) -> None:
     """Per method, mean over orderings x seeds of NBT, FWT, AUC, ACC_final, F_final with 95% bootstrap CIs;
     the per-ordering breakdown; missing cells listed; Markdown, CSV, JSON and plots written to --out."""
-    from stages.bench.records import load_records, write_records
-    from stages.bench.report import default_out_dir, markdown, report_and_records, write_report
+    from stages.bench.records import write_records
+    from stages.bench.report import default_out_dir, markdown, report_with_records, write_report
     from stages.bench.spec import load_spec
-    from stages.errors import StageError
 
     sp = load_spec(spec)
-    st = open_store(store)
-    if records is not None and records.resolve().is_relative_to(st.root.resolve()):
-        raise StageError(f"--records {records}: inside the store {st.root}; records go beside it (they outlive it)")
-    recorded = None if records is None else load_records(records, sp)  # a bad record stops before any write
-    rep, fresh = report_and_records(st, sp, recorded)
+    rep, fresh = report_with_records(open_store(store), sp, records)  # a bad record stops before any write
     command = f"accrue bench report {spec}" + ("" if records is None else f" --records {records}")
     files = write_report(rep, out if out is not None else default_out_dir(sp), command=command)
     written = [] if records is None else write_records(records, fresh)

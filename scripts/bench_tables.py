@@ -28,14 +28,13 @@ sys.path.insert(0, str(ROOT))
 def tables(spec_path: Path, store, command: str, records_root: Path | None = None) -> tuple[str, str]:
     """A spec's Markdown tables; with records_root, from the store plus the cell records in
     <records_root>/<spec name>/cells (refreshed from the store's done cells, as `bench report --records`)."""
-    from stages.bench.records import load_records, write_records
-    from stages.bench.report import markdown, report_and_records
+    from stages.bench.records import write_records
+    from stages.bench.report import markdown, report_with_records
     from stages.bench.spec import load_spec
 
     spec = load_spec(spec_path)
     directory = None if records_root is None else records_root / spec.name / "cells"
-    recorded = None if directory is None else load_records(directory, spec)
-    report, fresh = report_and_records(store, spec, recorded)
+    report, fresh = report_with_records(store, spec, directory)
     if directory is not None:
         write_records(directory, fresh)
     return spec.name, markdown(report, command=command, heading_level=3)

@@ -231,3 +231,11 @@ def test_a_store_record_names_the_cpu_it_was_measured_on(recorded_bench, tmp_pat
     assert described.startswith("Example CPU 9000 (") and "family 26 model 2" in described
     assert f"{os.cpu_count()} cores" in described
     assert "family" not in cpu_description(tmp_path / "no-such-file")  # no /proc: platform's words only
+
+
+def test_bench_tables_refuses_records_inside_the_store_like_the_cli(recorded_bench, capsys):
+    spec, store, path, _ = recorded_bench
+    assert bench_tables.main([str(path), "--store", str(store.root), "--records-root", str(store.root)]) == 2
+    err = capsys.readouterr().err
+    assert "inside the store" in err and err.count("\n") == 1
+    assert not (store.root / spec.name).exists()

@@ -29,7 +29,7 @@ from artifacts.errors import StoreError
 from artifacts.store import Store
 from stages.bench.claims import MIN_PAIRS, claims_markdown, judge, judge_against
 from stages.bench.curves import mean_stage_curves, stage_curves_csv, stage_success_rows
-from stages.bench.records import Recorded, metric_differences, provenance_label, store_record
+from stages.bench.records import Recorded, load_records, metric_differences, provenance_label, store_record
 from stages.bench.spec import BenchSpec
 from stages.bench.state import cell_states
 from stages.errors import StageError
@@ -131,7 +131,7 @@ def report_and_records(store: Store, spec: BenchSpec, recorded: Recorded | None 
                 curves[cell.method].append(_stage_curves(run))
                 if recorded is not None:
                     fresh.append(
-                        store_record(spec, cell, rec, _stage_curves(run), _stage_artifacts(run), str(store.root))
+                        store_record(spec, cell, rec, curves[cell.method][-1], _stage_artifacts(run), str(store.root))
                     )
                     if cell.name in recorded.by_cell:
                         diff = metric_differences(fresh[-1], recorded.by_cell[cell.name])
@@ -191,6 +191,19 @@ def report_and_records(store: Store, spec: BenchSpec, recorded: Recorded | None 
     if recorded is not None:
         report["records"] = _records_summary(recorded, used, compared, fresh, curves)
     return report, fresh
+
+
+def report_with_records(store: Store, spec: BenchSpec, directory: Path | None) -> tuple[dict, list[dict]]:
+    """`bench report --records` and bench_tables' one path: the records in `directory` checked before
+    anything is written (None: the store's report, nothing to record); a directory inside the store is
+    refused, since records must outlive it."""
+    if directory is None:
+        return build_report(store, spec), []
+    if Path(directory).resolve().is_relative_to(store.root.resolve()):
+        raise StageError(
+            f"--records {directory}: inside the store {store.root}; records go beside it (they outlive it)"
+        )
+    return report_and_records(store, spec, load_records(Path(directory), spec))
 
 
 def _records_summary(recorded: Recorded, used: list, compared: list, fresh: list, curves: dict) -> dict:
