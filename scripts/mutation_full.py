@@ -22,7 +22,11 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
+import time
 from pathlib import Path
+
+import psutil
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from mutation_critical import PYTEST_ENV, ROOT, copy_tree  # noqa: E402
@@ -51,21 +55,85 @@ def deselect(tree: Path, nodes: list[str]) -> None:
     path.write_text(text.replace(key, f"pytest_add_cli_args = [{extra}" + '"', 1))
 
 
-def run_sweep(tree: Path, children: int, time_limit: float | None, only: list[str]) -> int:
+class MutantWatchdog(threading.Thread):
+    """Ends a mutant worker that has run `limit` seconds of wall time. mutmut's own limit counts CPU time, so a
+    mutant that sleeps or waits (a retry loop, a lock, moto's backoff) never reaches it: SIGXCPU first, which
+    mutmut records as a timeout, then SIGKILL `grace` seconds later. Only children of the mutmut process are
+    watched, and only once `armed` is set (mutmut prints "Running mutation testing"), so the stats and clean
+    runs before it are never cut short."""
+
+    def __init__(self, pid: int, limit: float, grace: float = 30.0, poll: float = 2.0):
+        super().__init__(daemon=True)
+        self.pid, self.limit, self.grace, self.poll = pid, limit, grace, poll
+        self.armed, self.done = threading.Event(), threading.Event()
+        self.ended: list[tuple[int, str]] = []  # (pid, "XCPU" | "KILL"), for the log and the tests
+
+    def run(self) -> None:
+        while not self.done.wait(self.poll):
+            if self.armed.is_set():
+                self.check()
+
+    def check(self) -> None:
+        try:
+            children = psutil.Process(self.pid).children()
+        except psutil.Error:
+            return
+        now = time.time()
+        for child in children:
+            try:
+                age = now - child.create_time()
+                if age > self.limit + self.grace:
+                    child.kill()
+                    self.ended.append((child.pid, "KILL"))
+                elif age > self.limit and (child.pid, "XCPU") not in self.ended:
+                    child.send_signal(signal.SIGXCPU)
+                    self.ended.append((child.pid, "XCPU"))
+            except psutil.Error:
+                continue  # the mutant ended on its own meanwhile
+
+
+def forward_output(stream, watchdog: MutantWatchdog) -> None:
+    """Copy mutmut's output through, arming the watchdog when the mutants start running."""
+    seen = b""
+    for chunk in iter(lambda: stream.read1(4096), b""):
+        sys.stdout.buffer.write(chunk)
+        sys.stdout.flush()
+        if not watchdog.armed.is_set():
+            seen = (seen + chunk)[-200:]
+            if b"Running mutation testing" in seen:
+                watchdog.armed.set()
+
+
+def stop(proc: subprocess.Popen) -> None:
+    """mutmut 3.8 ignores SIGINT; it saves each mutant's verdict as it comes, so SIGTERM loses only the
+    mutant in flight (SIGKILL if it is still there 30 s later). The next call resumes."""
+    os.killpg(proc.pid, signal.SIGTERM)
+    try:
+        proc.wait(timeout=30)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+
+
+def run_sweep(tree: Path, children: int, time_limit: float | None, only: list[str], mutant_limit: float) -> int:
     env = {**os.environ, **PYTEST_ENV}
     cmd = ["nice", "-n", "10", str(MUTMUT), "run", "--max-children", str(children), *only]
-    proc = subprocess.Popen(cmd, cwd=tree, env=env, start_new_session=True)
+    proc = subprocess.Popen(cmd, cwd=tree, env=env, start_new_session=True, stdout=subprocess.PIPE)
+    watchdog = MutantWatchdog(proc.pid, mutant_limit)
+    watchdog.start()
+    reader = threading.Thread(target=forward_output, args=(proc.stdout, watchdog), daemon=True)
+    reader.start()
     try:
         return proc.wait(timeout=time_limit)
     except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGINT)  # mutmut saves what it has; the next call resumes
-        try:
-            proc.wait(timeout=60)
-        except subprocess.TimeoutExpired:
-            os.killpg(proc.pid, signal.SIGKILL)
-            proc.wait()
-        print(f"stopped after {time_limit:.0f} s (resume with the same command)", flush=True)
+        stop(proc)
+        print(f"\nstopped after {time_limit:.0f} s (resume with the same command)", flush=True)
         return 0
+    finally:
+        watchdog.done.set()
+        reader.join(timeout=5)
+        if watchdog.ended:
+            print(f"watchdog: {len(watchdog.ended)} signals to mutants past {mutant_limit:.0f} s", flush=True)
 
 
 def report(tree: Path, out: Path) -> dict[str, list[str]]:
@@ -91,6 +159,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--workdir", type=Path, default=Path(tempfile.gettempdir()) / "accrue-mutmut")
     ap.add_argument("--children", type=int, default=max(1, (os.cpu_count() or 2) // 2))
     ap.add_argument("--time-limit", type=float, default=None, help="seconds, then stop (resumable)")
+    ap.add_argument(
+        "--mutant-limit", type=float, default=180.0, help="wall seconds a mutant may run before it counts as a timeout"
+    )
     ap.add_argument("--only", action="append", default=[], help="mutant name pattern (repeatable)")
     ap.add_argument("--names", type=Path, help="file of mutant names or patterns, one a line (e.g. survivors.txt)")
     ap.add_argument("--source", choices=("worktree", "head"), default="worktree", help="head: the last commit")
@@ -116,7 +187,7 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         refresh(tree, args.source)
         deselect(tree, args.deselect)
-        rc = run_sweep(tree, args.children, args.time_limit, args.only)
+        rc = run_sweep(tree, args.children, args.time_limit, args.only, args.mutant_limit)
         if rc not in (0, 1):
             print(f"error: mutmut exited {rc}", file=sys.stderr)
             return rc

@@ -1,0 +1,106 @@
+"""scripts/mutation_full.py's watchdog: a mutant that waits (never reaching mutmut's CPU-time limit) is ended
+after its wall-time limit, and nothing is signalled before mutmut starts running mutants."""
+
+from __future__ import annotations
+
+import importlib.util
+import io
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def load_script():
+    spec = importlib.util.spec_from_file_location("mutation_full", ROOT / "scripts" / "mutation_full.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+# A stand-in for mutmut: a parent that forks one worker and waits for it (the worker prints its pid).
+PARENT = """
+import subprocess, sys
+child = subprocess.Popen([sys.executable, "-c", sys.argv[1]], stdout=subprocess.PIPE, text=True)
+print(child.stdout.readline().strip(), flush=True)
+rc = child.wait()
+sys.exit(-rc if rc < 0 else rc)  # exit with the number of the signal that ended the worker
+"""
+SLEEPER = "import os, time; print(os.getpid(), flush=True); time.sleep(60)"
+STUBBORN = (
+    "import os, signal, time; signal.signal(signal.SIGXCPU, signal.SIG_IGN); print(os.getpid(), flush=True); "
+    "time.sleep(60)"
+)
+
+
+def start(worker: str):
+    parent = subprocess.Popen([sys.executable, "-c", PARENT, worker], stdout=subprocess.PIPE, text=True)
+    child_pid = int(parent.stdout.readline())
+    return parent, child_pid
+
+
+def wait_for(pred, timeout=20.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if pred():
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def test_a_waiting_mutant_gets_sigxcpu_after_its_wall_limit():
+    mf = load_script()
+    parent, child = start(SLEEPER)
+    dog = mf.MutantWatchdog(parent.pid, limit=0.5, grace=30.0, poll=0.05)
+    dog.armed.set()
+    dog.start()
+    try:
+        assert parent.wait(timeout=20) == signal.SIGXCPU  # the worker died of the signal mutmut reads as timeout
+        assert dog.ended == [(child, "XCPU")]
+    finally:
+        dog.done.set()
+        parent.kill()
+
+
+def test_a_mutant_that_ignores_sigxcpu_is_killed_after_the_grace():
+    mf = load_script()
+    parent, child = start(STUBBORN)
+    dog = mf.MutantWatchdog(parent.pid, limit=0.3, grace=0.5, poll=0.05)
+    dog.armed.set()
+    dog.start()
+    try:
+        assert parent.wait(timeout=20) == signal.SIGKILL
+        assert dog.ended == [(child, "XCPU"), (child, "KILL")]
+    finally:
+        dog.done.set()
+        parent.kill()
+
+
+def test_nothing_is_signalled_before_the_mutants_start():
+    mf = load_script()
+    parent, child = start(SLEEPER)
+    dog = mf.MutantWatchdog(parent.pid, limit=0.1, grace=30.0, poll=0.05)
+    dog.start()
+    try:
+        time.sleep(0.6)
+        assert parent.poll() is None and dog.ended == []
+        dog.armed.set()
+        assert wait_for(lambda: parent.poll() is not None)
+        assert dog.ended[0] == (child, "XCPU")
+    finally:
+        dog.done.set()
+        parent.kill()
+
+
+def test_mutmuts_output_passes_through_and_arms_the_watchdog_on_its_line(capfd):
+    mf = load_script()
+    dog = mf.MutantWatchdog(0, limit=1.0)
+    # the marker split across two reads, as a pipe may deliver it
+    mf.forward_output(io.BufferedReader(io.BytesIO(b"Running stats\n   done\nRunning mutat")), dog)
+    assert not dog.armed.is_set()
+    mf.forward_output(io.BufferedReader(io.BytesIO(b"Running mutation testing\n1/10")), dog)
+    assert dog.armed.is_set()
+    assert capfd.readouterr().out.endswith("Running mutation testing\n1/10")
