@@ -10,6 +10,7 @@ line however long that line is. Everything runs in a temporary directory, withou
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import signal
 from pathlib import Path
@@ -17,11 +18,12 @@ from pathlib import Path
 import pytest
 
 from artifacts.auditlog import append_event, head_path
-from artifacts.diff import METRICS_FILE_MAX, _seconds, describe
-from artifacts.errors import QUOTE_LIMIT, StoreError, path_text
+from artifacts.diff import METRICS_FILE_MAX, METRICS_PER_OUTPUT, _seconds, describe, diff
+from artifacts.errors import QUOTE_LIMIT, StoreError, path_text, quote
 from artifacts.hashing import canonical_json, hash_bytes
 from artifacts.ingest import add_path
-from artifacts.manifests import content_objects, read_artifact, verify_artifact
+from artifacts.manifests import content_objects, read_artifact, store_content, verify_artifact, write_manifest
+from artifacts.refs import set_ref
 from artifacts.remotes.backends import RefMoved
 from artifacts.remotes.config import parse_url
 from artifacts.remotes.directory import DirBackend
@@ -374,3 +376,227 @@ def test_diff_refuses_a_data_object_over_the_metrics_limit_without_reading_it(st
     exact = store.put_json({**STEP_RECORD, "pad": "x" * (METRICS_FILE_MAX - base)})
     assert store.object_size(exact) == METRICS_FILE_MAX
     assert describe(store, exact)[0]["step"] == "train"
+
+
+# ----------------------------------------------------------------------------- diff: artifacts and their metrics
+def eval_artifact(store: Store, tmp_path: Path, files: dict[str, bytes], **drop: bool) -> str:
+    """An eval artifact of `files` (one name: a file artifact; several: a directory), made as the store
+    makes them; `drop` names manifest keys to leave out (a hand-made or older manifest)."""
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    if len(files) == 1:
+        [(name, data)] = files.items()
+        src = tmp_path / name
+        src.write_bytes(data)
+    else:
+        src = tmp_path / "eval"
+        for name, data in files.items():
+            (src / name).parent.mkdir(parents=True, exist_ok=True)
+            (src / name).write_bytes(data)
+    content = store_content(store, src)
+    aid = write_manifest(
+        store,
+        content,
+        "eval",
+        producer={"step": "evaluate"},
+        inputs={"policy": "p" * 64},
+        config={"episodes": 20},
+        code_version="c0ffee",
+    )
+    manifest = store.read_json(aid)
+    return store.put_json({k: v for k, v in manifest.items() if not drop.get(k)}) if drop else aid
+
+
+def test_diff_describes_an_artifact_by_its_manifest_fields_and_its_json_metrics(store, tmp_path):
+    """diff.describe 92–97 (kind, code_version, size, files), 100–105 (content), 106, 107, 112–117
+    (producer.*), 119, 124–129 (config.*), 131, 136–141 (input.*), 145, 149, 151, 153, 154 (the
+    metrics are labelled by the artifact's kind)."""
+    aid = eval_artifact(store, tmp_path, {"scores.json": b'{"success": 0.75}', "video.bin": b"v" * 10})
+    manifest = store.read_json(aid)
+    fields, metrics = describe(store, aid)
+    assert fields == {
+        "kind": "eval",
+        "code_version": "c0ffee",
+        "size": manifest["size"],
+        "files": 2,
+        "content": manifest["content"],
+        "producer.step": "evaluate",
+        "config.episodes": 20,
+        "input.policy": "p" * 64,
+    }
+    assert metrics == {"eval/scores.json:success": 0.75}
+
+
+def test_diff_labels_the_metrics_of_a_manifest_without_a_kind_artifact(store, tmp_path):
+    """diff.describe 150, 152, 155, 156 (the label when the manifest names no kind)."""
+    aid = eval_artifact(store, tmp_path, {"scores.json": b'{"success": 0.75}', "x.bin": b"x"}, kind=True)
+    fields, metrics = describe(store, aid)
+    assert fields["kind"] is None
+    assert metrics == {"artifact/scores.json:success": 0.75}
+
+
+def test_diff_refuses_an_object_that_is_neither_step_record_nor_artifact_by_its_type(store):
+    """diff.describe 157–161: the one-line refusal names the object's type, or 'data' without one."""
+    tree = store.put_json({"type": "tree", "entries": []})
+    with pytest.raises(StoreError) as exc:
+        describe(store, tree)
+    assert str(exc.value) == f"{tree[:12]} is a tree object; diff compares step records, artifacts or runs"
+    untyped = store.put_json({"note": "no type"})
+    with pytest.raises(StoreError) as exc:
+        describe(store, untyped)
+    assert str(exc.value) == f"{untyped[:12]} is a data object; diff compares step records, artifacts or runs"
+
+
+def test_diff_reads_the_metrics_of_a_file_artifact_that_is_a_json_file(store, tmp_path):
+    """diff._metrics 10–15 (a file artifact's JSON counts), 17, 19, 21, 22 (its name from the manifest),
+    18, 20 (a manifest without a name: no metrics, not a crash), 28–30 (without a size: read), 27, 31,
+    32, 63 (a JSON file over METRICS_FILE_MAX is not read), 68 (one of exactly that size is; 82, 83: its
+    string field is no metric)."""
+    small = b'{"success": 0.75}'
+    assert describe(store, eval_artifact(store, tmp_path / "a", {"scores.json": small}))[1] == {
+        "eval/scores.json:success": 0.75
+    }
+    assert describe(store, eval_artifact(store, tmp_path / "b", {"scores.json": small}, name=True))[1] == {}
+    assert describe(store, eval_artifact(store, tmp_path / "c", {"scores.json": small}, size=True))[1] == {
+        "eval/scores.json:success": 0.75
+    }
+
+    def padded(total: int) -> bytes:
+        head = b'{"success": 0.5, "pad": "'
+        return head + b"x" * (total - len(head) - 2) + b'"}'
+
+    assert describe(store, eval_artifact(store, tmp_path / "d", {"big.json": padded(METRICS_FILE_MAX + 1)}))[1] == {}
+    exact = eval_artifact(store, tmp_path / "e", {"edge.json": padded(METRICS_FILE_MAX)})
+    assert describe(store, exact)[1] == {"eval/edge.json:success": 0.5}
+
+
+def test_diff_metrics_are_the_numbers_in_a_directory_artifacts_top_level_json_files(store, tmp_path):
+    """diff._metrics 58 (files in subdirectories do not count), 63, 69 (a non-JSON file is skipped and
+    the rest still read), 73 (so is a JSON file that does not parse), 75 (a file that is one number:
+    the metric is named by the file), 82, 83 (strings and booleans are not metrics)."""
+    files = {
+        "a.txt": b'{"x": 1}',
+        "b.json": b"{not json",
+        "c.json": b'{"loss": 0.5, "name": "run-3", "done": true, "nested": {"step": 3}}',
+        "d.json": b"0.93",
+        "sub/e.json": b'{"deep": 1}',
+    }
+    assert describe(store, eval_artifact(store, tmp_path, files))[1] == {
+        "eval/c.json:loss": 0.5,
+        "eval/c.json:nested.step": 3,
+        "eval/d.json:": 0.93,
+    }
+
+
+def test_diff_keeps_at_most_metrics_per_output_numbers_of_one_artifact(store, tmp_path):
+    """diff._metrics 85: exactly METRICS_PER_OUTPUT metrics, the first by name."""
+    many = json.dumps({f"k{i:03d}": i for i in range(METRICS_PER_OUTPUT + 50)}).encode()
+    metrics = describe(store, eval_artifact(store, tmp_path, {"many.json": many}))[1]
+    assert metrics == {f"eval/many.json:k{i:03d}": i for i in range(METRICS_PER_OUTPUT)}
+
+
+def test_diff_a_directory_artifact_whose_content_is_not_a_tree_has_no_metrics(store):
+    """diff._metrics 53, 55: a damaged or foreign manifest (content without entries) gives no metrics
+    rather than a traceback."""
+    aid = store.put_json({"type": "artifact", "kind": "eval", "layout": "dir", "content": store.put_json({})})
+    assert describe(store, aid)[1] == {}
+
+
+# ----------------------------------------------------------------------------- diff: runs
+def record(store: Store, config: dict, metrics: dict | None = None, **over) -> str:
+    outputs = {}
+    if metrics is not None:
+        out = store.put_bytes(json.dumps(metrics).encode())
+        manifest = {"type": "artifact", "kind": "checkpoint", "layout": "file", "name": "final.json"}
+        outputs["model"] = store.put_json({**manifest, "content": out, "size": store.object_size(out)})
+    return store.put_json({**STEP_RECORD, "config": config, "outputs": outputs, **over})
+
+
+def two_runs(store: Store) -> dict[str, str]:
+    """Runs exp/run-X (train, eval, and a ref to a data object listed first) and exp/run-Y (train,
+    export); train's config and metrics differ."""
+    refs = {
+        "exp/run-X/aaa-notes": store.put_bytes(b"notes, not a step record"),
+        "exp/run-X/train": record(store, {"lr": 0.001}, {"loss": 0.5}),
+        "exp/run-X/eval": record(store, {}, step="eval"),
+        "exp/run-Y/train": record(store, {"lr": 0.01, "batch": 64}, {"loss": 0.4, "accuracy": 0.9}),
+        "exp/run-Y/export": record(store, {}, step="export"),
+    }
+    for name, oid in refs.items():
+        set_ref(store, name, oid)
+    return refs
+
+
+def test_diff_of_two_runs_matches_steps_by_name_and_shows_one_sided_fields_and_metrics(store):
+    """diff._run 7, 8 (a prefix given with its trailing slash), 9 (a prefix ending in X), 22 (a ref to
+    something other than a step record is skipped, the rest still read); diff.diff 1 (same fields hidden
+    by default), 3, 4 (A and B as given), 30 (steps only one side has); diff._compare 12, 23 (a field or
+    metric only one side has)."""
+    refs = two_runs(store)
+    model = {side: store.read_json(refs[f"exp/run-{side}/train"])["outputs"]["model"] for side in "XY"}
+    result = diff(store, "exp/run-X/", "exp/run-Y")
+    assert (result.a, result.b) == ("exp/run-X/", "exp/run-Y")
+    assert (result.only_a, result.only_b) == (["eval"], ["export"])
+    assert result.fields == {
+        "train config.batch": [None, 64],
+        "train config.lr": [0.001, 0.01],
+        "train output.model": [model["X"], model["Y"]],
+    }
+    assert result.metrics == {
+        "train model/final.json:accuracy": [None, 0.9],
+        "train model/final.json:loss": [0.5, 0.4],
+    }
+
+
+def test_diff_all_lists_the_fields_that_are_the_same_too(store):
+    """diff.diff 38 (runs), 60 (two step records): --all shows equal fields as well."""
+    two_runs(store)
+    assert diff(store, "exp/run-X", "exp/run-Y", show_all=True).fields["train host"] == ["lab-1", "lab-1"]
+    a, b = record(store, {"lr": 0.001}), record(store, {"lr": 0.01})
+    assert "host" not in diff(store, a, b).fields
+    assert diff(store, a, b, show_all=True).fields["host"] == ["lab-1", "lab-1"]
+
+
+def test_diff_of_a_run_and_something_else_names_which_is_the_run(store):
+    """diff.diff 49–51, 53, 54: the refusal names the run first, whichever side it is on."""
+    two_runs(store)
+    one = record(store, {"lr": 0.001})
+    expected = f"{quote('exp/run-X')} is a run (a ref prefix) but {quote(one)} is not; compare like with like"
+    for a, b in (("exp/run-X", one), (one, "exp/run-X")):
+        with pytest.raises(StoreError) as exc:
+            diff(store, a, b)
+        assert str(exc.value) == expected
+
+
+# ----------------------------------------------------------------------------- remotes.directory.list_aged
+def test_a_directory_remotes_aged_listing_refuses_a_missing_directory(tmp_path):
+    """DirBackend.list_aged 2: the exact line (prune and the tmp sweep call it)."""
+    missing = tmp_path / "remote"
+    with pytest.raises(StoreError) as exc:
+        dir_backend(missing).list_aged("tmp")
+    assert str(exc.value) == f"remote nas ({missing}): the directory does not exist (is the disk mounted?)"
+
+
+def test_a_directory_remotes_aged_listing_skips_a_file_removed_while_listing(tmp_path):
+    """DirBackend.list_aged 6: a file another prune removes between the walk and its stat is left out;
+    the files after it are still listed, with their sizes and mtimes."""
+    b = dir_backend(tmp_path / "remote")
+    b.probe(create=True)
+    for n in range(3):
+        b.put_bytes(f"tmp/upload-{n}", b"x" * (n + 1))
+    walk = b._walk
+    gone: list[str] = []
+
+    def walk_while_another_prune_runs(prefix):
+        for key, path in walk(prefix):
+            if not gone:
+                path.unlink()
+                gone.append(key)
+            yield key, path
+
+    b._walk = walk_while_another_prune_runs
+    listed = b.list_aged("tmp")
+    expected = {f"tmp/upload-{n}" for n in range(3)} - set(gone)
+    assert set(listed) == expected and len(expected) == 2
+    for key in expected:
+        st = (tmp_path / "remote" / key).stat()
+        assert listed[key] == (st.st_size, st.st_mtime)
