@@ -1,0 +1,146 @@
+"""Tests written to kill mutants of artifacts/ that survived round 3 of mutmut's fourth sweep (the
+store, its audit log and quarantine; docs/MUTATION.md, "The fourth sweep"). Each docstring names the
+mutmut ids it kills. What they pin: the log-repaired event a repair appends (its fields, its bounded
+problem list), that a repair which cannot write leaves the log as it was with a one-line reason, the
+quarantined event a damaged object leaves behind, and how a checkpoint copy handles a damaged object
+or a file still being written. Everything runs in a temporary directory.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+from datetime import datetime
+from pathlib import Path
+
+import pytest
+
+import artifacts.store
+from artifacts.auditlog import (
+    LOG_FORMAT,
+    LogCheck,
+    LogProblem,
+    append_event,
+    check_log,
+    head_path,
+    iter_events,
+    repair_log,
+)
+from artifacts.errors import StoreError
+from artifacts.hashing import hash_bytes
+from artifacts.ingest import add_path
+from artifacts.manifests import content_objects, read_artifact, verify_artifact
+from artifacts.store import Store
+
+
+@pytest.fixture
+def store(tmp_path: Path) -> Store:
+    s, _ = Store.init(tmp_path / "store")
+    yield s
+    s.close()
+
+
+# ----------------------------------------------------------------------------- auditlog.repair_log
+def test_a_repair_seals_with_a_full_log_repaired_event_and_bounds_its_problem_list(store):
+    """auditlog.repair_log 33, 34 (ts), 39, 40 (pid), 41, 42 (host), 57, 58 (log_format), 45, 46 (at
+    most 50 problems, each cut to 300 characters)."""
+    append_event(store, "custom", note="before")
+    problems = [LogProblem(f"problem {i:02d} " + "x" * 400) for i in range(60)]
+    record = repair_log(store, LogCheck(events=1, problems=problems))
+    assert record["event"] == "log-repaired"
+    assert datetime.fromisoformat(record["ts"]).tzinfo is not None
+    assert (record["pid"], record["host"], record["log_format"]) == (os.getpid(), socket.gethostname(), LOG_FORMAT)
+    assert record["problems"] == [p.text[:300] for p in problems[:50]]
+    assert len(record["problems"][0]) == 300
+    assert list(iter_events(store))[-1] == record
+    assert check_log(store).problems == []
+
+
+@pytest.fixture
+def full_disk(store, monkeypatch):
+    """Writes to the audit log stop halfway (a full disk: a short write), as long as `on` is set."""
+    real_write = os.write
+    state = {"on": False}
+
+    def write(fd, data):
+        if state["on"] and os.path.realpath(f"/proc/self/fd/{fd}") == os.path.realpath(store.log_path):
+            return real_write(fd, data[: len(data) // 2])
+        return real_write(fd, data)
+
+    monkeypatch.setattr(os, "write", write)
+    return state
+
+
+@pytest.mark.parametrize("cut_off", [False, True], ids=["seal-line", "completing-newline"])
+def test_a_repair_that_cannot_write_leaves_the_log_as_it_was_and_says_why(store, full_disk, cut_off):
+    """auditlog.repair_log 65 (the seal line), 15 (the newline that completes a cut-off line): a failed
+    write is taken back to the log's old size; 83, 84: the one-line reason names the log and the
+    error."""
+    append_event(store, "custom", note="before")
+    if cut_off:
+        with open(store.log_path, "ab") as f:
+            f.write(b'{"seq": 1, "half a li')
+    else:
+        head_path(store).unlink()  # a problem to seal, with a log that ends with a whole line
+    check = check_log(store)
+    assert check.problems
+    before = store.log_path.read_bytes()
+    full_disk["on"] = True
+    with pytest.raises(StoreError) as exc:
+        repair_log(store, check)
+    full_disk["on"] = False
+    assert str(exc.value) == f"cannot repair the audit log: {store.log_path}: No space left on device (short write)"
+    assert store.log_path.read_bytes() == before
+
+
+# ----------------------------------------------------------------------------- manifests._quarantine
+def test_a_damaged_object_moved_aside_leaves_a_quarantined_event_naming_it(store, tmp_path):
+    """manifests._quarantine 3–5, 8–13: the audit log says what was moved aside and why."""
+    src = tmp_path / "demos"
+    src.mkdir()
+    (src / "a.bin").write_bytes(b"x" * 100)
+    aid, _ = add_path(store, src, "demos")
+    [(oid, _, _)] = content_objects(store, read_artifact(store, aid))
+    path = store.object_path(oid)
+    os.chmod(path, 0o644)
+    path.write_bytes(b"y" * 100)
+    with pytest.raises(StoreError, match="is corrupt"):
+        verify_artifact(store, aid, quarantine=True)
+    event = list(iter_events(store))[-1]
+    assert {k: event.get(k) for k in ("event", "object", "reason")} == {
+        "event": "quarantined",
+        "object": oid,
+        "reason": "hash mismatch found on use",
+    }
+
+
+# ----------------------------------------------------------------------------- store.copy_in_checked
+def test_a_checkpoint_copied_over_a_damaged_object_replaces_it_and_keeps_the_damaged_one(store, tmp_path):
+    """Store.copy_in_checked 6: the damaged object with the file's id is quarantined, then the file is
+    stored whole under that id."""
+    ckpt = tmp_path / "model.pt"
+    ckpt.write_bytes(b"weights" * 100)
+    oid = hash_bytes(ckpt.read_bytes())
+    store.object_path(oid).parent.mkdir(parents=True, exist_ok=True)
+    store.object_path(oid).write_bytes(b"cut short")  # a damaged copy of the same object
+    assert store.copy_in_checked(ckpt) == (oid, 700)
+    assert store.read_bytes(oid) == ckpt.read_bytes()
+    assert [p.read_bytes() for p in store.quarantine_dir.iterdir()] == [b"cut short"]
+
+
+def test_a_checkpoint_that_changes_while_it_is_copied_is_refused_by_name(store, tmp_path, monkeypatch):
+    """Store.copy_in_checked 10: the exact one-line refusal naming the file."""
+    ckpt = tmp_path / "model.pt"
+    ckpt.write_bytes(b"weights" * 100)
+    real_hash_file = artifacts.store.hash_file
+
+    def hash_then_the_trainer_writes_more(path):
+        out = real_hash_file(path)
+        with open(path, "ab") as f:
+            f.write(b"more")
+        return out
+
+    monkeypatch.setattr(artifacts.store, "hash_file", hash_then_the_trainer_writes_more)
+    with pytest.raises(StoreError) as exc:
+        store.copy_in_checked(ckpt)
+    assert str(exc.value) == f"{ckpt}: file changed while it was being stored"
