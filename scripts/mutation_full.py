@@ -115,6 +115,10 @@ def stop(proc: subprocess.Popen) -> None:
         proc.wait()
 
 
+def _interrupt(signum, frame) -> None:
+    raise KeyboardInterrupt
+
+
 def run_sweep(tree: Path, children: int, time_limit: float | None, only: list[str], mutant_limit: float) -> int:
     env = {**os.environ, **PYTEST_ENV}
     cmd = ["nice", "-n", "10", str(MUTMUT), "run", "--max-children", str(children), *only]
@@ -123,11 +127,18 @@ def run_sweep(tree: Path, children: int, time_limit: float | None, only: list[st
     watchdog.start()
     reader = threading.Thread(target=forward_output, args=(proc.stdout, watchdog), daemon=True)
     reader.start()
+    # mutmut runs in its own session (so a stop reaches its workers): a SIGTERM or Ctrl-C to this script
+    # must be passed on, or mutmut would go on alone
+    signal.signal(signal.SIGTERM, _interrupt)
     try:
         return proc.wait(timeout=time_limit)
     except subprocess.TimeoutExpired:
         stop(proc)
         print(f"\nstopped after {time_limit:.0f} s (resume with the same command)", flush=True)
+        return 0
+    except KeyboardInterrupt:
+        stop(proc)
+        print("\nstopped (resume with the same command)", flush=True)
         return 0
     finally:
         watchdog.done.set()

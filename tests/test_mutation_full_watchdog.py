@@ -104,3 +104,46 @@ def test_mutmuts_output_passes_through_and_arms_the_watchdog_on_its_line(capfd):
     mf.forward_output(io.BufferedReader(io.BytesIO(b"Running mutation testing\n1/10")), dog)
     assert dog.armed.is_set()
     assert capfd.readouterr().out.endswith("Running mutation testing\n1/10")
+
+
+# A stand-in for the mutmut executable: one worker in its process group, both sleeping; it writes the pids.
+FAKE_MUTMUT = """#!{python}
+import subprocess, sys, time, pathlib
+worker = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+pathlib.Path({pids!r}).write_text(f"{{__import__('os').getpid()}} {{worker.pid}}")
+time.sleep(60)
+"""
+
+SWEEP = """
+import sys, importlib.util
+spec = importlib.util.spec_from_file_location("mutation_full", {script!r})
+mf = importlib.util.module_from_spec(spec); spec.loader.exec_module(mf)
+mf.MUTMUT = {fake!r}
+print("rc", mf.run_sweep(__import__("pathlib").Path({tree!r}), 1, None, [], 180.0), flush=True)
+"""
+
+
+def alive(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            return f.read().split()[2] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+def test_sigterm_to_the_script_stops_mutmut_and_its_workers(tmp_path):
+    pids = tmp_path / "pids"
+    fake = tmp_path / "mutmut"
+    fake.write_text(FAKE_MUTMUT.format(python=sys.executable, pids=str(pids)))
+    fake.chmod(0o755)
+    code = SWEEP.format(script=str(ROOT / "scripts" / "mutation_full.py"), fake=str(fake), tree=str(tmp_path))
+    sweep = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        assert wait_for(lambda: pids.exists() and len(pids.read_text().split()) == 2)
+        mutmut_pid, worker_pid = map(int, pids.read_text().split())
+        sweep.send_signal(signal.SIGTERM)
+        out, _ = sweep.communicate(timeout=40)
+        assert "stopped (resume with the same command)" in out and "rc 0" in out
+        assert wait_for(lambda: not alive(mutmut_pid) and not alive(worker_pid), timeout=10)
+    finally:
+        sweep.kill()
