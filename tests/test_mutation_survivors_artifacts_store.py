@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import os
 import socket
+import subprocess
+import sys
 from datetime import datetime
 from pathlib import Path
 
@@ -31,6 +33,7 @@ from artifacts.hashing import hash_bytes
 from artifacts.ingest import add_path
 from artifacts.manifests import content_objects, read_artifact, verify_artifact
 from artifacts.store import Store
+from artifacts.writers import _holder_pid, _lock_path, exclusive
 
 
 @pytest.fixture
@@ -144,3 +147,72 @@ def test_a_checkpoint_that_changes_while_it_is_copied_is_refused_by_name(store, 
     with pytest.raises(StoreError) as exc:
         store.copy_in_checked(ckpt)
     assert str(exc.value) == f"{ckpt}: file changed while it was being stored"
+
+
+# ----------------------------------------------------------------------------- writers._holder_pid
+HOLD = """
+import fcntl, os, sys
+fd = os.open(sys.argv[1], os.O_RDWR | os.O_CREAT, 0o644)
+fcntl.lockf(fd, fcntl.LOCK_EX if sys.argv[2] == "gc" else fcntl.LOCK_SH)
+print("held", flush=True)
+sys.stdin.read()
+"""
+
+
+@pytest.fixture
+def other_process(store):
+    """Start another process holding the store's writer lock as a writer (shared) or as gc (exclusive)."""
+    started: list[subprocess.Popen] = []
+
+    def hold(role: str) -> int:
+        proc = subprocess.Popen(
+            [sys.executable, "-c", HOLD, _lock_path(store), role], stdin=subprocess.PIPE, stdout=subprocess.PIPE
+        )
+        started.append(proc)
+        assert proc.stdout.readline() == b"held\n"
+        return proc.pid
+
+    yield hold
+    for proc in started:
+        proc.stdin.close()
+        proc.wait(timeout=10)
+
+
+def test_gc_names_the_pid_of_the_writer_that_keeps_it_waiting(store, other_process):
+    """writers._holder_pid 3–7, 9–15, 24, 25, 31, 33 (the lock query built or read wrongly: no pid, or
+    a traceback): the message names the writer's pid and says it is a writer, not a gc."""
+    pid = other_process("writer")
+    with pytest.raises(StoreError) as exc:
+        with exclusive(store, wait_s=0):
+            pass
+    assert str(exc.value) == (
+        f"gc needs the store to itself, but an accrue process (pid {pid}) is using it; "
+        "run gc when it finishes, or pass --wait SECONDS"
+    )
+
+
+def test_gc_names_the_pid_of_another_gc(store, other_process):
+    """writers._holder_pid 3–7, 9–15, 24, 25, 31, 33: an exclusive holder is named as a gc, with its pid."""
+    pid = other_process("gc")
+    with pytest.raises(StoreError) as exc:
+        with exclusive(store, wait_s=0):
+            pass
+    assert str(exc.value) == (
+        f"the store (gc) is locked by another accrue process (pid {pid}); try again when it finishes"
+    )
+
+
+def test_a_lock_with_no_other_holder_or_that_cannot_be_queried_names_no_gc(store, monkeypatch):
+    """writers._holder_pid 34 (the holder left before the query: no pid, not a gc), 32 (the query
+    fails, e.g. a filesystem without F_GETLK: the same)."""
+    fd = os.open(_lock_path(store), os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        assert _holder_pid(fd) == (None, False)
+
+        def no_getlk(*_args):
+            raise OSError(22, "Invalid argument")
+
+        monkeypatch.setattr("artifacts.writers.fcntl.fcntl", no_getlk)
+        assert _holder_pid(fd) == (None, False)
+    finally:
+        os.close(fd)
