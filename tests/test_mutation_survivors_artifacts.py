@@ -19,7 +19,7 @@ import pytest
 
 from artifacts.auditlog import append_event, head_path
 from artifacts.diff import METRICS_FILE_MAX, METRICS_PER_OUTPUT, _seconds, describe, diff
-from artifacts.errors import QUOTE_LIMIT, StoreError, path_text, quote
+from artifacts.errors import QUOTE_LIMIT, StoreError, path_text
 from artifacts.hashing import canonical_json, hash_bytes
 from artifacts.ingest import add_path
 from artifacts.manifests import content_objects, read_artifact, store_content, verify_artifact, write_manifest
@@ -560,7 +560,7 @@ def test_diff_of_a_run_and_something_else_names_which_is_the_run(store):
     """diff.diff 49–51, 53, 54: the refusal names the run first, whichever side it is on."""
     two_runs(store)
     one = record(store, {"lr": 0.001})
-    expected = f"{quote('exp/run-X')} is a run (a ref prefix) but {quote(one)} is not; compare like with like"
+    expected = f"'exp/run-X' is a run (a ref prefix) but '{one}' is not; compare like with like"
     for a, b in (("exp/run-X", one), (one, "exp/run-X")):
         with pytest.raises(StoreError) as exc:
             diff(store, a, b)

@@ -3,7 +3,8 @@ store, its audit log and quarantine; docs/MUTATION.md, "The fourth sweep"). Each
 mutmut ids it kills. What they pin: the log-repaired event a repair appends (its fields, its bounded
 problem list), that a repair which cannot write leaves the log as it was with a one-line reason, the
 quarantined event a damaged object leaves behind, and how a checkpoint copy handles a damaged object
-or a file still being written. Everything runs in a temporary directory.
+or a file still being written, and how a message quotes what the user gave. Everything runs in a
+temporary directory.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from artifacts.auditlog import (
     iter_events,
     repair_log,
 )
-from artifacts.errors import StoreError
+from artifacts.errors import QUOTE_LIMIT, StoreError, quote
 from artifacts.hashing import hash_bytes
 from artifacts.ingest import add_path
 from artifacts.manifests import content_objects, read_artifact, verify_artifact
@@ -216,3 +217,18 @@ def test_a_lock_with_no_other_holder_or_that_cannot_be_queried_names_no_gc(store
         assert _holder_pid(fd) == (None, False)
     finally:
         os.close(fd)
+
+
+# ----------------------------------------------------------------------------- errors.quote
+def test_a_value_quoted_in_a_message_is_its_repr_bounded_in_depth_items_and_length():
+    """errors.quote 8 (the value's repr), 4 (three levels of nesting), 6 (eight items), 9–11 (a repr of
+    exactly QUOTE_LIMIT characters is kept whole, a longer one cut), 13–15 (cut to QUOTE_LIMIT − 1
+    characters and one '…')."""
+    assert quote("workflow/a") == "'workflow/a'"
+    assert quote([[[["deep"]]]]) == "[[[[...]]]]"
+    assert quote({"a": {"b": {"c": {"d": 1}}}}) == "{'a': {'b': {'c': {...}}}}"
+    assert quote(list(range(9))) == "[0, 1, 2, 3, 4, 5, 6, 7, ...]"
+    exact = "x" * (QUOTE_LIMIT - 2)
+    assert quote(exact) == repr(exact) and len(repr(exact)) == QUOTE_LIMIT
+    long = ["y" * 100] * 3
+    assert quote(long) == repr(long)[: QUOTE_LIMIT - 1] + "…"
