@@ -24,6 +24,7 @@ import sys
 import tempfile
 import threading
 import time
+import tomllib
 from pathlib import Path
 
 import psutil
@@ -60,11 +61,12 @@ class MutantWatchdog(threading.Thread):
     mutant that sleeps or waits (a retry loop, a lock, moto's backoff) never reaches it: SIGXCPU first, which
     mutmut records as a timeout, then SIGKILL `grace` seconds later. Only children of the mutmut process are
     watched, and only once `armed` is set (mutmut prints "Running mutation testing"), so the stats and clean
-    runs before it are never cut short."""
+    runs before it are never cut short. With mutmut's fork server (`process_isolation = "forkserver"`) the
+    workers are the server's children (`depth` 2): the long-lived server itself is never signalled."""
 
-    def __init__(self, pid: int, limit: float, grace: float = 30.0, poll: float = 2.0):
+    def __init__(self, pid: int, limit: float, grace: float = 30.0, poll: float = 2.0, depth: int = 1):
         super().__init__(daemon=True)
-        self.pid, self.limit, self.grace, self.poll = pid, limit, grace, poll
+        self.pid, self.limit, self.grace, self.poll, self.depth = pid, limit, grace, poll, depth
         self.armed, self.done = threading.Event(), threading.Event()
         self.ended: list[tuple[int, str]] = []  # (pid, "XCPU" | "KILL"), for the log and the tests
 
@@ -73,11 +75,23 @@ class MutantWatchdog(threading.Thread):
             if self.armed.is_set():
                 self.check()
 
-    def check(self) -> None:
+    def workers(self) -> list[psutil.Process]:
         try:
-            children = psutil.Process(self.pid).children()
+            level = [psutil.Process(self.pid)]
         except psutil.Error:
-            return
+            return []  # mutmut has ended
+        for _ in range(self.depth):
+            below = []
+            for proc in level:
+                try:
+                    below += proc.children()
+                except psutil.Error:
+                    continue  # ended meanwhile
+            level = below
+        return level
+
+    def check(self) -> None:
+        children = self.workers()
         now = time.time()
         for child in children:
             try:
@@ -115,6 +129,13 @@ def stop(proc: subprocess.Popen) -> None:
         proc.wait()
 
 
+def isolation(tree: Path) -> str:
+    """mutmut's process_isolation for this tree ("fork", its default, or "forkserver")."""
+    path = tree / "pyproject.toml"
+    config = tomllib.loads(path.read_text()) if path.exists() else {}
+    return config.get("tool", {}).get("mutmut", {}).get("process_isolation", "fork")
+
+
 def _interrupt(signum, frame) -> None:
     raise KeyboardInterrupt
 
@@ -123,7 +144,7 @@ def run_sweep(tree: Path, children: int, time_limit: float | None, only: list[st
     env = {**os.environ, **PYTEST_ENV}
     cmd = ["nice", "-n", "10", str(MUTMUT), "run", "--max-children", str(children), *only]
     proc = subprocess.Popen(cmd, cwd=tree, env=env, start_new_session=True, stdout=subprocess.PIPE)
-    watchdog = MutantWatchdog(proc.pid, mutant_limit)
+    watchdog = MutantWatchdog(proc.pid, mutant_limit, depth=2 if isolation(tree) == "forkserver" else 1)
     watchdog.start()
     reader = threading.Thread(target=forward_output, args=(proc.stdout, watchdog), daemon=True)
     reader.start()

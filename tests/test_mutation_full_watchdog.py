@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib.util
 import io
+import os
 import signal
 import subprocess
 import sys
@@ -147,3 +148,46 @@ def test_sigterm_to_the_script_stops_mutmut_and_its_workers(tmp_path):
         assert wait_for(lambda: not alive(mutmut_pid) and not alive(worker_pid), timeout=10)
     finally:
         sweep.kill()
+
+
+# mutmut with its fork server: mutmut -> server (lives for the whole sweep) -> one worker per mutant
+SERVER = """
+import subprocess, sys, time
+worker = subprocess.Popen([sys.executable, "-c", sys.argv[1]], stdout=subprocess.PIPE, text=True)
+print(worker.stdout.readline().strip(), flush=True)
+time.sleep(60)
+"""
+MUTMUT_WITH_SERVER = """
+import subprocess, sys
+server = subprocess.Popen([sys.executable, "-c", sys.argv[1], sys.argv[2]], stdout=subprocess.PIPE, text=True)
+print(server.pid, server.stdout.readline().strip(), flush=True)
+server.wait()
+"""
+
+
+def test_with_a_fork_server_only_its_workers_are_signalled_never_the_server():
+    mf = load_script()
+    top = subprocess.Popen(
+        [sys.executable, "-c", MUTMUT_WITH_SERVER, SERVER, SLEEPER], stdout=subprocess.PIPE, text=True
+    )
+    server, worker = map(int, top.stdout.readline().split())
+    dog = mf.MutantWatchdog(top.pid, limit=0.3, grace=30.0, poll=0.05, depth=2)
+    dog.armed.set()
+    dog.start()
+    try:
+        assert wait_for(lambda: not alive(worker))
+        time.sleep(0.5)
+        assert dog.ended == [(worker, "XCPU")]
+        assert alive(server)
+    finally:
+        dog.done.set()
+        top.kill()
+        os.kill(server, signal.SIGKILL)
+
+
+def test_the_isolation_mode_is_read_from_the_trees_mutmut_config(tmp_path):
+    mf = load_script()
+    (tmp_path / "pyproject.toml").write_text('[tool.mutmut]\nprocess_isolation = "forkserver"\n')
+    assert mf.isolation(tmp_path) == "forkserver"
+    (tmp_path / "pyproject.toml").write_text("[tool.mutmut]\n")
+    assert mf.isolation(tmp_path) == "fork"
