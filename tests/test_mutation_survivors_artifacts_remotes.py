@@ -80,3 +80,84 @@ def test_a_partial_clones_missing_object_comes_through_the_registered_fetcher(tm
     assert store.read_bytes(oid) == data
     assert asked == [[oid]]
     store.close()
+
+
+# ----------------------------------------------------------------------------- remotes.s3.explain_s3_error
+class PermissionDeniedError(Exception):
+    """Named like obstore's: explain_s3_error goes by the class name."""
+
+
+class UnauthenticatedError(Exception):
+    pass
+
+
+REACH = (
+    "error sending request",
+    "connection refused",
+    "dns error",
+    "request timed out",
+    "tcp connect",
+    "client connect error",
+    "failed to lookup address",
+    "connection reset by peer",
+    "deadline has elapsed",
+)
+
+
+def explained(exc: BaseException) -> str:
+    from artifacts.remotes.s3 import explain_s3_error
+
+    return str(explain_s3_error(exc, "remote origin (s3://b/p)", "http://127.0.0.1:9"))
+
+
+@pytest.mark.parametrize(
+    "code",
+    [
+        "InvalidAccessKeyId",
+        "SignatureDoesNotMatch",
+        "AccessDenied",
+        "InvalidToken",
+        "ExpiredToken",
+        "AuthorizationHeaderMalformed",
+    ],
+)
+def test_an_s3_authentication_error_code_is_explained_as_access_denied(code):
+    """s3.explain_s3_error 17–34: each code S3 answers for bad or expired keys."""
+    assert explained(Exception(f"<Error><Code>{code}</Code></Error>")) == (
+        f"remote origin (s3://b/p): access denied ({code}); check AWS_ACCESS_KEY_ID / "
+        "AWS_SECRET_ACCESS_KEY or AWS_PROFILE"
+    )
+
+
+@pytest.mark.parametrize("cls", [PermissionDeniedError, UnauthenticatedError])
+def test_an_obstore_permission_error_is_explained_as_access_denied_by_its_class(cls):
+    """s3.explain_s3_error 35, 37–42, 45: the error's class names it when S3 sent no code."""
+    assert explained(cls("forbidden")) == (
+        f"remote origin (s3://b/p): access denied ({cls.__name__}); check AWS_ACCESS_KEY_ID / "
+        "AWS_SECRET_ACCESS_KEY or AWS_PROFILE"
+    )
+
+
+@pytest.mark.parametrize(
+    "text", ["GET http://169.254.169.254/latest/api/token failed", "Generic S3 error: Credential lookup error"]
+)
+def test_missing_aws_credentials_are_explained_with_what_to_set(text):
+    """s3.explain_s3_error 49, 50, 53, 54, 56–62: the instance-metadata address, or 'credential' with
+    'error' (any case), gives the exact credentials line."""
+    assert explained(Exception(text)) == (
+        "remote origin (s3://b/p): no AWS credentials found; set AWS_ACCESS_KEY_ID and AWS_SECRET_ACCESS_KEY, "
+        "or a profile (`accrue remote set NAME profile PROFILE`)"
+    )
+    assert explained(Exception("credential provider configured")).startswith("remote origin (s3://b/p): credential")
+
+
+@pytest.mark.parametrize("phrase", REACH)
+def test_an_s3_connection_failure_is_explained_as_cannot_reach_the_endpoint(phrase):
+    """s3.explain_s3_error 64–80, 83, 84: each phrase of a failed connection (any case), and only those."""
+    assert explained(Exception(f"Generic S3 error: {phrase.upper()}")) == (
+        "remote origin (s3://b/p): cannot reach http://127.0.0.1:9 (no answer, or the connection failed); "
+        "check the network and the endpoint (`accrue remote set NAME endpoint URL`, or AWS_ENDPOINT_URL)"
+    )
+    assert explained(Exception("Generic S3 error: bucket is read-only")) == (
+        "remote origin (s3://b/p): Generic S3 error: bucket is read-only"
+    )
