@@ -10,6 +10,7 @@ import signal
 import subprocess
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -52,48 +53,43 @@ def wait_for(pred, timeout=20.0):
     return False
 
 
-def test_a_waiting_mutant_gets_sigxcpu_after_its_wall_limit():
-    mf = load_script()
-    parent, child = start(SLEEPER)
-    dog = mf.MutantWatchdog(parent.pid, limit=0.5, grace=30.0, poll=0.05)
-    dog.armed.set()
+@contextmanager
+def watching(pid: int, armed: bool = True, **limits):
+    """A watchdog over `pid`'s workers for the length of the block, stopped (and `pid` killed) after it."""
+    dog = load_script().MutantWatchdog(pid, poll=0.05, **limits)
+    if armed:
+        dog.armed.set()
     dog.start()
     try:
-        assert parent.wait(timeout=20) == signal.SIGXCPU  # the worker died of the signal mutmut reads as timeout
-        assert dog.ended == [(child, "XCPU")]
+        yield dog
     finally:
         dog.done.set()
-        parent.kill()
+        if alive(pid):
+            os.kill(pid, signal.SIGKILL)
+
+
+def test_a_waiting_mutant_gets_sigxcpu_after_its_wall_limit():
+    parent, child = start(SLEEPER)
+    with watching(parent.pid, limit=0.5, grace=30.0) as dog:
+        assert parent.wait(timeout=20) == signal.SIGXCPU  # the worker died of the signal mutmut reads as timeout
+        assert dog.ended == [(child, "XCPU")]
 
 
 def test_a_mutant_that_ignores_sigxcpu_is_killed_after_the_grace():
-    mf = load_script()
     parent, child = start(STUBBORN)
-    dog = mf.MutantWatchdog(parent.pid, limit=0.3, grace=0.5, poll=0.05)
-    dog.armed.set()
-    dog.start()
-    try:
+    with watching(parent.pid, limit=0.3, grace=0.5) as dog:
         assert parent.wait(timeout=20) == signal.SIGKILL
         assert dog.ended == [(child, "XCPU"), (child, "KILL")]
-    finally:
-        dog.done.set()
-        parent.kill()
 
 
 def test_nothing_is_signalled_before_the_mutants_start():
-    mf = load_script()
     parent, child = start(SLEEPER)
-    dog = mf.MutantWatchdog(parent.pid, limit=0.1, grace=30.0, poll=0.05)
-    dog.start()
-    try:
+    with watching(parent.pid, armed=False, limit=0.1, grace=30.0) as dog:
         time.sleep(0.6)
         assert parent.poll() is None and dog.ended == []
         dog.armed.set()
         assert wait_for(lambda: parent.poll() is not None)
         assert dog.ended[0] == (child, "XCPU")
-    finally:
-        dog.done.set()
-        parent.kill()
 
 
 def test_mutmuts_output_passes_through_and_arms_the_watchdog_on_its_line(capfd):
@@ -166,22 +162,17 @@ server.wait()
 
 
 def test_with_a_fork_server_only_its_workers_are_signalled_never_the_server():
-    mf = load_script()
     top = subprocess.Popen(
         [sys.executable, "-c", MUTMUT_WITH_SERVER, SERVER, SLEEPER], stdout=subprocess.PIPE, text=True
     )
     server, worker = map(int, top.stdout.readline().split())
-    dog = mf.MutantWatchdog(top.pid, limit=0.3, grace=30.0, poll=0.05, depth=2)
-    dog.armed.set()
-    dog.start()
     try:
-        assert wait_for(lambda: not alive(worker))
-        time.sleep(0.5)
-        assert dog.ended == [(worker, "XCPU")]
-        assert alive(server)
+        with watching(top.pid, limit=0.3, grace=30.0, depth=2) as dog:
+            assert wait_for(lambda: not alive(worker))
+            time.sleep(0.5)
+            assert dog.ended == [(worker, "XCPU")]
+            assert alive(server)
     finally:
-        dog.done.set()
-        top.kill()
         os.kill(server, signal.SIGKILL)
 
 
