@@ -4,6 +4,7 @@ working tree, so other work in the checkout is never touched.
 
     .venv/bin/python scripts/mutation_full.py                       # run (or resume) the sweep
     .venv/bin/python scripts/mutation_full.py --time-limit 1800     # stop after 30 min; resume later
+    .venv/bin/python scripts/mutation_full.py --mutant-limit 120    # a worker waiting 120 s counts as timeout
     .venv/bin/python scripts/mutation_full.py --only 'accrue.learner.losses*'   # some mutants only
     .venv/bin/python scripts/mutation_full.py --report              # counts and survivors so far
     .venv/bin/python scripts/mutation_full.py --names /tmp/accrue-mutmut/survivors.txt   # re-run the survivors
@@ -59,10 +60,10 @@ def deselect(tree: Path, nodes: list[str]) -> None:
 class MutantWatchdog(threading.Thread):
     """Ends a mutant worker that has run `limit` seconds of wall time. mutmut's own limit counts CPU time, so a
     mutant that sleeps or waits (a retry loop, a lock, moto's backoff) never reaches it: SIGXCPU first, which
-    mutmut records as a timeout, then SIGKILL `grace` seconds later. Only children of the mutmut process are
-    watched, and only once `armed` is set (mutmut prints "Running mutation testing"), so the stats and clean
-    runs before it are never cut short. With mutmut's fork server (`process_isolation = "forkserver"`) the
-    workers are the server's children (`depth` 2): the long-lived server itself is never signalled."""
+    mutmut records as a timeout, then SIGKILL `grace` seconds later. Only mutmut's workers are watched: its
+    children (`depth` 1), or under its fork server (`process_isolation = "forkserver"`) the server's children
+    (`depth` 2), never the long-lived server; and only once `armed` is set (mutmut prints "Running mutation
+    testing"), so the stats and clean runs before it are never cut short."""
 
     def __init__(self, pid: int, limit: float, grace: float = 30.0, poll: float = 2.0, depth: int = 1):
         super().__init__(daemon=True)
@@ -153,13 +154,10 @@ def run_sweep(tree: Path, children: int, time_limit: float | None, only: list[st
     signal.signal(signal.SIGTERM, _interrupt)
     try:
         return proc.wait(timeout=time_limit)
-    except subprocess.TimeoutExpired:
+    except (subprocess.TimeoutExpired, KeyboardInterrupt) as why:
         stop(proc)
-        print(f"\nstopped after {time_limit:.0f} s (resume with the same command)", flush=True)
-        return 0
-    except KeyboardInterrupt:
-        stop(proc)
-        print("\nstopped (resume with the same command)", flush=True)
+        after = f" after {time_limit:.0f} s" if isinstance(why, subprocess.TimeoutExpired) else ""
+        print(f"\nstopped{after} (resume with the same command)", flush=True)
         return 0
     finally:
         watchdog.done.set()
