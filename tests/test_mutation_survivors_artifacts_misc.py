@@ -1,0 +1,594 @@
+"""Tests written to kill mutants of artifacts/ (gc, the writer lock, the pipelined copy, and the remote
+commands prune, status, verify, log and the partial clone's fetch) that survived mutmut's fourth
+sweep (docs/MUTATION.md, "The fourth sweep"). Each docstring names the mutmut ids it kills. What they
+pin: gc is a dry run unless told, counts what it keeps, leaves young objects and live writers' files
+alone, logs what it is about to delete, and says in one line why it cannot run; gc polls a busy store
+at most every 0.1 s and gives up at its deadline; a copy of more than 128 MiB keeps its bytes and id,
+and a failed write is raised as itself; `remote prune` is a dry run with a one-day grace, refuses when
+it cannot tell what is reachable, and stops when a ref moves meanwhile; status asks the remote, not
+the last fetch; the JSON of `remote verify` and `log --remote`. Everything runs in a temporary
+directory, with directory remotes (no network).
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import blake3
+import pytest
+
+import artifacts.gc
+import artifacts.remotes.prune
+import artifacts.writers
+from artifacts.auditlog import append_event, iter_events
+from artifacts.errors import StoreError
+from artifacts.gc import collect_garbage
+from artifacts.hashing import CHUNK_SIZE, copy_hashing, hash_bytes, hash_file
+from artifacts.ingest import add_path
+from artifacts.locks import store_lock
+from artifacts.remotes.backends import object_key
+from artifacts.remotes.check import verify_remote
+from artifacts.remotes.config import add_remote, set_promisor
+from artifacts.remotes.lazy import fetch_promised
+from artifacts.remotes.logchain import remote_log_chains
+from artifacts.remotes.prune import prune_remote
+from artifacts.remotes.pull import fetch
+from artifacts.remotes.push import push
+from artifacts.remotes.status import ref_status
+from artifacts.store import Store
+from artifacts.writers import LOCK_NAME, exclusive
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from reliability_support import remount, small_fs  # noqa: E402
+
+DAY = 86400.0
+
+
+@pytest.fixture
+def store(tmp_path: Path) -> Store:
+    s, _ = Store.init(tmp_path / "store")
+    yield s
+    s.close()
+
+
+def artifact(store: Store, tmp_path: Path, data: bytes, ref: str) -> str:
+    src = tmp_path / f"{ref.replace('/', '-')}.bin"
+    src.write_bytes(data)
+    return add_path(store, src, "replay", ref=ref)[0]
+
+
+def set_age(path: Path, age_s: float) -> None:
+    """Last modified age_s seconds ago (negative: in the future, as from a clock that runs ahead)."""
+    t = time.time() - age_s
+    os.utime(path, (t, t), follow_symlinks=False)
+
+
+# ----------------------------------------------------------------------------- gc
+def test_gc_without_yes_is_a_dry_run_that_counts_kept_young_and_removable_objects(store, tmp_path):
+    """gc.collect_garbage 1 (the default deletes), _collect 2 (dry_run not reported), 13, 15 (kept
+    miscounted), 24, 26 (young miscounted), 27 (the first young object stops the sweep: the old one
+    after it is kept)."""
+    aid = artifact(store, tmp_path, b"replay" * 100, "team/replay")
+    loose = sorted((hash_bytes(d), d) for d in (b"loose 1", b"loose 2", b"loose 3"))
+    for oid, data in loose:
+        assert store.put_bytes(data) == oid
+    (young_a, _), (young_b, _), (old, old_data) = loose  # ids in sweep order: two young ones first
+    for oid in (young_a, young_b):
+        set_age(store.object_path(oid), -3600)
+
+    dry = collect_garbage(store, grace_s=0)
+    assert dry.dry_run is True
+    assert (dry.kept, dry.young, dry.removed) == (2, 2, [(old, len(old_data))])
+    assert all(store.has_object(o) for o, _ in loose)
+
+    done = collect_garbage(store, dry_run=False, grace_s=0)
+    assert done.dry_run is False
+    assert (done.kept, done.young, done.removed) == (2, 2, [(old, len(old_data))])
+    assert not store.has_object(old) and store.has_object(young_a) and store.has_object(young_b)
+    assert store.has_object(aid)
+
+
+def test_gc_logs_what_it_is_about_to_remove_and_then_what_it_removed(store, tmp_path):
+    """gc._collect 66–68, 71–73 (the gc-started event's removing / bytes / tmp_removing), 90–92, 95–97
+    (the gc event's removed / bytes / tmp_removed)."""
+    artifact(store, tmp_path, b"kept", "team/kept")
+    store.put_bytes(b"a" * 10)
+    store.put_bytes(b"b" * 32)
+    (store.tmp_dir / "attempt-dead-999999999-abcd").mkdir()
+    collect_garbage(store, dry_run=False, grace_s=0)
+    started, finished = [e for e in iter_events(store) if e["event"] in ("gc-started", "gc")]
+    assert [started.get(k) for k in ("event", "removing", "bytes", "tmp_removing")] == ["gc-started", 2, 42, 1]
+    assert [finished.get(k) for k in ("event", "removed", "bytes", "tmp_removed")] == ["gc", 2, 42, 1]
+
+
+def test_gc_leaves_a_live_writers_temp_file_under_refs_alone(store, tmp_path):
+    """gc._collect 49 (`and` → `or`: a live writer's old temp file of a ref update is swept)."""
+    artifact(store, tmp_path, b"kept", "team/kept")
+    live = store.refs_dir / f".tmp-{os.getpid()}-00ff"
+    dead = store.refs_dir / ".tmp-999999999-00ff"
+    for path in (live, dead):
+        path.write_text("a ref update in flight")
+    report = collect_garbage(store, dry_run=False, grace_s=0)
+    assert report.tmp_removed == ["refs/.tmp-999999999-00ff"]
+    assert live.exists() and not dead.exists()
+
+
+def test_gc_of_a_store_copied_without_its_empty_tmp_directory(store, tmp_path):
+    """gc._collect 31 (tmp/ listed even when it is missing: a traceback-free 'gc could not finish'
+    instead of a sweep)."""
+    artifact(store, tmp_path, b"kept", "team/kept")
+    loose = store.put_bytes(b"loose")
+    store.tmp_dir.rmdir()
+    report = collect_garbage(store, dry_run=False, grace_s=0)
+    assert [o for o, _ in report.removed] == [loose] and report.tmp_removed == []
+
+
+def test_what_vanishes_between_gcs_listing_and_its_sweep_is_not_an_error(store, tmp_path, monkeypatch):
+    """gc._collect 76, 78 (an object already gone fails the unlink), 84, 85 (a temp file already gone
+    fails it too). Both are removed right after gc logs what it is about to delete, as a `verify`
+    moving a damaged object aside, or a user cleaning tmp/ by hand, would."""
+    artifact(store, tmp_path, b"kept", "team/kept")
+    loose = store.put_bytes(b"loose")
+    stray = store.tmp_dir / "upload-999999999-abcd"
+    stray.write_bytes(b"half a file")
+    real_append = artifacts.gc.append_event
+
+    def append_then_lose_them(s, event, **fields):
+        real_append(s, event, **fields)
+        if event == "gc-started":
+            os.unlink(store.object_path(loose))
+            os.unlink(stray)
+
+    monkeypatch.setattr(artifacts.gc, "append_event", append_then_lose_them)
+    report = collect_garbage(store, dry_run=False, grace_s=0)
+    assert [o for o, _ in report.removed] == [loose] and report.tmp_removed == [stray.name]
+    assert [e["event"] for e in iter_events(store)][-1] == "gc"
+
+
+def test_gc_on_a_read_only_store_only_reports(tmp_path):
+    """gc.collect_garbage 8 (the dry run refused, --yes let through), 9 (the refusal's text), 10–16
+    (the report of a read-only store: its store, dry_run and grace passed on, nothing deleted)."""
+    with small_fs(tmp_path / "ro") as fs:
+        s, _ = Store.init(fs / "store")
+        artifact(s, tmp_path, b"kept", "team/kept")
+        loose = s.put_bytes(b"nobody refers to me")
+        s.close()
+        remount(fs, read_only=True)
+        try:
+            ro = Store.open(fs / "store")
+            with pytest.raises(StoreError) as exc:
+                collect_garbage(ro, dry_run=False, grace_s=0)
+            assert str(exc.value) == f"the store at {ro.root} cannot be written: gc can only report (drop --yes)"
+            report = collect_garbage(ro, grace_s=0)
+            assert report.dry_run is True and report.removed == [(loose, 19)] and report.kept == 2
+            assert ro.has_object(loose)
+            ro.close()
+        finally:
+            remount(fs, read_only=False)
+
+
+def test_gc_refuses_at_once_while_another_gc_holds_the_store(store):
+    """gc.collect_garbage 19, 30, 31 (the refusal names 'the store (gc)'), 32 (it waits a second first)."""
+    with store_lock(store.locks_dir, "gc"):
+        started = time.monotonic()
+        with pytest.raises(StoreError) as exc:
+            collect_garbage(store)
+        waited = time.monotonic() - started
+    assert str(exc.value) == "the store (gc) is locked by another accrue process; try again when it finishes"
+    assert waited < 0.9
+
+
+def test_gc_that_cannot_open_its_lock_file_says_so_in_one_line(store):
+    """gc.collect_garbage 33–38: `gc cannot lock the store: PATH: REASON`."""
+    (store.locks_dir / "gc.lock").mkdir(parents=True)
+    with pytest.raises(StoreError) as exc:
+        collect_garbage(store)
+    line = str(exc.value)  # the path is shortened past QUOTE_LIMIT characters: match its ends
+    assert line.startswith("gc cannot lock the store: ") and line.endswith("gc.lock: Is a directory")
+
+
+def test_gc_that_fails_midway_says_so_in_one_line(store, tmp_path):
+    """gc.collect_garbage 49–54: an OSError during the sweep is `gc could not finish: PATH: REASON` (here
+    an object file that is a dangling link, e.g. a store copied with links to a disk that is gone)."""
+    artifact(store, tmp_path, b"kept", "team/kept")
+    oid = hash_bytes(b"on the other disk")
+    path = store.object_path(oid)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.symlink_to(tmp_path / "gone" / "object")
+    with pytest.raises(StoreError) as exc:
+        collect_garbage(store, grace_s=0)
+    line = str(exc.value)
+    assert line.startswith("gc could not finish: ") and line.endswith(f"{oid[2:]}: No such file or directory")
+
+
+# ----------------------------------------------------------------------------- writers._acquire_exclusive
+HOLD = """
+import fcntl, os, sys
+fd = os.open(sys.argv[1], os.O_RDWR | os.O_CREAT, 0o644)
+fcntl.lockf(fd, fcntl.LOCK_SH)
+print("held", flush=True)
+sys.stdin.read()
+"""
+
+
+@pytest.fixture
+def writer_elsewhere(store):
+    """Another process holding the store's writer lock as a writer does (shared), until the test ends."""
+    proc = subprocess.Popen(
+        [sys.executable, "-c", HOLD, str(store.locks_dir / LOCK_NAME)], stdin=subprocess.PIPE, stdout=subprocess.PIPE
+    )
+    assert proc.stdout.readline() == b"held\n"
+    yield proc.pid
+    proc.stdin.close()
+    proc.wait(timeout=10)
+
+
+class FakeClock:
+    """Stands in for the time module of the writer lock: sleeps only advance its clock."""
+
+    def __init__(self) -> None:
+        self.now, self.slept = 1000.0, []
+
+    def monotonic(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        self.slept.append(seconds)
+        self.now += seconds
+
+
+def test_gc_polls_a_busy_store_at_most_every_tenth_of_a_second_until_its_deadline(store, writer_elsewhere, monkeypatch):
+    """writers._acquire_exclusive 29 (polls every 1.1 s), 34, 35 (sleeps 0.1 s even past the deadline);
+    gc.collect_garbage 2 (without --wait, gc waits a second before giving up); writers._acquire_exclusive
+    11 (`>` the deadline: without --wait, on a clock that has not moved, gc sleeps once more)."""
+    clock = FakeClock()
+    monkeypatch.setattr(artifacts.writers, "time", clock)
+    with pytest.raises(StoreError, match="is using it"):
+        collect_garbage(store)
+    assert clock.slept == []
+    with pytest.raises(StoreError, match="is using it"):
+        collect_garbage(store, wait_s=0.25)
+    assert max(clock.slept) <= 0.1
+    assert 0.25 - 1e-9 <= sum(clock.slept) <= 0.25 + 0.01 + 1e-9
+
+
+def test_gc_that_cannot_tell_who_holds_the_store_says_another_process(store, writer_elsewhere, monkeypatch):
+    """writers._acquire_exclusive 16–18: with no pid to name (a filesystem whose F_GETLK fails), the
+    message says 'another process', not 'pid None'."""
+
+    def no_getlk(*_args):
+        raise OSError(errno.EINVAL, "Invalid argument")
+
+    monkeypatch.setattr(artifacts.writers.fcntl, "fcntl", no_getlk)
+    with pytest.raises(StoreError) as exc:
+        with exclusive(store, wait_s=0):
+            pass
+    assert str(exc.value) == (
+        "gc needs the store to itself, but an accrue process (another process) is using it; "
+        "run gc when it finishes, or pass --wait SECONDS"
+    )
+
+
+def test_gc_whose_writer_lock_cannot_be_taken_names_the_lock_and_the_reason(tmp_path):
+    """writers._acquire_exclusive 10: a lock that fails for another reason than a holder is
+    `PATH: cannot lock (REASON)` (here the lock file is a directory, which opens only read-only)."""
+    s, _ = Store.init(tmp_path / "store")
+    s.close()
+    lock = tmp_path / "store" / "locks" / LOCK_NAME
+    lock.unlink(missing_ok=True)
+    lock.mkdir()
+    fresh = Store.open(tmp_path / "store")
+    with pytest.raises(StoreError) as exc:
+        collect_garbage(fresh)
+    assert str(exc.value) == f"{lock}: cannot lock (Bad file descriptor)"
+    fresh.close()
+
+
+# ----------------------------------------------------------------------------- hashing._copy_hashing_pipelined
+class Pattern:
+    """A readable source of `size` bytes that repeats one chunk (no memory for the whole copy)."""
+
+    def __init__(self, size: int) -> None:
+        self.left = size
+        self.chunk = (bytes(range(256)) * (CHUNK_SIZE // 256 + 1))[:CHUNK_SIZE]
+
+    def readinto(self, buffer: bytearray) -> int:
+        n = min(len(buffer), self.left, CHUNK_SIZE)
+        buffer[:n] = self.chunk[:n]
+        self.left -= n
+        return n
+
+    def expected_id(self, size: int) -> str:
+        h, left = blake3.blake3(), size
+        while left:
+            n = min(left, CHUNK_SIZE)
+            h.update(self.chunk[:n])
+            left -= n
+        return h.hexdigest()
+
+
+def test_a_copy_of_more_than_128_mib_keeps_its_bytes_and_id(tmp_path):
+    """hashing._copy_hashing_pipelined 21 (the early writeback is given no descriptor), 22 (its
+    counter reset to None): a copy past 128 MiB fails instead of finishing."""
+    size = 17 * CHUNK_SIZE + 123
+    source = Pattern(size)
+    dst = tmp_path / "copy.bin"
+    fd = os.open(dst, os.O_WRONLY | os.O_CREAT, 0o644)
+    try:
+        got = copy_hashing(source, fd, size)
+    finally:
+        os.close(fd)
+    assert got == (source.expected_id(size), size)
+    assert hash_file(dst) == got
+
+
+def test_a_copy_whose_write_fails_raises_that_error_and_does_not_hang(tmp_path):
+    """hashing._copy_hashing_pipelined 7 (no failure list: the copy waits forever for a buffer), 24
+    (`raise None`), 52 (`failure[1]`): the destination's own OSError comes back."""
+    size = 6 * CHUNK_SIZE
+    dst = tmp_path / "copy.bin"
+    dst.write_bytes(b"")
+    fd = os.open(dst, os.O_RDONLY)  # a destination that refuses every write
+    outcome: list[BaseException | tuple] = []
+
+    def run() -> None:
+        try:
+            outcome.append(copy_hashing(Pattern(size), fd, size))
+        except BaseException as exc:  # noqa: BLE001 - inspected below
+            outcome.append(exc)
+
+    worker = threading.Thread(target=run, daemon=True)
+    worker.start()
+    worker.join(timeout=20)
+    assert not worker.is_alive(), "the copy hung after its write failed"
+    os.close(fd)
+    [exc] = outcome
+    assert isinstance(exc, OSError) and exc.errno == errno.EBADF
+
+
+# ----------------------------------------------------------------------------- remotes (a directory remote)
+def pushed(tmp_path: Path) -> tuple[Store, str, Path]:
+    """A store that pushed one file artifact (ref team/replay) to a new directory remote `origin`:
+    (the store, the artifact's id, the remote's directory)."""
+    a, _ = Store.init(tmp_path / "a")
+    aid = artifact(a, tmp_path, b"replay" * 100, "team/replay")
+    (tmp_path / "nas").mkdir()
+    remote = tmp_path / "nas" / "accrue"
+    add_remote(a, "origin", str(remote))
+    push(a, "origin")
+    return a, aid, remote
+
+
+def another_store(tmp_path: Path, remote: Path, name: str = "b") -> Store:
+    s, _ = Store.init(tmp_path / name)
+    add_remote(s, "origin", str(remote))
+    return s
+
+
+def remote_objects(remote: Path) -> set[str]:
+    return {p.relative_to(remote).as_posix() for p in (remote / "objects").rglob("*") if p.is_file()}
+
+
+def leftover(remote: Path, data: bytes, age_s: float) -> str:
+    """An object on the remote that nothing reaches (what `push --force` leaves), age_s seconds old."""
+    oid = hash_bytes(data)
+    path = remote / object_key(oid)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(data)
+    set_age(path, age_s)
+    return oid
+
+
+def unfinished_upload(remote: Path, name: str, age_s: float) -> str:
+    path = remote / "tmp" / name
+    path.parent.mkdir(exist_ok=True)
+    path.write_bytes(b"half an object")
+    set_age(path, age_s)
+    return f"tmp/{name}"
+
+
+def test_remote_prune_is_a_dry_run_with_a_one_day_grace_by_default(tmp_path):
+    """remotes.prune.prune_remote 1 (the default deletes), 2 (a grace of a day and a second), 13 (the
+    report's remote), 32 (its reachable count), 59 (young miscounted), 62 (a young unfinished upload
+    counted as abandoned)."""
+    a, _, remote = pushed(tmp_path)
+    reachable = len(remote_objects(remote))
+    old = leftover(remote, b"two days old", 2 * DAY)
+    edge = leftover(remote, b"a day and a quarter second old", DAY + 0.25)
+    young = [leftover(remote, b"just sent", 0), leftover(remote, b"a minute old", 60)]
+    dead = unfinished_upload(remote, "obj-dead", 2 * DAY)
+    unfinished_upload(remote, "obj-live", 0)
+    before = remote_objects(remote)
+    report = prune_remote(a, "origin")
+    assert report.as_dict() == {
+        "remote": "origin",
+        "dry_run": True,
+        "reachable": reachable,
+        "removed": sorted([old, edge]),
+        "bytes": len(b"two days old") + len(b"a day and a quarter second old"),
+        "young": 2,
+        "uploads": [dead],
+    }
+    assert remote_objects(remote) == before and len(list((remote / "tmp").iterdir())) == 2
+    assert not set(young) & set(report.removed)
+
+
+def test_remote_prune_deletes_old_unreachable_objects_when_there_is_no_upload_to_drop(tmp_path):
+    """remotes.prune.prune_remote 71 (`doomed or uploads` → `and`: nothing deleted without an
+    unfinished upload)."""
+    a, _, remote = pushed(tmp_path)
+    reached = remote_objects(remote)
+    old = leftover(remote, b"two days old", 2 * DAY)
+    report = prune_remote(a, "origin", dry_run=False)
+    assert report.removed == [old] and report.uploads == []
+    assert remote_objects(remote) == reached
+    assert verify_remote(a, "origin").ok
+
+
+def test_remote_prune_goes_on_past_missing_or_short_objects(tmp_path):
+    """remotes.prune.prune_remote 23–29: a remote that lacks an object, or holds one of the wrong
+    size, still tells what is reachable (repair re-sends those); prune is not refused."""
+    a, aid, remote = pushed(tmp_path)
+    old = leftover(remote, b"two days old", 2 * DAY)
+    content = remote / object_key(a.read_json(aid)["content"])
+    os.chmod(content, 0o644)
+    content.write_bytes(b"short")
+    assert any("has size 5" in p for p in verify_remote(a, "origin").problems)
+    assert prune_remote(a, "origin").removed == [old]
+    content.unlink()
+    assert any("lacks object" in p for p in verify_remote(a, "origin").problems)
+    assert prune_remote(a, "origin").removed == [old]
+
+
+def test_remote_prune_refuses_when_a_manifest_on_the_remote_cannot_be_read(tmp_path):
+    """remotes.prune.prune_remote 22 (not refused), 30 (no message), 31 (`unreadable[1]`: a traceback)."""
+    _, aid, remote = pushed(tmp_path)
+    b = another_store(tmp_path, remote)  # has no manifest of its own: reads them from the remote
+    manifest = remote / object_key(aid)
+    os.chmod(manifest, 0o644)
+    manifest.write_bytes(b'{"type": "artifact", "damaged": true}')
+    [problem] = verify_remote(b, "origin").problems
+    with pytest.raises(StoreError) as exc:
+        prune_remote(b, "origin", dry_run=False, grace_s=0)
+    assert str(exc.value) == (
+        f"remote origin: cannot tell what is reachable ({problem}); run `accrue remote repair origin` first"
+    )
+
+
+def test_remote_prune_deletes_nothing_when_a_ref_moves_while_it_looks(tmp_path, monkeypatch):
+    """remotes.prune.prune_remote 103: the exact line when a push moves a ref between prune's walk
+    and its deletion (here the push runs when prune checks for leases)."""
+    a, _, remote = pushed(tmp_path)
+    old = leftover(remote, b"two days old", 2 * DAY)
+    real_leases = artifacts.remotes.prune._leases
+
+    def a_push_lands_meanwhile(backend):
+        artifact(a, tmp_path, b"newer replay", "team/replay")
+        push(a, "origin")
+        return real_leases(backend)
+
+    monkeypatch.setattr(artifacts.remotes.prune, "_leases", a_push_lands_meanwhile)
+    with pytest.raises(StoreError) as exc:
+        prune_remote(a, "origin", dry_run=False)
+    assert str(exc.value) == "remote origin: its refs moved while prune looked; nothing was deleted — run it again"
+    assert (remote / object_key(old)).exists()
+
+
+def test_status_asks_the_remote_unless_told_offline(tmp_path):
+    """remotes.status.ref_status 1 (offline by default: the last fetch's view, here nothing)."""
+    _, aid, remote = pushed(tmp_path)
+    b = another_store(tmp_path, remote)
+    rows = {r.ref: (r.local, r.remote, r.state) for r in ref_status(b, "origin")}
+    assert rows["team/replay"] == (None, aid, "remote-only")
+    assert ref_status(b, "origin", offline=True) == []
+
+
+def test_status_against_an_empty_remote_directory_refuses_and_creates_nothing(tmp_path):
+    """remotes.status.ref_status 18 (status would make the directory a remote)."""
+    (tmp_path / "nas" / "accrue").mkdir(parents=True)
+    remote = tmp_path / "nas" / "accrue"
+    b = another_store(tmp_path, remote)
+    with pytest.raises(StoreError) as exc:
+        ref_status(b, "origin")
+    assert str(exc.value) == f"remote origin ({remote}) holds no accrue store yet (push to it first)"
+    assert list(remote.iterdir()) == []
+
+
+def test_remote_verify_json_is_its_counts_and_problems_without_the_walk(tmp_path):
+    """remotes.check.RemoteVerifyReport.as_dict 1, 2 (the `ok` key), 4–9 (a set of the walk left in:
+    the JSON cannot be written)."""
+    a, _, remote = pushed(tmp_path)
+    report = verify_remote(a, "origin")
+    shown = json.loads(json.dumps(report.as_dict()))
+    assert shown == {
+        "ok": True,
+        "remote": "origin",
+        "full": False,
+        "refs": 3,
+        "reachable": len(remote_objects(remote)),
+        "bytes_hashed": 0,
+        "problems": [],
+        "damaged": [],
+    }
+
+
+def test_log_remote_summarises_each_store_by_its_id_host_and_first_and_last_event(tmp_path):
+    """remotes.logchain.LogChain.summary 1–4 (`store_id`, `host`), 9–16 (`first`: the first event's
+    time), 17–25 (`last`: the last event's), 12, 20 (a chain with no events: None, not a traceback)."""
+    a, _ = Store.init(tmp_path / "a")
+    append_event(a, "note", n=1)
+    time.sleep(0.005)  # events a few milliseconds apart: each has its own time stamp
+    artifact(a, tmp_path, b"replay", "team/replay")
+    time.sleep(0.005)
+    append_event(a, "note", n=2)
+    time.sleep(0.005)
+    append_event(a, "note", n=3)
+    (tmp_path / "nas").mkdir()
+    add_remote(a, "origin", str(tmp_path / "nas" / "accrue"))
+    push(a, "origin")
+    b = another_store(tmp_path, tmp_path / "nas" / "accrue")
+    fetch(b, "origin")
+    [chain] = remote_log_chains(b, "origin")
+    lines = [json.loads(line) for line in a.log_path.read_text().splitlines()]
+    summary = chain.summary()
+    assert lines[-1]["event"] == "pushed" and (lines[-2]["event"], lines[-2]["n"]) == ("note", 3)
+    assert summary == {
+        "store_id": a.read_config()["store_id"],
+        "host": socket.gethostname(),
+        "segments": 1,
+        "events": len(lines) - 1,
+        "first": lines[0]["ts"],
+        "last": lines[-2]["ts"],
+        "ok": True,
+        "problems": [],
+    }
+    segment = b.object_path(chain_head(b))
+    os.chmod(segment, 0o644)
+    segment.unlink()
+    [lost] = remote_log_chains(b, "origin")
+    assert (lost.summary()["first"], lost.summary()["last"], lost.summary()["events"]) == (None, None, 0)
+
+
+def chain_head(store: Store) -> str:
+    from artifacts.remotes import LOG_TRACKING
+    from artifacts.remotes.pointers import tracking_refs
+
+    [head] = tracking_refs(store, "origin", LOG_TRACKING).values()
+    return head
+
+
+def test_a_partial_clone_fetches_promised_objects_and_says_whether_all_came(tmp_path):
+    """remotes.lazy.fetch_promised 15 (the ids left instead of whether none are), _fetch_from 22 (the
+    fetched ones returned as missing)."""
+    a, aid, remote = pushed(tmp_path)
+    content = a.read_json(aid)["content"]
+    b = another_store(tmp_path, remote)
+    set_promisor(b, "origin")
+    assert fetch_promised(b, [content]) is True
+    assert b.read_bytes(content) == b"replay" * 100
+    assert fetch_promised(b, [hash_bytes(b"never pushed")]) is False
+
+
+def test_a_partial_clones_fetch_shows_a_progress_bar_naming_the_remote_on_a_terminal(tmp_path, capsys, monkeypatch):
+    """remotes.lazy.fetch_promised 8 (the bar says 'fetching from None'), _fetch_from 3 (no bar), 8 (a
+    total of 1 byte where the size is unknown until the objects arrive)."""
+    import re
+
+    a, aid, remote = pushed(tmp_path)
+    content = a.read_json(aid)["content"]
+    b = another_store(tmp_path, remote)
+    set_promisor(b, "origin")
+    capsys.readouterr()
+    for name, value in {"TTY_COMPATIBLE": "1", "TTY_INTERACTIVE": "1", "COLUMNS": "120"}.items():
+        monkeypatch.setenv(name, value)  # stderr counts as a terminal for rich
+    assert fetch_promised(b, [content]) is True
+    drawn = re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "", capsys.readouterr().err)
+    assert "fetching from origin" in drawn and "600/? bytes" in drawn and "1/1 objects" in drawn
