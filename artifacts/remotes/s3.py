@@ -98,9 +98,16 @@ MULTIPART_CONCURRENCY = 16
 _S3_CODE = re.compile(r"<Code>([A-Za-z]+)</Code>")
 
 
+def _botocore_code(exc: BaseException) -> str:
+    response = getattr(exc, "response", None)
+    error = response.get("Error") if isinstance(response, dict) else None
+    return str(error.get("Code") or "") if isinstance(error, dict) else ""
+
+
 def explain_s3_error(exc: BaseException, where: str, endpoint: str | None = None) -> StoreError:
     text = str(exc)
-    code = (_S3_CODE.search(text) or [None, ""])[1]
+    # obstore puts S3's XML error body in its text; botocore parses it into `response["Error"]["Code"]`
+    code = (_S3_CODE.search(text) or [None, ""])[1] or _botocore_code(exc)
     low = text.lower()
     if code == "NoSuchBucket":
         return StoreError(f"{where}: the bucket does not exist (create it, or fix the URL)")
@@ -132,6 +139,7 @@ def explain_s3_error(exc: BaseException, where: str, endpoint: str | None = None
             "connect error",
             "failed to lookup",
             "connection reset",
+            "could not connect to the endpoint",  # botocore's EndpointConnectionError
             "operation timed out",
             "deadline has elapsed",
         )
@@ -249,7 +257,8 @@ class S3Backend(Backend):
         config = Config(  # the same limits as obstore's client: a silent endpoint ends in one line
             connect_timeout=_seconds("ACCRUE_REMOTE_CONNECT_TIMEOUT", "5"),
             read_timeout=_seconds("ACCRUE_REMOTE_READ_TIMEOUT", "10"),
-            retries={"max_attempts": int(os.environ.get("ACCRUE_REMOTE_RETRIES", "3")) + 1, "mode": "standard"},
+            # botocore's `max_attempts` counts retries; `total_max_attempts` counts tries, like obstore's N + 1
+            retries={"total_max_attempts": int(os.environ.get("ACCRUE_REMOTE_RETRIES", "3")) + 1, "mode": "standard"},
         )
         return session.client(
             "s3", endpoint_url=endpoint_of(self.spec), region_name=region or "us-east-1", config=config
