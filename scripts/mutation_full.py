@@ -10,15 +10,19 @@ working tree, so other work in the checkout is never touched.
     .venv/bin/python scripts/mutation_full.py --names /tmp/accrue-mutmut/survivors.txt   # re-run the survivors
 
 mutmut keeps its results in WORKDIR/tree/mutants/, so a second call continues where the first stopped
-(and re-tests functions whose code changed). Survivors are written to WORKDIR/survivors.txt, one
-`mutmut show` name a line; each is triaged in docs/MUTATION.md (killed by a new test, or equivalent).
+(and re-tests functions whose code changed). After each call its verdicts (mutmut's `.meta` files) are
+copied to benchmarks/results/mutation/mutmut/ (`--records`), which git keeps: on a new machine, with no
+WORKDIR yet, the sweep starts from them instead of from nothing. Survivors are written to
+WORKDIR/survivors.txt, one `mutmut show` name a line; each is triaged in docs/MUTATION.md (killed by a new test, or equivalent).
 The critical, named mutations that CI checks are scripts/mutation_critical.py.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -34,6 +38,52 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from mutation_critical import PYTEST_ENV, ROOT, copy_tree  # noqa: E402
 
 MUTMUT = Path(sys.executable).with_name("mutmut")
+RECORDS = ROOT / "benchmarks" / "results" / "mutation" / "mutmut"
+CONFIG = "mutmut-config.json"  # the [tool.mutmut] table the kept verdicts were measured under
+
+
+def mutmut_config(tree: Path) -> dict:
+    path = tree / "pyproject.toml"
+    return tomllib.loads(path.read_text()).get("tool", {}).get("mutmut", {}) if path.exists() else {}
+
+
+def record_files(mutants: Path) -> list[Path]:
+    """The `.meta` file mutmut keeps beside each mutated file (each mutant's exit code, each function's source
+    hash), relative to mutants/. That is all a sweep needs to resume: mutmut writes the mutated sources again,
+    resets the verdicts of any function whose hash changed, and rebuilds its function-to-test map (a few MB,
+    not kept) with one run of the selection."""
+    return sorted(p.relative_to(mutants) for p in mutants.rglob("*.meta"))
+
+
+def save_records(tree: Path, records: Path) -> int:
+    """Copy the sweep's verdicts to `records` (replacing what was there); the number of files copied."""
+    mutants = tree / "mutants"
+    files = record_files(mutants)
+    if not files:
+        return 0
+    for old in record_files(records) if records.is_dir() else []:
+        (records / old).unlink()
+    for rel in files:
+        (records / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(mutants / rel, records / rel)
+    (records / CONFIG).write_text(json.dumps(mutmut_config(tree), indent=1, sort_keys=True) + "\n")
+    return len(files)
+
+
+def restore_records(records: Path, tree: Path, config: dict) -> str:
+    """Start a sweep on a new machine from the verdicts in `records`, never over a sweep already in `tree`, and
+    only if they were measured under `config`: a different test selection or pytest arguments make every verdict
+    stale (mutmut itself resets them all on such a change, but only while it still has its own map)."""
+    mutants = tree / "mutants"
+    if mutants.exists() or not (records / CONFIG).is_file():
+        return ""
+    if json.loads((records / CONFIG).read_text()) != config:
+        return f"not resuming from {records}: its verdicts were measured under another [tool.mutmut]"
+    files = record_files(records)
+    for rel in files:
+        (mutants / rel).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(records / rel, mutants / rel)
+    return f"resuming from the verdicts of {len(files)} files in {records}"
 
 
 def refresh(tree: Path, source: str) -> None:
@@ -197,6 +247,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--source", choices=("worktree", "head"), default="worktree", help="head: the last commit")
     ap.add_argument("--deselect", action="append", default=[], help="test node id to leave out (repeatable)")
     ap.add_argument("--report", action="store_true", help="only print what is known so far")
+    ap.add_argument("--records", type=Path, default=RECORDS, help="where the verdicts are kept between machines")
     args = ap.parse_args(argv)
     if not MUTMUT.exists():
         print("error: mutmut is not installed: run `bash scripts/setup.sh` (it is a dev dependency)", file=sys.stderr)
@@ -215,9 +266,14 @@ def main(argv: list[str] | None = None) -> int:
         if args.workdir.resolve().is_relative_to(ROOT):
             print("error: --workdir must be outside the working tree", file=sys.stderr)
             return 2
-        refresh(tree, args.source)
+        refresh(tree, args.source)  # mutants/ is left as it was: restoring below only fills a missing one
+        said = restore_records(args.records, tree, mutmut_config(tree))
+        if said:
+            print(said, flush=True)
         deselect(tree, args.deselect)
         rc = run_sweep(tree, args.children, args.time_limit, args.only, args.mutant_limit)
+        saved = save_records(tree, args.records)
+        print(f"verdicts kept in {args.records} ({saved} files; commit them to resume elsewhere)", flush=True)
         if rc not in (0, 1):
             print(f"error: mutmut exited {rc}", file=sys.stderr)
             return rc

@@ -1,0 +1,114 @@
+"""scripts/mutation_full.py keeps mutmut's verdicts in the repository, so a sweep on a new machine starts from
+them: checked with a real mutmut run on a two-function package (a few seconds), where a restored verdict is
+kept without being measured again, and a function whose code changed is measured again."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from test_mutation_full_watchdog import load_script
+
+MUTMUT = Path(sys.executable).with_name("mutmut")
+CALC = "def add(a, b):\n    return a + b\n\n\ndef half(x):\n    return x / 2\n"
+TESTS = (
+    "from pkg.calc import add, half\n\n\ndef test_add():\n    assert add(2, 3) == 5\n\n\n"
+    "def test_half():\n    assert half(4) == 2\n"
+)
+CONFIG = (
+    '[tool.mutmut]\nsource_paths = ["pkg/"]\npytest_add_cli_args = ["-p", "no:cacheprovider", "-q"]\n'
+    'pytest_add_cli_args_test_selection = ["tests/test_calc.py"]\n'
+)
+
+
+def make_project(root: Path, calc: str = CALC, config: str = CONFIG) -> Path:
+    (root / "pkg").mkdir(parents=True)
+    (root / "tests").mkdir()
+    (root / "pkg" / "__init__.py").write_text("")
+    (root / "pkg" / "calc.py").write_text(calc)
+    (root / "tests" / "test_calc.py").write_text(TESTS)
+    (root / "pyproject.toml").write_text(config)
+    return root
+
+
+def mutmut(root: Path, *args: str) -> str:
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("MUTANT_UNDER_TEST", "PYTEST_"))}
+    res = subprocess.run([str(MUTMUT), *args], cwd=root, env=env, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
+    return res.stdout
+
+
+def verdicts(root: Path) -> dict[str, str]:
+    out = mutmut(root, "results", "--all", "true")
+    return dict(line.strip().rsplit(": ", 1) for line in out.splitlines() if ": " in line)
+
+
+def mark_survived(mutants: Path, name: str) -> None:
+    meta = mutants / "pkg" / "calc.py.meta"
+    data = json.loads(meta.read_text())
+    data["exit_code_by_key"][name] = 0  # what mutmut records for a mutant no test killed
+    meta.write_text(json.dumps(data))
+
+
+def test_a_new_machine_resumes_from_the_kept_verdicts_and_remeasures_changed_functions(tmp_path):
+    script = load_script()
+    first = make_project(tmp_path / "first")
+    mutmut(first, "run", "--max-children", "1")
+    assert set(verdicts(first).values()) == {"killed"} and len(verdicts(first)) == 3
+    records = tmp_path / "records"
+    assert script.save_records(first, records) == 2  # pkg/__init__.py.meta, pkg/calc.py.meta
+    assert sorted(p.name for p in records.rglob("*") if p.is_file()) == [
+        "__init__.py.meta",
+        "calc.py.meta",
+        script.CONFIG,
+    ]
+    # the kept verdict of add's mutant is made "survived": if it is kept, no run measured it again
+    mark_survived(records, "pkg.calc.x_add__mutmut_1")
+    mark_survived(records, "pkg.calc.x_half__mutmut_1")
+
+    second = make_project(tmp_path / "second", calc=CALC.replace("x / 2", "x * 0.5"))
+    said = script.restore_records(records, second, script.mutmut_config(second))
+    assert said.startswith("resuming from the verdicts of 2 files")
+    mutmut(second, "run", "--max-children", "1")
+    after = verdicts(second)
+    assert after["pkg.calc.x_add__mutmut_1"] == "survived"  # unchanged function: the kept verdict stands
+    assert after["pkg.calc.x_half__mutmut_1"] == "killed"  # changed function: measured again
+
+
+def test_kept_verdicts_are_not_restored_under_another_selection_or_over_a_sweep(tmp_path):
+    script = load_script()
+    records = tmp_path / "records"
+    (records / "pkg").mkdir(parents=True)
+    (records / "pkg" / "calc.py.meta").write_text('{"exit_code_by_key": {}}')
+    project = make_project(tmp_path / "p")
+    (records / script.CONFIG).write_text(json.dumps(script.mutmut_config(project)))
+
+    other = script.mutmut_config(project) | {"pytest_add_cli_args_test_selection": ["tests/other.py"]}
+    said = script.restore_records(records, project, other)
+    assert said.startswith("not resuming") and not (project / "mutants").exists()
+
+    (project / "mutants").mkdir()
+    assert script.restore_records(records, project, script.mutmut_config(project)) == ""
+    assert list((project / "mutants").iterdir()) == []  # a sweep already here is never overwritten
+
+    assert script.restore_records(tmp_path / "none", tmp_path / "fresh", {}) == ""
+
+
+def test_saving_replaces_the_kept_verdicts_of_files_no_longer_mutated(tmp_path):
+    script = load_script()
+    tree, records = tmp_path / "tree", tmp_path / "records"
+    (tree / "mutants" / "pkg").mkdir(parents=True)
+    (tree / "mutants" / "pkg" / "calc.py.meta").write_text("{}")
+    (tree / "mutants" / "pkg" / "calc.py").write_text("mutated source, not kept")
+    (records / "pkg").mkdir(parents=True)
+    (records / "pkg" / "gone.py.meta").write_text("{}")
+    assert script.save_records(tree, records) == 1
+    assert sorted(str(p.relative_to(records)) for p in records.rglob("*") if p.is_file()) == [
+        script.CONFIG,
+        "pkg/calc.py.meta",
+    ]
+    assert script.save_records(tmp_path / "empty", records) == 0  # nothing measured: the records stay
+    assert (records / "pkg" / "calc.py.meta").exists()
