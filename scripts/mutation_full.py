@@ -7,6 +7,7 @@ working tree, so other work in the checkout is never touched.
     .venv/bin/python scripts/mutation_full.py --mutant-limit 120    # a worker waiting 120 s counts as timeout
     .venv/bin/python scripts/mutation_full.py --only 'accrue.learner.losses*'   # some mutants only
     .venv/bin/python scripts/mutation_full.py --report              # counts and survivors so far
+    .venv/bin/python scripts/mutation_full.py --counts              # the kept verdicts, a table per file
     .venv/bin/python scripts/mutation_full.py --names /tmp/accrue-mutmut/survivors.txt   # re-run the survivors
 
 mutmut keeps its results in WORKDIR/tree/mutants/, so a second call continues where the first stopped
@@ -30,6 +31,7 @@ import tempfile
 import threading
 import time
 import tomllib
+from collections import Counter
 from pathlib import Path
 
 import psutil
@@ -216,6 +218,32 @@ def run_sweep(tree: Path, children: int, time_limit: float | None, only: list[st
             print(f"watchdog: {len(watchdog.ended)} signals to mutants past {mutant_limit:.0f} s", flush=True)
 
 
+def verdict_counts(records: Path) -> dict[str, Counter]:
+    """mutmut's verdict per mutant, counted per mutated file, from kept `.meta` files (no mutmut run needed)."""
+    from mutmut.stats import status_by_exit_code  # mutmut's own reading of its exit codes
+
+    counts: dict[str, Counter] = {}
+    for rel in record_files(records):
+        codes = json.loads((records / rel).read_text()).get("exit_code_by_key", {})
+        if codes:
+            counts[str(rel.with_suffix(""))] = Counter(status_by_exit_code[code] for code in codes.values())
+    return counts
+
+
+def print_counts(counts: dict[str, Counter]) -> None:
+    """A Markdown table: one row per mutated file, a total row per top-level package."""
+    columns = ["killed", "survived", "timeout", "no tests", "not checked"]
+    others = sorted({s for c in counts.values() for s in c} - set(columns))
+    print("| file | " + " | ".join(columns + others) + " | all |")
+    print("| --- |" + " ---: |" * (len(columns) + len(others) + 1))
+    totals: dict[str, Counter] = {}
+    for name, c in sorted(counts.items()):
+        totals.setdefault(name.split("/")[0], Counter()).update(c)
+        print(f"| `{name}` | " + " | ".join(f"{c[s]:,}" for s in columns + others) + f" | {c.total():,} |")
+    for top, c in sorted(totals.items()):
+        print(f"| **{top}/ in all** | " + " | ".join(f"{c[s]:,}" for s in columns + others) + f" | {c.total():,} |")
+
+
 def report(tree: Path, out: Path) -> dict[str, list[str]]:
     """mutmut's verdict per mutant (`mutmut results --all true`), grouped; survivors written to `out`."""
     res = subprocess.run(
@@ -247,8 +275,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--source", choices=("worktree", "head"), default="worktree", help="head: the last commit")
     ap.add_argument("--deselect", action="append", default=[], help="test node id to leave out (repeatable)")
     ap.add_argument("--report", action="store_true", help="only print what is known so far")
+    ap.add_argument("--counts", action="store_true", help="print the kept verdicts' counts per file (Markdown)")
     ap.add_argument("--records", type=Path, default=RECORDS, help="where the verdicts are kept between machines")
     args = ap.parse_args(argv)
+    if args.counts:
+        if not args.records.is_dir():
+            print(f"error: no kept verdicts in {args.records}", file=sys.stderr)
+            return 2
+        print_counts(verdict_counts(args.records))
+        return 0
     if not MUTMUT.exists():
         print("error: mutmut is not installed: run `bash scripts/setup.sh` (it is a dev dependency)", file=sys.stderr)
         return 2

@@ -8,6 +8,7 @@ import json
 import os
 import subprocess
 import sys
+from collections import Counter
 from pathlib import Path
 
 from test_mutation_full_watchdog import load_script
@@ -68,6 +69,7 @@ def test_a_new_machine_resumes_from_the_kept_verdicts_and_remeasures_changed_fun
     # the kept verdict of add's mutant is made "survived": if it is kept, no run measured it again
     mark_survived(records, "pkg.calc.x_add__mutmut_1")
     mark_survived(records, "pkg.calc.x_half__mutmut_1")
+    assert script.verdict_counts(records) == {"pkg/calc.py": Counter(killed=1, survived=2)}
 
     second = make_project(tmp_path / "second", calc=CALC.replace("x / 2", "x * 0.5"))
     said = script.restore_records(records, second, script.mutmut_config(second))
