@@ -7,6 +7,8 @@ import json
 import sys
 from pathlib import Path
 
+import pytest
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from remote_support import (  # noqa: E402,F401
     accrue,
@@ -205,3 +207,139 @@ def test_diff_step_records_runs_and_artifacts_with_metrics_side_by_side(tmp_path
     replay_data = json.loads(cli(a, "show", "team/replay", "--json").stdout)["content"]
     assert "is not a JSON manifest" in one_line_error(cli(a, "diff", replay_data, "team/replay"))
     assert Store.open(a).has_object(replay_data)
+
+
+# --- mutmut survivors, batch D (issue 23): remote remove / remote set / the both-moved line ---
+
+ID_A, ID_B, ID_C = "0123456789abcdef" * 4, "fedcba9876543210" * 4, "00112233445566778899aabbccddeeff" * 2
+
+
+def test_remote_remove_refuses_a_partial_clone_until_forced_and_then_forgets_only_its_promises(tmp_path):
+    """Kills forget_remote 1, 18, 19, 51."""
+    from artifacts.errors import StoreError
+    from artifacts.remotes.forget import forget_remote
+    from artifacts.remotes.lazy import add_promised
+    from artifacts.store import Store
+
+    s = tmp_path / "s"
+    assert accrue("init", "--store", str(s)).returncode == 0
+    with_remote(s, str(tmp_path / "nas"), "nas")
+    with_remote(s, str(tmp_path / "lab"), "lab")
+    store = Store.open(s)
+    add_promised(store, "nas", [ID_B, ID_A])  # two ids it lacks, noted in sorted order
+    add_promised(store, "lab", [ID_C])
+    line = one_line_error(cli(s, "remote", "remove", "nas"))
+    assert "remote nas still holds 2 object(s)" in line and f"(e.g. {ID_A[:12]});" in line
+    with pytest.raises(StoreError, match=r"still holds 2 object\(s\)"):
+        forget_remote(store, "nas")  # not forced unless asked
+    assert "nas" in json.loads(cli(s, "remote", "list", "--json").stdout)
+    assert store.is_promised(ID_A) and store.is_promised(ID_C)
+    assert forget_remote(store, "nas", force=True) == 0
+    # the same Store object reads the promises again: lab's stays, nas's went with it
+    assert store.is_promised(ID_C) and not store.is_promised(ID_A)
+    assert set(json.loads(cli(s, "remote", "list", "--json").stdout)) == {"lab"}
+
+
+def test_remote_remove_counts_both_kinds_of_tracking_refs_and_forgets_a_never_used_remote(tmp_path):
+    """Kills forget_remote 31, 32, 39, 41, 46."""
+    a, b, url = tmp_path / "a", tmp_path / "b", str(tmp_path / "remote")
+    make_store(a)
+    with_remote(a, url)
+    cli(a, "push")
+    assert accrue("clone", url, str(b)).returncode == 0
+    # a remote added and never fetched from has no remotes/<name>/ state yet
+    with_remote(b, str(tmp_path / "unused"), "nas")
+    out = cli(b, "remote", "remove", "nas")
+    assert out.returncode == 0 and "removed remote nas (0 remote-tracking refs dropped)" in out.stdout
+    tracking = json.loads(cli(b, "refs", "remotes/origin/", "--json").stdout)
+    logs = json.loads(cli(b, "refs", "remote-logs/origin/", "--json").stdout)
+    assert len(tracking) >= 2 and len(logs) == 1
+    gone = json.loads(cli(b, "remote", "remove", "origin", "--json").stdout)
+    assert gone == {"removed": "origin", "tracking_refs_dropped": len(tracking) + len(logs)}
+    assert json.loads(cli(b, "refs", "remotes/", "--json").stdout) == {}
+    assert json.loads(cli(b, "refs", "remote-logs/", "--json").stdout) == {}
+    assert not (b / "remotes" / "origin").exists()
+
+
+def test_remote_remove_drops_tracking_refs_under_the_refs_lock(tmp_path, monkeypatch):
+    """Kills forget_remote 23, 26, 27: ref writers (artifacts.refs) lock locks/refs.lock; the
+    tracking refs are deleted while it is held, so no ref write lands in a half-removed tree."""
+    import shutil
+
+    from artifacts.errors import StoreError
+    from artifacts.locks import store_lock, try_lock
+    from artifacts.refs import set_ref
+    from artifacts.remotes.forget import forget_remote
+    from artifacts.store import Store
+
+    s = tmp_path / "s"
+    assert accrue("init", "--store", str(s)).returncode == 0
+    with_remote(s, str(tmp_path / "nas"), "nas")
+    store = Store.open(s)
+    set_ref(store, "remotes/nas/team/x", store.put_bytes(b"x"), log=False)
+    held: list[bool] = []
+    real_rmtree = shutil.rmtree
+
+    def rmtree(path, *args, **kwargs):
+        if store.refs_dir in Path(path).parents:
+            try:
+                try_lock(store_lock(store.locks_dir, "refs"), "refs", timeout=0).release()
+                held.append(False)
+            except StoreError:
+                held.append(True)
+        return real_rmtree(path, *args, **kwargs)
+
+    monkeypatch.setattr(shutil, "rmtree", rmtree)
+    assert forget_remote(store, "nas") == 1
+    assert held == [True]
+
+
+def test_remove_remote_entry_of_an_absent_remote_changes_nothing(tmp_path):
+    """Kills remove_remote_entry 3, 5, 7 (a `remote remove` racing another one finds the entry gone)."""
+    from artifacts.remotes.config import remove_remote_entry
+    from artifacts.store import Store
+
+    s = tmp_path / "s"
+    assert accrue("init", "--store", str(s)).returncode == 0
+    store = Store.open(s)
+    before = store.read_config()
+    assert "remotes" not in before
+    remove_remote_entry(store, "origin")  # no remotes at all
+    assert store.read_config() == before
+    with_remote(s, str(tmp_path / "nas"), "nas")
+    remove_remote_entry(store, "origin")  # remotes, but not that one
+    assert list(store.read_config()["remotes"]) == ["nas"]
+
+
+def test_remote_set_explains_unknown_keys_and_directory_remotes_and_unsets_what_was_never_set(tmp_path):
+    """Kills set_setting 9, 13, 34."""
+    s = tmp_path / "s"
+    assert accrue("init", "--store", str(s)).returncode == 0
+    with_remote(s, "s3://my-bucket/team")
+    with_remote(s, str(tmp_path / "nas"), "nas")
+    line = one_line_error(cli(s, "remote", "set", "origin", "colour", "blue"))
+    assert line == "error: unknown remote setting 'colour' (settings: endpoint, profile, region)"
+    line = one_line_error(cli(s, "remote", "set", "nas", "region", "eu-west-1"))
+    assert line == "error: remote nas is a directory; region applies to S3 remotes only"
+    out = cli(s, "remote", "set", "origin", "region", "--unset", "--json")  # never set: nothing to do
+    assert out.returncode == 0 and json.loads(out.stdout) == {"name": "origin"}
+    assert cli(s, "remote", "set", "origin", "region", "eu-west-1").returncode == 0
+    assert json.loads(cli(s, "remote", "set", "origin", "region", "--unset", "--json").stdout) == {"name": "origin"}
+
+
+def test_both_moved_line_names_both_ids_the_base_and_both_displaced_refs():
+    """Kills both_moved 2, 4, 9, 13, 17, 18. The theirs=None case (push's swap lost to a deletion)
+    pins today's wording, which names `displaced/<ref>/` with no id (reported in issue 23's triage)."""
+    from artifacts.remotes.pointers import both_moved
+
+    mine, theirs, last = ID_A, ID_B, ID_C
+    line = both_moved("team/x", "origin", mine, theirs, last)
+    assert line == (
+        f"ref team/x: moved on both sides since {last[:12]}: this store has {mine[:12]}, remote origin has "
+        f"{theirs[:12]}; `accrue pull --force origin team/x` takes the remote's (this store's kept as "
+        f"ref displaced/team/x/{mine[:12]}), `accrue push --force origin team/x` sends this store's (the "
+        f"remote's kept there as ref displaced/team/x/{theirs[:12]})"
+    )
+    never = both_moved("team/x", "origin", mine, None, None)
+    assert "moved on both sides (this store never saw it there): " in never
+    assert "remote origin has nothing;" in never and never.endswith("kept there as ref displaced/team/x/)")
