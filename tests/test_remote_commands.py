@@ -328,8 +328,9 @@ def test_remote_set_explains_unknown_keys_and_directory_remotes_and_unsets_what_
 
 
 def test_both_moved_line_names_both_ids_the_base_and_both_displaced_refs():
-    """Kills both_moved 2, 4, 9, 13, 17, 18. The theirs=None case (push's swap lost to a deletion)
-    pins today's wording, which names `displaced/<ref>/` with no id (reported in issue 23's triage)."""
+    """Kills both_moved 2, 4, 9, 13, 17, 18. The theirs=None case (push's swap lost to a deletion) once
+    named `displaced/<ref>/`, which is no ref name (found in issue 23's triage): it now says the ref was
+    deleted there and names the one way on."""
     from artifacts.remotes.pointers import both_moved
 
     mine, theirs, last = ID_A, ID_B, ID_C
@@ -340,6 +341,10 @@ def test_both_moved_line_names_both_ids_the_base_and_both_displaced_refs():
         f"ref displaced/team/x/{mine[:12]}), `accrue push --force origin team/x` sends this store's (the "
         f"remote's kept there as ref displaced/team/x/{theirs[:12]})"
     )
+    gone = both_moved("team/x", "origin", mine, None, last)
+    assert gone == (
+        f"ref team/x: moved here to {mine[:12]} and deleted on remote origin since {last[:12]}; "
+        "`accrue push --force origin team/x` puts this store's back there"
+    )  # no displaced ref named for a remote side that has none (it was `displaced/team/x/`, not a ref name)
     never = both_moved("team/x", "origin", mine, None, None)
-    assert "moved on both sides (this store never saw it there): " in never
-    assert "remote origin has nothing;" in never and never.endswith("kept there as ref displaced/team/x/)")
+    assert "deleted on remote origin (this store never saw it there); " in never

@@ -104,11 +104,16 @@ def both_moved(name: str, remote: str, mine: str, theirs: str | None, last: str 
     """The one line for a ref that moved on both sides since this store last saw the remote:
     both ids, and the two ways on, neither of which loses the other side's work."""
     since = f"since {short(last)}" if last else "(this store never saw it there)"
+    if theirs is None:  # push lost its swap to a deletion: there is nothing of the remote's to keep
+        return (
+            f"ref {name}: moved here to {short(mine)} and deleted on remote {remote} {since}; "
+            f"`accrue push --force {remote} {name}` puts this store's back there"
+        )
     return (
         f"ref {name}: moved on both sides {since}: this store has {short(mine)}, remote {remote} has "
         f"{short(theirs)}; `accrue pull --force {remote} {name}` takes the remote's (this store's kept as "
         f"ref {displaced_ref(name, mine)}), `accrue push --force {remote} {name}` sends this store's (the "
-        f"remote's kept there as ref {displaced_ref(name, theirs or '')})"
+        f"remote's kept there as ref {displaced_ref(name, theirs)})"
     )
 
 
