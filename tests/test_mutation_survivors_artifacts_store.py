@@ -232,3 +232,157 @@ def test_a_value_quoted_in_a_message_is_its_repr_bounded_in_depth_items_and_leng
     assert quote(exact) == repr(exact) and len(repr(exact)) == QUOTE_LIMIT
     long = ["y" * 100] * 3
     assert quote(long) == repr(long)[: QUOTE_LIMIT - 1] + "…"
+
+
+# ----------------------------------------------------------------------------- lineage (round 6, batch C)
+def _artifact(store: Store, tmp_path: Path, name: str, kind: str, **kw) -> str:
+    from artifacts.manifests import publish_artifact
+
+    src = tmp_path / name
+    src.write_bytes(name.encode())
+    return publish_artifact(store, src, kind, producer={"step": name}, **kw)
+
+
+def test_a_seed_nested_in_a_config_is_named_by_its_dotted_path():
+    """lineage.seed_like 13 (a nested dict not walked), 14 (its prefix None), 15 (the prefix walked
+    as the config), 16 (no prefix), 18 (a wrong separator)."""
+    from artifacts.lineage import seed_like
+
+    config = {"seed": 1, "env": {"seed": 3, "name": "cart"}, "opt": {"inner": {"Seed_b": 5}}, "lr": 0.1}
+    assert seed_like(config) == {"seed": 1, "env.seed": 3, "opt.inner.Seed_b": 5}
+
+
+def test_lineage_gives_a_node_met_twice_once_in_full_then_as_a_repeat(store, tmp_path):
+    """lineage.lineage 2 (the nodes already given forgotten on the way down: the shared demos in full
+    twice), 11–14 (the repeat's keys); its seeds come through seed_like's dotted names."""
+    from artifacts.lineage import lineage
+
+    demos = _artifact(store, tmp_path, "demos.bin", "demos")
+    left = _artifact(store, tmp_path, "left.bin", "handoff", inputs={"demos": demos})
+    right = _artifact(store, tmp_path, "right.bin", "handoff", inputs={"demos": demos})
+    top = _artifact(store, tmp_path, "top.bin", "handoff", inputs={"a": left, "b": right}, config={"env": {"seed": 7}})
+    node = lineage(store, top)
+    assert node["seeds"] == {"env.seed": 7}
+    assert node["inputs"]["a"]["id"] == left and node["inputs"]["b"]["id"] == right
+    first = node["inputs"]["a"]["inputs"]["demos"]
+    assert first["id"] == demos and first["kind"] == "demos" and first["inputs"] == {}
+    assert node["inputs"]["b"]["inputs"]["demos"] == {"id": demos, "repeat": True}
+
+
+# ----------------------------------------------------------------------------- refs.delete_ref
+def _two_refs(store: Store, tmp_path: Path, *names: str) -> str:
+    from artifacts.refs import set_ref
+
+    oid = _artifact(store, tmp_path, "thing.bin", "demos")
+    for name in names:
+        set_ref(store, name, oid)
+    return oid
+
+
+def test_deleting_a_ref_returns_its_id_and_logs_a_ref_deleted_event(store, tmp_path):
+    """refs.delete_ref 1 (not logged by default), 19, 27, 31, 32 (a traceback), 28, 29, 30, 33–36 (the
+    event's name and fields), 25 (a top-level ref: nothing returned, nothing logged)."""
+    from artifacts.refs import delete_ref, read_ref
+
+    oid = _two_refs(store, tmp_path, "x")
+    assert delete_ref(store, "x") == oid
+    assert read_ref(store, "x") is None
+    event = list(iter_events(store))[-1]
+    assert {k: event.get(k) for k in ("event", "ref", "old")} == {"event": "ref-deleted", "ref": "x", "old": oid}
+    assert delete_ref(store, "x") is None
+    assert list(iter_events(store))[-1] == event
+
+
+def test_deleting_a_nested_ref_drops_only_the_directories_it_leaves_empty(store, tmp_path):
+    """refs.delete_ref 26 (a directory still holding a sibling ref: nothing returned, nothing logged),
+    24 (the emptied directory kept, so a ref of its name then conflicts)."""
+    from artifacts.refs import delete_ref, list_refs, set_ref
+
+    oid = _two_refs(store, tmp_path, "team/a", "team/b")
+    assert delete_ref(store, "team/a") == oid
+    assert list(iter_events(store))[-1]["ref"] == "team/a"
+    assert {n for n in list_refs(store) if n.startswith("team")} == {"team/b"}
+    assert delete_ref(store, "team/b") == oid
+    assert list(iter_events(store))[-1]["ref"] == "team/b"
+    assert not (store.refs_dir / "team").exists()
+    set_ref(store, "team", oid)  # the name is free again
+    assert list_refs(store)["team"] == oid
+
+
+def test_a_ref_that_cannot_be_removed_is_a_one_line_error_and_stays(store, tmp_path, monkeypatch):
+    """refs.delete_ref 20, 22, 23 (a traceback), 21 (the message's 'cannot remove ref NAME')."""
+    import errno
+
+    from artifacts.errors import path_text
+    from artifacts.refs import delete_ref, read_ref
+
+    oid = _two_refs(store, tmp_path, "team/a")
+    target = store.refs_dir / "team" / "a"
+    real_unlink = Path.unlink
+
+    def unlink(self, *args, **kwargs):
+        if self == target:
+            raise OSError(errno.EROFS, "Read-only file system", str(self))
+        return real_unlink(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "unlink", unlink)
+    before = list(iter_events(store))
+    with pytest.raises(StoreError) as exc:
+        delete_ref(store, "team/a")
+    assert str(exc.value) == f"cannot remove ref team/a: {path_text(str(target))}: Read-only file system"
+    assert read_ref(store, "team/a") == oid
+    assert list(iter_events(store)) == before
+
+
+def test_a_ref_is_deleted_under_the_refs_lock(store, tmp_path, monkeypatch):
+    """refs.delete_ref 8, 11, 12 (another lock file: a ref move by another process could interleave)."""
+    import artifacts.refs
+    from artifacts.locks import store_lock, try_lock
+
+    oid = _two_refs(store, tmp_path, "team/a")
+    real_read_ref = artifacts.refs.read_ref
+    held: list[bool] = []
+
+    def read_ref_while_checking_the_lock(s, name):
+        try:
+            try_lock(store_lock(s.locks_dir, "refs"), "refs", timeout=0).release()
+            held.append(False)
+        except StoreError:
+            held.append(True)
+        return real_read_ref(s, name)
+
+    monkeypatch.setattr(artifacts.refs, "read_ref", read_ref_while_checking_the_lock)
+    assert artifacts.refs.delete_ref(store, "team/a") == oid
+    assert held == [True]
+
+
+# ----------------------------------------------------------------------------- remotes.status.ref_status
+def test_status_says_a_ref_deleted_on_the_remote_since_the_last_push_is_gone_there(tmp_path):
+    """remotes.status.ref_status 52, 54, 55 (gone-there), 76 (the row's local id)."""
+    from artifacts.refs import set_ref
+    from artifacts.remotes.config import add_remote
+    from artifacts.remotes.pull import fetch
+    from artifacts.remotes.push import push
+    from artifacts.remotes.status import RefStatus, ref_status
+    from artifacts.remotes.unshare import delete_remote_refs
+
+    url = str(tmp_path / "nas")
+    a, _ = Store.init(tmp_path / "a")
+    b, _ = Store.init(tmp_path / "b")
+    try:
+        oid = _artifact(a, tmp_path, "thing.bin", "demos")
+        set_ref(a, "team/gone", oid)
+        set_ref(a, "team/kept", oid)
+        add_remote(a, "nas", url)
+        push(a, "nas")
+        add_remote(b, "nas", url)
+        fetch(b, "nas")
+        assert delete_remote_refs(b, "nas", ["team/gone"]).deleted == {"team/gone": oid}
+        rows = {r.ref: r for r in ref_status(a, "nas") if r.ref.startswith("team/")}
+        assert rows == {
+            "team/gone": RefStatus("team/gone", oid, None, "gone-there"),
+            "team/kept": RefStatus("team/kept", oid, oid, "up-to-date"),
+        }
+    finally:
+        a.close()
+        b.close()
