@@ -8,6 +8,7 @@ working tree, so other work in the checkout is never touched.
     .venv/bin/python scripts/mutation_full.py --only 'accrue.learner.losses*'   # some mutants only
     .venv/bin/python scripts/mutation_full.py --report              # counts and survivors so far
     .venv/bin/python scripts/mutation_full.py --counts              # the kept verdicts, a table per file
+    .venv/bin/python scripts/mutation_full.py --counts --untriaged LEFT.txt   # survivors no triage file names
     .venv/bin/python scripts/mutation_full.py --names /tmp/accrue-mutmut/survivors.txt   # re-run the survivors
 
 mutmut keeps its results in WORKDIR/tree/mutants/, so a second call continues where the first stopped
@@ -41,6 +42,7 @@ from mutation_critical import PYTEST_ENV, ROOT, copy_tree  # noqa: E402
 
 MUTMUT = Path(sys.executable).with_name("mutmut")
 RECORDS = ROOT / "benchmarks" / "results" / "mutation" / "mutmut"
+TRIAGE = RECORDS.parent / "triage"  # NAME<TAB>killed|equivalent<TAB>the test, or why: one file per triage
 CONFIG = "mutmut-config.json"  # the [tool.mutmut] table the kept verdicts were measured under
 
 
@@ -230,6 +232,26 @@ def verdict_counts(records: Path) -> dict[str, Counter]:
     return counts
 
 
+def survivors(records: Path) -> list[str]:
+    """The mutants the kept verdicts say survived (mutmut's exit code 0: every mapped test passed)."""
+    names = []
+    for rel in record_files(records):
+        codes = json.loads((records / rel).read_text()).get("exit_code_by_key", {})
+        names += [name for name, code in codes.items() if code == 0]
+    return sorted(names)
+
+
+def triaged(triage: Path) -> dict[str, str]:
+    """Each triaged mutant's verdict ("killed" by a named test, or "equivalent"), from the triage files."""
+    verdicts = {}
+    for path in sorted(triage.glob("*.tsv")) if triage.is_dir() else []:
+        for line in path.read_text().splitlines():
+            name, _, rest = line.partition("\t")
+            if rest:
+                verdicts[name.strip()] = rest.split("\t")[0].strip()
+    return verdicts
+
+
 def print_counts(counts: dict[str, Counter]) -> None:
     """A Markdown table: one row per mutated file, a total row per top-level package."""
     columns = ["killed", "survived", "timeout", "no tests", "not checked"]
@@ -276,6 +298,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--deselect", action="append", default=[], help="test node id to leave out (repeatable)")
     ap.add_argument("--report", action="store_true", help="only print what is known so far")
     ap.add_argument("--counts", action="store_true", help="print the kept verdicts' counts per file (Markdown)")
+    ap.add_argument("--triage", type=Path, default=TRIAGE, help="the triage files (with --counts)")
+    ap.add_argument("--untriaged", type=Path, help="with --counts: write the survivors not yet triaged here")
     ap.add_argument("--records", type=Path, default=RECORDS, help="where the verdicts are kept between machines")
     args = ap.parse_args(argv)
     if args.counts:
@@ -283,6 +307,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"error: no kept verdicts in {args.records}", file=sys.stderr)
             return 2
         print_counts(verdict_counts(args.records))
+        left = [n for n in survivors(args.records) if n not in triaged(args.triage)]
+        print(f"\nsurvivors: {len(survivors(args.records)):,}, not yet triaged in {args.triage}: {len(left):,}")
+        if args.untriaged:
+            args.untriaged.write_text("".join(f"{n}\n" for n in left))
         return 0
     if not MUTMUT.exists():
         print("error: mutmut is not installed: run `bash scripts/setup.sh` (it is a dev dependency)", file=sys.stderr)

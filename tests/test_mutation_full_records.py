@@ -70,6 +70,10 @@ def test_a_new_machine_resumes_from_the_kept_verdicts_and_remeasures_changed_fun
     mark_survived(records, "pkg.calc.x_add__mutmut_1")
     mark_survived(records, "pkg.calc.x_half__mutmut_1")
     assert script.verdict_counts(records) == {"pkg/calc.py": Counter(killed=1, survived=2)}
+    assert script.survivors(records) == ["pkg.calc.x_add__mutmut_1", "pkg.calc.x_half__mutmut_1"]
+    (tmp_path / "triage").mkdir()
+    (tmp_path / "triage" / "r1.tsv").write_text("pkg.calc.x_add__mutmut_1\tequivalent\tsame sum\n")
+    assert script.triaged(tmp_path / "triage") == {"pkg.calc.x_add__mutmut_1": "equivalent"}
 
     second = make_project(tmp_path / "second", calc=CALC.replace("x / 2", "x * 0.5"))
     said = script.restore_records(records, second, script.mutmut_config(second))
