@@ -592,3 +592,131 @@ def test_a_partial_clones_fetch_shows_a_progress_bar_naming_the_remote_on_a_term
     assert fetch_promised(b, [content]) is True
     drawn = re.sub(r"\x1b\[[0-9;?]*[A-Za-z]", "", capsys.readouterr().err)
     assert "fetching from origin" in drawn and "600/? bytes" in drawn and "1/1 objects" in drawn
+
+
+# ----------------------------------------------------------------------------- round 6 (TASK-52)
+def test_os_error_text_joins_two_paths_with_an_arrow_and_falls_back_to_the_message_or_the_class():
+    """errors.os_error_text 10 (the two paths of a rename joined by 'XX -> XX'), 2 (an OSError with a
+    message but no strerror shown as its class name), 4 (shown as 'None')."""
+    from artifacts.errors import os_error_text
+
+    renamed = OSError(errno.EXDEV, "Invalid cross-device link", "/a/src", None, "/b/dest")
+    assert os_error_text(renamed) == "/a/src -> /b/dest: Invalid cross-device link"
+    assert os_error_text(OSError("the disk went away")) == "the disk went away"
+    assert os_error_text(PermissionError()) == "PermissionError"
+
+
+def accrue_main(monkeypatch, capsys, *args: str) -> tuple[int, str]:
+    """(exit code, stdout) of the console entry `accrue ARGS`, in-process."""
+    from cli.main import main
+
+    capsys.readouterr()
+    monkeypatch.setattr(sys, "argv", ["accrue", *args])
+    with pytest.raises(SystemExit) as done:
+        main()
+    return done.value.code, capsys.readouterr().out
+
+
+def test_gc_json_names_every_count(store, tmp_path, capsys, monkeypatch):
+    """gc.GcReport.as_dict 3–6 (`kept`, `young`), 9, 10 (`bytes`), 11, 12 (`tmp_removed`), 13, 14
+    (`problems`): the keys of `accrue gc --json`."""
+    artifact(store, tmp_path, b"kept", "team/kept")
+    old = store.put_bytes(b"o" * 10)
+    young = store.put_bytes(b"young")
+    set_age(store.object_path(young), -3600)
+    (store.tmp_dir / "attempt-dead-999999999-abcd").mkdir()
+    rc, out = accrue_main(monkeypatch, capsys, "gc", "--grace", "0", "--json", "--store", str(store.root))
+    assert rc == 0
+    assert json.loads(out) == {
+        "dry_run": True,
+        "kept": 2,
+        "young": 1,
+        "removed": [old],
+        "bytes": 10,
+        "tmp_removed": ["attempt-dead-999999999-abcd"],
+        "problems": [],
+    }
+
+
+def test_verify_json_names_every_count(store, tmp_path, capsys, monkeypatch):
+    """verify.VerifyReport.as_dict 1, 2 (`ok`), 3, 4 (`full`), 5, 6 (`objects_checked`), 7, 8
+    (`bytes_hashed`), 9, 10 (`reachable`), 11, 12 (`log_events`), 15, 16 (`problems`), 17, 18 (`notes`),
+    19, 20 (`repaired`): the keys of `accrue verify --json`."""
+    artifact(store, tmp_path, b"replay" * 100, "team/replay")
+    rc, out = accrue_main(monkeypatch, capsys, "verify", "--json", "--store", str(store.root))
+    assert rc == 0
+    assert json.loads(out) == {
+        "ok": True,
+        "full": False,
+        "objects_checked": 2,  # the artifact's manifest and its content
+        "bytes_hashed": 0,
+        "reachable": 2,
+        "log_events": 3,
+        "quarantined": [],
+        "problems": [],
+        "notes": [],
+        "repaired": None,
+    }
+
+
+def test_the_default_store_is_accrue_store_else_dot_accrue_in_the_working_directory(tmp_path, monkeypatch):
+    """store.default_store_path 1 (ACCRUE_STORE ignored), 3 (likewise), 5 (Path(None): a TypeError)."""
+    from artifacts import default_store_path
+
+    elsewhere, cwd = tmp_path / "elsewhere", tmp_path / "cwd"
+    cwd.mkdir()
+    monkeypatch.chdir(cwd)
+    monkeypatch.setenv("ACCRUE_STORE", str(elsewhere))
+    assert default_store_path() == elsewhere
+    s, created = Store.init()
+    assert created and s.root == elsewhere and not (cwd / ".accrue").exists()
+    s.close()
+    monkeypatch.setenv("ACCRUE_STORE", "")
+    assert default_store_path() == cwd / ".accrue"
+    monkeypatch.delenv("ACCRUE_STORE")
+    assert default_store_path() == cwd / ".accrue"
+
+
+def test_a_quarantined_object_is_named_by_its_id_pid_and_a_24_bit_random_number(store):
+    """store.Store.quarantine 10 (a 32-bit random number: of 8 names, all stay below 2**24 only once in
+    2**64 runs)."""
+    for i in range(8):
+        oid = store.put_bytes(b"damaged %d" % i)
+        dest = store.quarantine(oid)
+        assert dest.parent == store.quarantine_dir and not store.has_object(oid)
+        head, _, number = dest.name.rpartition("-")
+        assert head == f"{oid}.{os.getpid()}"
+        assert 0 <= int(number) < 2**24
+        assert dest.read_bytes() == b"damaged %d" % i
+
+
+HOLD_RANGE = """
+import fcntl, os, sys
+fd = os.open(sys.argv[1], os.O_RDWR | os.O_CREAT, 0o644)
+fcntl.lockf(fd, fcntl.LOCK_SH, int(sys.argv[2]), int(sys.argv[3]))
+print("held", flush=True)
+sys.stdin.read()
+"""
+
+
+@pytest.mark.parametrize(("length", "start"), [(1, 0), (0, 1)], ids=["first-byte", "past-the-first-byte"])
+def test_gc_names_the_pid_of_a_process_that_locks_only_part_of_the_writer_lock(store, length, start):
+    """writers._holder_pid 16 (asks who locks from byte 1 on: a lock of byte 0 alone is not seen, and the
+    message says 'another process'), 17 (asks who locks byte 0: a lock from byte 1 on is not seen). Any
+    lock on the file blocks gc's, so gc names its holder whatever range it covers."""
+    proc = subprocess.Popen(
+        [sys.executable, "-c", HOLD_RANGE, str(store.locks_dir / LOCK_NAME), str(length), str(start)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+    )
+    try:
+        assert proc.stdout.readline() == b"held\n"
+        with pytest.raises(StoreError) as exc:
+            collect_garbage(store)
+        assert str(exc.value) == (
+            f"gc needs the store to itself, but an accrue process (pid {proc.pid}) is using it; "
+            "run gc when it finishes, or pass --wait SECONDS"
+        )
+    finally:
+        proc.stdin.close()
+        proc.wait(timeout=10)
