@@ -315,15 +315,35 @@ class Pattern:
         return h.hexdigest()
 
 
+def copy_within(source: Pattern, fd: int, size: int, seconds: float = 20.0) -> tuple | BaseException:
+    """copy_hashing's result (or the error it raised), failing the test instead of hanging when the copy
+    does not end within `seconds` (a writer thread that dies or never starts leaves the reader waiting)."""
+    outcome: list[BaseException | tuple] = []
+
+    def run() -> None:
+        try:
+            outcome.append(copy_hashing(source, fd, size))
+        except BaseException as exc:  # noqa: BLE001 - inspected by the caller
+            outcome.append(exc)
+
+    worker = threading.Thread(target=run, daemon=True)
+    worker.start()
+    worker.join(timeout=seconds)
+    assert not worker.is_alive(), "the copy hung"
+    return outcome[0]
+
+
 def test_a_copy_of_more_than_128_mib_keeps_its_bytes_and_id(tmp_path):
     """hashing._copy_hashing_pipelined 21 (the early writeback is given no descriptor), 22 (its
-    counter reset to None): a copy past 128 MiB fails instead of finishing."""
+    counter reset to None): a copy past 128 MiB fails instead of finishing. 10, 11, 27, 30, 51 (the writer
+    never runs, ends at once, or is handed what it cannot unpack): the copy hangs, and fails here after
+    20 s instead of hanging the suite."""
     size = 17 * CHUNK_SIZE + 123
     source = Pattern(size)
     dst = tmp_path / "copy.bin"
     fd = os.open(dst, os.O_WRONLY | os.O_CREAT, 0o644)
     try:
-        got = copy_hashing(source, fd, size)
+        got = copy_within(source, fd, size)
     finally:
         os.close(fd)
     assert got == (source.expected_id(size), size)
@@ -337,20 +357,10 @@ def test_a_copy_whose_write_fails_raises_that_error_and_does_not_hang(tmp_path):
     dst = tmp_path / "copy.bin"
     dst.write_bytes(b"")
     fd = os.open(dst, os.O_RDONLY)  # a destination that refuses every write
-    outcome: list[BaseException | tuple] = []
-
-    def run() -> None:
-        try:
-            outcome.append(copy_hashing(Pattern(size), fd, size))
-        except BaseException as exc:  # noqa: BLE001 - inspected below
-            outcome.append(exc)
-
-    worker = threading.Thread(target=run, daemon=True)
-    worker.start()
-    worker.join(timeout=20)
-    assert not worker.is_alive(), "the copy hung after its write failed"
-    os.close(fd)
-    [exc] = outcome
+    try:
+        exc = copy_within(Pattern(size), fd, size)
+    finally:
+        os.close(fd)
     assert isinstance(exc, OSError) and exc.errno == errno.EBADF
 
 
