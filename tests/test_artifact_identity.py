@@ -133,3 +133,39 @@ def test_a_pulled_artifact_keeps_the_provenance_of_the_store_that_made_it(tmp_pa
     # the learner's own log never wrote it; the robot's log, pulled as segments, did
     assert lineage(learner, aid)["source"] == str(tmp_path / "recorded" / "demos")
     assert lineage(learner, aid)["created"] == lineage(robot, aid)["created"]
+
+
+def test_a_step_records_lineage_gives_its_step_finish_time_outputs_and_each_input_once(tmp_path):
+    """Kills lineage 15, 16, 47, 52, 64, 65, 66, 91, 93, 94, 95, 97, 98, 108, 109, 110, 111, 115, 116, 122."""
+    store = Store.init(tmp_path / "store")[0]
+    aid = publish(store, tree(tmp_path / "c", {"w.bin": b"weights"}), attempt=1)
+    record = {
+        "type": "step-record",
+        "step": "evaluate",
+        "inputs": {"checkpoint": aid, "same-again": aid},
+        "config": {"eval": {"seed": 9}},
+        "outputs": {"report": "ef" * 32},
+        "finished": "2026-02-03T04:05:06+00:00",
+    }
+    node = lineage(store, store.put_json(record))
+    assert node["type"] == "step-record" and node["step"] == "evaluate"
+    assert node["created"] == "2026-02-03T04:05:06+00:00"
+    assert node["outputs"] == {"report": "ef" * 32} and node["seeds"] == {"eval.seed": 9}
+    first, again = node["inputs"]["checkpoint"], node["inputs"]["same-again"]
+    assert first["id"] == aid and first["kind"] == "checkpoint" and "repeat" not in first
+    assert first["size"] == read_artifact(store, aid)["size"] == len(b"weights")
+    assert again == {"id": aid, "repeat": True}
+
+
+def test_a_step_record_without_outputs_or_inputs_has_empty_ones_in_its_lineage(tmp_path):
+    """Kills lineage 112, 114, 130, 132."""
+    store = Store.init(tmp_path / "store")[0]
+    node = lineage(store, store.put_json({"type": "step-record", "step": "noop"}))
+    assert node["outputs"] == {} and node["inputs"] == {} and node["created"] is None
+
+
+def test_the_lineage_of_a_missing_object_is_its_id_and_why(tmp_path):
+    """Kills lineage 19, 20, 21, 22, 23."""
+    store = Store.init(tmp_path / "store")[0]
+    gone = "ab" * 32
+    assert lineage(store, gone) == {"id": gone, "error": "object abababababab is missing from the store"}

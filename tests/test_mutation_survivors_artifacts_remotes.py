@@ -7,6 +7,7 @@ remotes register. Everything runs in a temporary directory, without a network.
 
 from __future__ import annotations
 
+import threading
 from pathlib import Path
 
 import pytest
@@ -161,3 +162,116 @@ def test_an_s3_connection_failure_is_explained_as_cannot_reach_the_endpoint(phra
     assert explained(Exception("Generic S3 error: bucket is read-only")) == (
         "remote origin (s3://b/p): Generic S3 error: bucket is read-only"
     )
+
+
+# ----------------------------------------------------------------------------- remotes.repair / rekey / push
+def pushed_store(tmp_path: Path) -> tuple[Store, Path, dict[str, str]]:
+    """A store with three file artifacts (500, 200 and 0 bytes) pushed to directory remote nas; returns
+    the store, the remote's root and each artifact's content id."""
+    from artifacts.ingest import add_path
+    from artifacts.refs import read_ref
+    from artifacts.remotes.config import add_remote
+    from artifacts.remotes.push import push
+
+    store, _ = Store.init(tmp_path / "store")
+    contents = {}
+    for name, data in (("a", b"alpha" * 100), ("b", b"beta" * 50), ("e", b"")):
+        (tmp_path / f"{name}.bin").write_bytes(data)
+        add_path(store, tmp_path / f"{name}.bin", "replay", ref=f"team/{name}")
+        contents[name] = store.read_json(read_ref(store, f"team/{name}"))["content"]
+    add_remote(store, "nas", str(tmp_path / "remote"))
+    push(store, "nas")
+    return store, tmp_path / "remote", contents
+
+
+def lose_on_remote(remote: Path, oids) -> None:
+    for oid in oids:
+        (remote / "objects" / "blake3" / oid[:2] / oid[2:]).unlink()
+
+
+class RecordingMeter:
+    def __init__(self) -> None:
+        self.starts: list[tuple] = []
+        self.threads: set[str] = set()
+
+    def start(self, what: str, objects: int, nbytes: int) -> None:
+        self.starts.append((what, objects, nbytes))
+
+    def advance(self, nbytes: int) -> None:
+        self.threads.add(threading.current_thread().name)
+
+    def stop(self) -> None:
+        pass
+
+
+def test_repair_with_its_defaults_resends_what_the_remote_lost_and_reports_it(tmp_path):
+    """repair_remote 1 (full by default), 8 (jobs None: a traceback), 9 (no meter: a traceback), 22, 23,
+    24, 27 (the report's remote, full and damaged count), 38 (an empty object counted as 1 byte)."""
+    from artifacts.remotes.repair import repair_remote
+
+    store, remote, contents = pushed_store(tmp_path)
+    lose_on_remote(remote, contents.values())
+    report = repair_remote(store, "nas")
+    assert (report.remote, report.full, report.damaged) == ("nas", False, 3)
+    assert sorted(report.resent) == sorted(contents.values())
+    assert report.bytes_sent == 700 and report.unhealed == []
+    assert report.as_dict()["full"] is False and report.as_dict()["remote"] == "nas"
+    assert repair_remote(store, "nas").damaged == 0
+    store.close()
+
+
+def test_repair_passes_its_jobs_and_meter_to_the_check_and_meters_the_resend(tmp_path):
+    """repair_remote 14, 19 (the check ignores jobs=1: re-hashed on worker threads), 15, 20 (the check's
+    re-hashing not on the caller's meter), 40, 41 (the resend's object count and bytes)."""
+    from artifacts.remotes.repair import repair_remote
+
+    store, remote, contents = pushed_store(tmp_path)
+    lose_on_remote(remote, contents.values())
+    meter = RecordingMeter()
+    report = repair_remote(store, "nas", full=True, jobs=1, meter=meter)
+    assert report.full is True and report.damaged == 3 and report.bytes_sent == 700
+    assert [s[0] for s in meter.starts] == ["re-hashing nas", "repair → nas"]
+    assert meter.starts[0][1] > 1  # the manifests and log objects still there
+    assert meter.starts[1] == ("repair → nas", 3, 700)
+    assert meter.threads == {threading.main_thread().name}
+    store.close()
+
+
+def test_rekey_returns_the_old_id_and_forgets_each_remotes_log_chain_position(tmp_path):
+    """config.rekey_store 1-4 (the old id lost), 17-19, 22, 23 (log.json kept), 24, 27, 28 (logs.json kept)."""
+    from artifacts.remotes.config import rekey_store, store_id
+
+    store, _, _ = pushed_store(tmp_path)
+    state = tmp_path / "store" / "remotes" / "nas"
+    assert (state / "log.json").is_file() and (state / "logs.json").is_file()
+    sid = store_id(store)
+    old, new = rekey_store(store)
+    assert old == sid and new != sid and store_id(store) == new
+    assert not (state / "log.json").exists() and not (state / "logs.json").exists()
+    assert (state / "refs.json").is_file()  # the refs' positions are this store's, whatever its id
+    store.close()
+
+
+def test_a_store_whose_id_another_store_pushed_a_log_under_is_refused_in_one_exact_line(tmp_path):
+    """push._same_id 1 (13 characters of the id), 2 (the message's end)."""
+    from artifacts.ingest import add_path
+    from artifacts.remotes.config import add_remote, store_id
+    from artifacts.remotes.push import push
+
+    store, remote, _ = pushed_store(tmp_path)
+    sid = store_id(store)
+    twin, _ = Store.init(tmp_path / "twin")
+    (tmp_path / "t.bin").write_bytes(b"the twin's work")
+    add_path(twin, tmp_path / "t.bin", "replay", ref="twin/replay")
+    add_remote(twin, "nas", str(remote))
+    store_id(twin)  # its own directory recorded
+    twin.update_config(lambda c: c.update(store_id=sid))
+    push(twin, "nas")  # starts its chain over the first store's pointer
+    with pytest.raises(StoreError) as exc:
+        push(store, "nas")
+    assert str(exc.value) == (
+        f"remote nas: another store pushed an audit log with this store's id {sid[:12]} (a copied store?); "
+        "nothing was sent; run `accrue remote rekey` in the copy, then push again"
+    )
+    twin.close()
+    store.close()

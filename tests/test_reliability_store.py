@@ -408,3 +408,81 @@ def test_a_process_holds_one_writer_lock_per_store(store):
     store.close()
     other.close()
     assert path not in writers._held
+
+
+# ----------------------------------------------------------------------------- issue 23, round 6 batch G
+def test_put_tree_of_a_path_it_cannot_walk_names_it_in_one_store_error(store, tmp_path):
+    """Kills manifests._walk_error 1, 2."""
+    from artifacts.manifests import put_tree
+
+    not_a_dir = tmp_path / "plain.txt"
+    not_a_dir.write_text("x")
+    with pytest.raises(StoreError) as err:
+        put_tree(store, not_a_dir, "copy")
+    assert str(err.value) == f"cannot read {not_a_dir}: Not a directory"
+
+
+def test_store_containing_finds_the_store_a_path_lies_in_and_refuse_inside_store_says_so(store, tmp_path):
+    """Kills placement._is_store 3-11, store_containing 1-4, refuse_inside_store 1-8."""
+    from artifacts.placement import refuse_inside_store, store_containing
+
+    inside = store.root / "refs" / "demos" / "new"
+    assert store_containing(inside) == store.root
+    assert store_containing(store.root) == store.root
+    with pytest.raises(StoreError) as err:
+        refuse_inside_store(inside, "--out")
+    assert str(err.value) == (
+        f"--out {inside} is inside the accrue store at {store.root}; "
+        "write it elsewhere (use `accrue add` to bring it into the store)"
+    )
+    outside = tmp_path / "elsewhere" / "out.rrd"
+    assert store_containing(outside) is None
+    refuse_inside_store(outside, "--out")  # no store above it: nothing raised
+
+
+def test_a_directory_with_only_part_of_a_store_layout_is_not_a_store(tmp_path):
+    """Kills placement._is_store 1, 2."""
+    from artifacts.placement import store_containing
+
+    only_refs = tmp_path / "only-refs"
+    (only_refs / "refs").mkdir(parents=True)
+    assert store_containing(only_refs / "x") is None
+    only_config = tmp_path / "only-config"
+    only_config.mkdir()
+    (only_config / "config").write_text("{}")
+    assert store_containing(only_config / "x") is None
+    no_refs = tmp_path / "no-refs"
+    (no_refs / "objects").mkdir(parents=True)
+    (no_refs / "config").write_text("{}")
+    assert store_containing(no_refs / "x") is None
+
+
+def test_store_containing_looks_past_a_name_too_long_to_stat(store):
+    """Kills placement.store_containing 5."""
+    from artifacts.placement import refuse_inside_store, store_containing
+
+    too_long = store.root / "refs" / ("n" * 300) / "out"  # stat() of it and of its parent: ENAMETOOLONG
+    assert store_containing(too_long) == store.root
+    with pytest.raises(StoreError, match="is inside the accrue store"):
+        refuse_inside_store(too_long, "--out")
+
+
+def test_a_directory_remote_refuses_an_object_whose_bytes_do_not_match_its_id(tmp_path):
+    """Kills remotes.backends.local_corrupt 1-4."""
+    from artifacts.hashing import hash_bytes
+    from artifacts.remotes.backends import object_key
+    from artifacts.remotes.config import parse_url
+    from artifacts.remotes.connect import open_backend
+
+    backend = open_backend(parse_url("origin", str(tmp_path / "nas")))
+    backend.probe(create=True)
+    oid = hash_bytes(b"what the id promises")
+    damaged = tmp_path / "damaged"
+    damaged.write_bytes(b"what the disk now holds")
+    with pytest.raises(StoreError) as err:
+        backend.upload_object(oid, damaged, damaged.stat().st_size)
+    assert str(err.value) == (
+        f"object {oid[:12]} in this store is corrupt (its bytes no longer match its id); "
+        "nothing corrupt is pushed — run `accrue verify --full`"
+    )
+    assert backend.head(object_key(oid)) is None  # nothing landed under the object's key

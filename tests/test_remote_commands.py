@@ -348,3 +348,11 @@ def test_both_moved_line_names_both_ids_the_base_and_both_displaced_refs():
     )  # no displaced ref named for a remote side that has none (it was `displaced/team/x/`, not a ref name)
     never = both_moved("team/x", "origin", mine, None, None)
     assert "deleted on remote origin (this store never saw it there); " in never
+
+
+def test_short_names_a_missing_id_nothing():
+    """Kills short 2, 4, 5."""
+    from artifacts.remotes.pointers import short
+
+    assert short(None) == "nothing" and short("") == "nothing"
+    assert short("0123456789abcdef") == "0123456789ab"
