@@ -730,3 +730,78 @@ def test_gc_names_the_pid_of_a_process_that_locks_only_part_of_the_writer_lock(s
     finally:
         proc.stdin.close()
         proc.wait(timeout=10)
+
+
+# ----------------------------------------------------------------------------- round 7 batch I
+def test_push_delete_refuses_in_one_line_without_names_or_where_the_remote_holds_no_store(tmp_path):
+    """remotes.unshare.delete_remote_refs 3 (the message when no ref is named), 16 (create=True: a
+    delete against a remote directory with no store in it writes a config there and then says the ref
+    is missing, instead of refusing and leaving the directory as it was)."""
+    from artifacts.remotes.unshare import delete_remote_refs
+
+    empty = tmp_path / "nas"
+    empty.mkdir()
+    b = another_store(tmp_path, empty)
+    try:
+        with pytest.raises(StoreError) as exc:
+            delete_remote_refs(b, "origin", [])
+        assert str(exc.value) == "push --delete: name the ref(s) to remove from the remote"
+        with pytest.raises(StoreError) as exc:
+            delete_remote_refs(b, "origin", ["team/replay"])
+        assert str(exc.value) == f"remote origin ({empty}) holds no accrue store yet (push to it first)"
+        assert list(empty.iterdir()) == []
+    finally:
+        b.close()
+
+
+def test_push_delete_deletes_what_this_store_saw_refuses_the_rest_and_logs_one_event(tmp_path, monkeypatch):
+    """remotes.unshare.delete_remote_refs 42 (the report's remote), 47 (the remote's id in a refusal
+    shown as 'nothing'), 48, 49 (the id this store last saw shown as 'nothing'), 50 (a stale ref stops
+    the refs after it), 57 (a ref moved meanwhile stops the refs after it), 63, 64 (the tracking ref's
+    removal logged as a ref-deleted event of its own), 74, 81, 82 (the event's name), 75, 79 (its
+    remote), 76, 80 (its refs)."""
+    from artifacts.refs import list_refs, set_ref
+    from artifacts.remotes.directory import DirBackend
+    from artifacts.remotes.unshare import delete_remote_refs
+
+    a, _, remote = pushed(tmp_path)
+    b = another_store(tmp_path, remote)
+    try:
+        ids = {n: artifact(a, tmp_path, n.encode() * 50, f"team/{n}") for n in ("b", "c", "d", "e")}
+        push(a, "origin")
+        fetch(b, "origin")
+        newer = artifact(a, tmp_path, b"the robot's newer replay", "team/b")
+        push(a, "origin", ["team/b"])  # b has not seen this one
+        real_delete = DirBackend.delete
+
+        def delete(self, key, expect):
+            if key == "refs/team/c":  # the robot moves team/c after b read it, before b deletes it
+                set_ref(a, "team/c", newer)
+                push(a, "origin", ["team/c"])
+            return real_delete(self, key, expect)
+
+        monkeypatch.setattr(DirBackend, "delete", delete)
+        before = len(list(iter_events(b)))
+        report = delete_remote_refs(b, "origin", ["team/b", "team/c", "team/d"])
+        assert report.as_dict() == {
+            "remote": "origin",
+            "deleted": {"team/d": ids["d"]},
+            "conflicts": [
+                f"ref team/b: remote origin has {newer[:12]}, this store last saw {ids['b'][:12]} there; "
+                "`accrue fetch origin` first, so nothing you have not seen is deleted",
+                "ref team/c: remote origin moved it meanwhile; fetch and try again",
+            ],
+        }
+        assert set(list_refs(b, "remotes/origin/team/")) == {
+            "remotes/origin/team/replay",
+            "remotes/origin/team/b",
+            "remotes/origin/team/c",
+            "remotes/origin/team/e",
+        }
+        events = list(iter_events(b))[before:]
+        assert [(e["event"], e.get("remote"), e.get("refs")) for e in events] == [
+            ("remote-refs-deleted", "origin", {"team/d": ids["d"]})
+        ]
+    finally:
+        a.close()
+        b.close()
