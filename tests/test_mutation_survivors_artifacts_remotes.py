@@ -7,6 +7,7 @@ remotes register. Everything runs in a temporary directory, without a network.
 
 from __future__ import annotations
 
+import json
 import threading
 from pathlib import Path
 
@@ -193,12 +194,14 @@ class RecordingMeter:
     def __init__(self) -> None:
         self.starts: list[tuple] = []
         self.threads: set[str] = set()
+        self.advanced: list[int] = []
 
     def start(self, what: str, objects: int, nbytes: int) -> None:
         self.starts.append((what, objects, nbytes))
 
     def advance(self, nbytes: int) -> None:
         self.threads.add(threading.current_thread().name)
+        self.advanced.append(nbytes)
 
     def stop(self) -> None:
         pass
@@ -234,6 +237,27 @@ def test_repair_passes_its_jobs_and_meter_to_the_check_and_meters_the_resend(tmp
     assert meter.starts[0][1] > 1  # the manifests and log objects still there
     assert meter.starts[1] == ("repair → nas", 3, 700)
     assert meter.threads == {threading.main_thread().name}
+    assert meter.advanced[-3:] and sum(meter.advanced[-3:]) == 700  # the resend advances by each object's size
+    store.close()
+
+
+def test_repair_resends_lost_manifests_after_their_data_on_several_threads(tmp_path):
+    """repair_remote 56 (the resend's meter advanced by None), 66, 74 (data and each manifest group sent
+    with jobs None: a traceback); the remote's manifests come back after what they name."""
+    from artifacts.refs import read_ref
+    from artifacts.remotes.check import verify_remote
+    from artifacts.remotes.repair import repair_remote
+
+    store, remote, contents = pushed_store(tmp_path)
+    manifests = [read_ref(store, f"team/{name}") for name in ("a", "b", "e")]
+    lose_on_remote(remote, [*contents.values(), *manifests])
+    meter = RecordingMeter()
+    report = repair_remote(store, "nas", jobs=4, meter=meter)
+    assert report.damaged == 6 and sorted(report.resent) == sorted([*contents.values(), *manifests])
+    resent = meter.starts[-1]
+    assert resent[0] == "repair → nas" and resent[1] == 6
+    assert sum(meter.advanced[-6:]) == resent[2] == report.bytes_sent
+    assert verify_remote(store, "nas").damaged == []
     store.close()
 
 
@@ -275,3 +299,258 @@ def test_a_store_whose_id_another_store_pushed_a_log_under_is_refused_in_one_exa
     )
     twin.close()
     store.close()
+
+
+# ============================================================================= round 7 batch H
+# ----------------------------------------------------------------------------- remotes.logchain.check_chain
+SID = "f" * 64  # another store's id, as its log pointer names it
+
+
+def log_lines(n: int) -> list[bytes]:
+    """n audit-log lines as a store writes them: seq 0.., each `prev` the hash of the line before."""
+    from artifacts.auditlog import GENESIS
+    from artifacts.hashing import canonical_json
+
+    lines, prev = [], GENESIS
+    for seq in range(n):
+        line = canonical_json({"seq": seq, "ts": f"2026-12-0{seq + 1}T00:00:00Z", "event": "note", "prev": prev})
+        lines.append(line)
+        prev = hash_bytes(line)
+    return lines
+
+
+def put_segment(store: Store, lines: list[bytes], previous: str | None = None, **changes) -> str:
+    """A pushed audit-log segment of these lines (manifest as logsegment.next_segment writes it, with
+    `changes` applied); returns its manifest id. The lines' content is stored unless content= is given."""
+    from artifacts.remotes.logsegment import KIND
+
+    data = b"".join(line + b"\n" for line in lines)
+    last = json.loads(lines[-1]) if lines else {}
+    manifest = {
+        "type": "artifact",
+        "kind": KIND,
+        "producer": {"store": SID, "host": "trainer-7"},
+        "inputs": {"previous": previous} if previous else {},
+        "meta": {"first_seq": 0, "last_seq": last.get("seq"), "events": len(lines)},
+        "layout": "file",
+        "content": store.put_bytes(data),
+        "size": len(data),
+    }
+    manifest.update(changes)
+    return store.put_json(manifest)
+
+
+@pytest.fixture
+def bare_store(tmp_path: Path) -> Store:
+    s, _ = Store.init(tmp_path / "store")
+    yield s
+    s.close()
+
+
+def test_a_pulled_log_chain_across_segments_is_read_whole_and_names_its_host(bare_store):
+    """check_chain: the clean case the other tests below break one thing in (three segments, six events)."""
+    from artifacts.remotes.logchain import check_chain
+
+    lines = log_lines(6)
+    one = put_segment(bare_store, lines[:2], meta={"first_seq": 0, "last_seq": 1, "events": 2})
+    two = put_segment(bare_store, lines[2:5], one, meta={"first_seq": 2, "last_seq": 4, "events": 3})
+    three = put_segment(bare_store, lines[5:], two, meta={"first_seq": 5, "last_seq": 5, "events": 1})
+    chain = check_chain(bare_store, SID, three)
+    assert (chain.ok, chain.problems, chain.segments, chain.host) == (True, [], 3, "trainer-7")
+    assert [e["seq"] for e in chain.events] == [0, 1, 2, 3, 4, 5]
+
+
+def test_a_log_chain_whose_head_segment_is_missing_says_which_with_no_host(bare_store):
+    """check_chain 9, 10 (the missing segment's line), 54 (no segment read: the host is "")."""
+    from artifacts.remotes.logchain import check_chain
+
+    gone = hash_bytes(b"a segment this store never received")
+    chain = check_chain(bare_store, SID, gone)
+    assert chain.problems == [f"segment {gone[:12]}: object {gone[:12]} is missing from the store"]
+    assert (chain.segments, chain.events, chain.host) == (0, [], "")
+    assert chain.summary()["host"] == "" and chain.summary()["ok"] is False
+
+
+@pytest.mark.parametrize("wrong", [{"kind": "file"}, {"type": "run"}])
+def test_a_log_chain_that_reaches_an_object_that_is_no_log_segment_keeps_what_it_read(bare_store, wrong):
+    """check_chain 12 (only a wrong kind *and* type refused), 23, 24 (the line), 25 (the walk gives up
+    with nothing instead of checking the segments after it)."""
+    from artifacts.remotes.logchain import check_chain
+
+    lines = log_lines(3)
+    stranger = put_segment(bare_store, log_lines(1), **wrong)
+    head = put_segment(bare_store, lines, stranger)
+    chain = check_chain(bare_store, SID, head)
+    assert chain.problems == [f"segment {stranger[:12]} is not an audit-log segment"]
+    assert chain.segments == 1 and [e["seq"] for e in chain.events] == [0, 1, 2]
+
+
+def test_a_log_segment_without_its_lines_says_which_segment_and_stops(bare_store):
+    """check_chain 61, 62 (the line naming the segment whose content is missing)."""
+    from artifacts.remotes.logchain import check_chain
+
+    lines = log_lines(2)
+    lost = hash_bytes(b"lines never received")
+    head = put_segment(bare_store, lines, content=lost)
+    chain = check_chain(bare_store, SID, head)
+    assert chain.problems == [f"segment {head[:12]}: object {lost[:12]} is missing from the store"]
+    assert (chain.segments, chain.events) == (1, [])
+
+
+def test_a_log_segment_line_that_is_not_json_is_named_by_its_line_number(bare_store):
+    """check_chain 72–75 (the line: segment, 1-based line number)."""
+    from artifacts.remotes.logchain import check_chain
+
+    lines = log_lines(3)
+    head = put_segment(bare_store, [lines[0], b'{"seq": 1, "ev', lines[2]])
+    chain = check_chain(bare_store, SID, head)
+    assert chain.problems == [f"segment {head[:12]} line 2: not valid JSON"]
+    assert [e["seq"] for e in chain.events] == [0]
+
+
+def test_a_changed_log_line_breaks_the_chain_at_the_line_after_it_in_one_exact_line(bare_store):
+    """check_chain 81–88 (the broken-chain line: segment, line number, the event's seq, the reason)."""
+    from artifacts.remotes.logchain import check_chain
+
+    lines = log_lines(3)
+    lines[0] = lines[0].replace(b'"note"', b'"edit"')
+    head = put_segment(bare_store, lines)
+    chain = check_chain(bare_store, SID, head)
+    assert chain.problems == [
+        f"segment {head[:12]} line 2 (seq 1): hash chain broken — a line before it was changed, removed or never sent"
+    ]
+    assert len(chain.events) == 3
+
+
+def test_a_log_line_with_a_wrong_seq_is_reported_once_and_counting_goes_on_from_it(bare_store):
+    """check_chain 93–99 (the seq line), 104 (counting does not resume from the line's own seq: the line
+    after it is reported too), 105 (a line with no seq: a traceback, not a problem)."""
+    from artifacts.hashing import canonical_json
+    from artifacts.remotes.logchain import check_chain
+
+    lines = log_lines(1)
+    for seq in (5, 6, None, 1):
+        lines.append(canonical_json({"seq": seq, "event": "note", "prev": hash_bytes(lines[-1])}))
+    head = put_segment(bare_store, lines)
+    chain = check_chain(bare_store, SID, head)
+    assert chain.problems == [
+        f"segment {head[:12]} line 2: seq 5, expected 1",
+        f"segment {head[:12]} line 4: seq None, expected 7",
+        f"segment {head[:12]} line 5: seq 1, expected 8",
+    ]
+
+
+@pytest.mark.parametrize("meta", [{"events": 2, "last_seq": 2}, {"events": 3, "last_seq": 1}])
+def test_a_log_segment_whose_manifest_miscounts_its_lines_is_reported(bare_store, meta):
+    """check_chain 111 (only both counts wrong reported), 125, 126 (the line)."""
+    from artifacts.remotes.logchain import check_chain
+
+    head = put_segment(bare_store, log_lines(3), meta=meta)
+    chain = check_chain(bare_store, SID, head)
+    assert chain.problems == [f"segment {head[:12]}: its manifest's counts do not match its lines"]
+
+
+@pytest.mark.parametrize("producer", [{"store": SID}, None])
+def test_a_log_chain_whose_producer_names_no_host_has_an_empty_host(bare_store, producer):
+    """check_chain 41, 43, 53 (a missing host shown as "None" or "XXXX", not "")."""
+    from artifacts.remotes.logchain import check_chain
+
+    chain = check_chain(bare_store, SID, put_segment(bare_store, log_lines(2), producer=producer))
+    assert chain.ok and chain.host == "" and chain.summary()["host"] == ""
+
+
+def test_a_log_chain_longer_than_the_bound_is_read_only_to_it_and_not_ok(bare_store, monkeypatch):
+    """check_chain 6 (one segment past MAX_SEGMENTS read): the newest MAX_SEGMENTS segments only, and the
+    chain is not ok, since the first read no longer starts from the beginning."""
+    import artifacts.remotes.logchain
+    from artifacts.remotes.logchain import check_chain
+
+    monkeypatch.setattr(artifacts.remotes.logchain, "MAX_SEGMENTS", 2)
+    lines = log_lines(3)
+    head = None
+    for seq, line in enumerate(lines):
+        head = put_segment(bare_store, [line], head, meta={"first_seq": seq, "last_seq": seq, "events": 1})
+    chain = check_chain(bare_store, SID, head)
+    assert chain.segments == 2 and [e["seq"] for e in chain.events] == [1, 2]
+    assert chain.problems[0].startswith("segment ") and "line 1 (seq 1): hash chain broken" in chain.problems[0]
+
+
+# ----------------------------------------------------------------------------- auditlog.iter_events
+def test_reading_an_audit_log_that_cannot_be_opened_is_one_line_naming_it(bare_store):
+    """auditlog.iter_events 8 (the message lost), 9 (a traceback instead of the reason)."""
+    from artifacts.auditlog import iter_events
+    from artifacts.errors import path_text
+
+    bare_store.log_path.unlink(missing_ok=True)
+    bare_store.log_path.mkdir()
+    with pytest.raises(StoreError) as exc:
+        list(iter_events(bare_store))
+    assert str(exc.value) == f"cannot read the audit log: {path_text(str(bare_store.log_path))}: Is a directory"
+
+
+def test_an_audit_log_line_with_bytes_that_are_not_text_is_one_damaged_line(bare_store):
+    """auditlog.iter_events 5 (the log read as text: a traceback at the byte, or a carriage return taken
+    for a line end)."""
+    from artifacts.auditlog import iter_events
+
+    lines = log_lines(2)
+    bare_store.log_path.write_bytes(lines[0] + b"\n" + b"\xff\xfe torn\r write\n" + lines[1] + b"\n")
+    events = list(iter_events(bare_store))
+    assert events == [
+        json.loads(lines[0]),
+        {"seq": None, "event": "damaged-line", "line": 2},
+        json.loads(lines[1]),
+    ]
+
+
+# ----------------------------------------------------------------------------- provenance
+def test_an_artifact_the_logs_never_mention_has_empty_provenance():
+    """provenance.provenance 14, 16 (a traceback for a format-2 artifact not in the index)."""
+    from artifacts.provenance import provenance
+
+    oid = hash_bytes(b"pulled without its log")
+    assert provenance({"type": "artifact", "kind": "file"}, {}, oid) == {}
+    assert provenance({"type": "artifact"}, {oid: {"host": "h"}}, oid) == {"host": "h"}
+
+
+def test_an_artifacts_provenance_is_its_first_writing_event_and_only_artifacts_are_indexed(bare_store):
+    """provenance.provenance_index 13 (a later event for the same id overwrites the first; other events
+    indexed under None)."""
+    from artifacts.auditlog import append_event
+    from artifacts.provenance import provenance_index
+
+    oid = hash_bytes(b"written twice")
+    append_event(bare_store, "note", text="not a write")
+    first = append_event(bare_store, "artifact-written", artifact=oid, kind="file", source="first.bin")
+    append_event(bare_store, "artifact-written", artifact=oid, kind="file", source="second.bin")
+    index = provenance_index(bare_store)
+    assert set(index) == {oid}
+    assert index[oid] == {"created": first["ts"], "source": "first.bin", "host": first["host"]}
+
+
+# ----------------------------------------------------------------------------- remotes.pointers.forget_bases
+def test_forgetting_merge_bases_waits_for_another_operation_on_the_same_remote(bare_store):
+    """pointers.forget_bases 10 (another lock than the remote's: bases rewritten under a running push)."""
+    from artifacts.locks import store_lock
+    from artifacts.remotes.pointers import forget_bases, merge_bases, record_bases
+
+    record_bases(bare_store, "nas", {"team/a": "a" * 64, "team/b": "b" * 64})
+    with store_lock(bare_store.locks_dir, "remote-nas"):
+        t = threading.Thread(target=forget_bases, args=(bare_store, "nas", ["team/a"]))
+        t.start()
+        t.join(0.5)
+        assert t.is_alive()
+        assert merge_bases(bare_store, "nas") == {"team/a": "a" * 64, "team/b": "b" * 64}
+    t.join(10)
+    assert not t.is_alive() and merge_bases(bare_store, "nas") == {"team/b": "b" * 64}
+
+
+# ----------------------------------------------------------------------------- remotes.s3._botocore_code
+def test_a_botocore_error_without_a_code_is_shown_without_one():
+    """s3._botocore_code 24 (a made-up code before botocore's line)."""
+    from botocore.exceptions import ClientError
+
+    exc = ClientError({"Error": {"Message": "Slow Down"}}, "PutObject")
+    assert explained(exc) == (
+        "remote origin (s3://b/p): An error occurred (Unknown) when calling the PutObject operation: Slow Down"
+    )
