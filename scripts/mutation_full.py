@@ -124,6 +124,7 @@ class MutantWatchdog(threading.Thread):
         self.pid, self.limit, self.grace, self.poll, self.depth = pid, limit, grace, poll, depth
         self.armed, self.done = threading.Event(), threading.Event()
         self.ended: list[tuple[int, str]] = []  # (pid, "XCPU" | "KILL"), for the log and the tests
+        self.warned_at: dict[int, float] = {}  # pid -> when SIGXCPU was sent
 
     def run(self) -> None:
         while not self.done.wait(self.poll):
@@ -150,12 +151,17 @@ class MutantWatchdog(threading.Thread):
         now = time.time()
         for child in children:
             try:
-                age = now - child.create_time()
-                if age > self.limit + self.grace:
+                warned_at = self.warned_at.get(child.pid)
+                if (child.pid, "KILL") in self.ended:
+                    continue  # dying; not yet reaped
+                # SIGKILL counts its grace from the SIGXCPU actually sent, so a watchdog that a busy machine
+                # schedules late still sends SIGXCPU first (mutmut reads only that one as a timeout)
+                if warned_at is not None and now - warned_at > self.grace:
                     child.kill()
                     self.ended.append((child.pid, "KILL"))
-                elif age > self.limit and (child.pid, "XCPU") not in self.ended:
+                elif warned_at is None and now - child.create_time() > self.limit:
                     child.send_signal(signal.SIGXCPU)
+                    self.warned_at[child.pid] = now
                     self.ended.append((child.pid, "XCPU"))
             except psutil.Error:
                 continue  # the mutant ended on its own meanwhile

@@ -82,6 +82,28 @@ def test_a_mutant_that_ignores_sigxcpu_is_killed_after_the_grace():
         assert dog.ended == [(child, "XCPU"), (child, "KILL")]
 
 
+def test_a_watchdog_scheduled_late_still_sends_sigxcpu_before_the_kill():
+    # a busy machine may first run the check after limit + grace have both passed: SIGXCPU must still come
+    # first (mutmut reads only that as a timeout), and SIGKILL only `grace` seconds after it
+    parent, child = start(STUBBORN)
+    dog = load_script().MutantWatchdog(parent.pid, limit=0.1, grace=0.3)
+    try:
+        time.sleep(0.6)
+        dog.check()
+        assert dog.ended == [(child, "XCPU")]
+        dog.check()
+        assert dog.ended == [(child, "XCPU")]
+        time.sleep(0.4)
+        dog.check()
+        assert dog.ended == [(child, "XCPU"), (child, "KILL")]
+        assert parent.wait(timeout=20) == signal.SIGKILL
+        dog.check()
+        assert dog.ended == [(child, "XCPU"), (child, "KILL")]
+    finally:
+        if alive(parent.pid):
+            os.kill(parent.pid, signal.SIGKILL)
+
+
 def test_nothing_is_signalled_before_the_mutants_start():
     parent, child = start(SLEEPER)
     with watching(parent.pid, armed=False, limit=0.1, grace=30.0) as dog:
