@@ -87,14 +87,16 @@ def hold(store: "Store") -> None:
             entry = _held[path] = _Held(fd, 0)
         entry.users += 1
     store._writer_held = True
-    weakref.finalize(store, _drop, path)
+    # one drop per hold, whichever comes first: release() or the handle being garbage-collected (a finalizer
+    # runs at most once, so a closed handle collected later cannot drop a count another handle holds)
+    store._writer_drop = weakref.finalize(store, _drop, path)
 
 
 def release(store: "Store") -> None:
     """Stop being a writer (the handle's names are all rooted, or it is done)."""
     if getattr(store, "_writer_held", False):
         store._writer_held = False
-        _drop(_lock_path(store))
+        store._writer_drop()
 
 
 def _drop(path: str) -> None:

@@ -98,6 +98,7 @@ REACH = (
     "connection refused",
     "dns error",
     "request timed out",
+    "operation timed out",
     "tcp connect",
     "client connect error",
     "failed to lookup address",

@@ -410,6 +410,33 @@ def test_a_process_holds_one_writer_lock_per_store(store):
     assert path not in writers._held
 
 
+def test_a_closed_handle_collected_later_leaves_another_handles_writer_lock_alone(store):
+    """A handle closed, then garbage-collected while another handle of the same store writes: the other's
+    lock must stay (it used to be dropped a second time by the first handle's finalizer, letting gc sweep what
+    the live writer had named). Kills writers.release 9 (a handle that never wrote drops a count it never
+    took) and 11 (a closed handle still believes it holds, so writing again takes no lock)."""
+    import gc as python_gc
+
+    closed = Store.open(store.root)  # not the fixture's handle, which pytest keeps alive
+    closed.put_bytes(b"a")
+    closed.close()
+    writer = Store.open(store.root)
+    writer.put_bytes(b"b")
+    path = str(store.locks_dir / writers.LOCK_NAME)
+    del closed
+    python_gc.collect()
+    assert writers._held[path].users == 1
+    never_wrote = Store.open(writer.root)
+    never_wrote.close()
+    assert writers._held[path].users == 1
+    writer.close()
+    assert path not in writers._held
+    writer.put_bytes(b"c")  # a closed handle may be used again, and holds the lock again
+    assert writers._held[path].users == 1
+    writer.close()
+    assert path not in writers._held
+
+
 # ----------------------------------------------------------------------------- issue 23, round 6 batch G
 def test_put_tree_of_a_path_it_cannot_walk_names_it_in_one_store_error(store, tmp_path):
     """Kills manifests._walk_error 1, 2."""

@@ -134,13 +134,12 @@ def explain_s3_error(exc: BaseException, where: str, endpoint: str | None = None
             "error sending request",
             "connection refused",
             "dns error",
-            "timed out",
+            "timed out",  # also "operation timed out"
             "tcp connect",
             "connect error",
             "failed to lookup",
             "connection reset",
             "could not connect to the endpoint",  # botocore's EndpointConnectionError
-            "operation timed out",
             "deadline has elapsed",
         )
     ):
