@@ -473,3 +473,33 @@ def test_amp_on_a_cpu_learner_is_a_silent_no_op():
         warnings.simplefilter("error")
         learner.act(s, ref, explore=False)
         assert "critic_loss" in learner.train_step(rows_buffer(12, seed=0))
+
+
+# ------------------------------------------------------------------------------------------- train_stage
+def test_train_stage_hands_on_update_each_learner_update_with_its_losses():
+    """Survivors stage_rl.train_stage 45, 57: on_update (the train step's loss tracking) reaches the loop and
+    is called after every learner update, with the loop state and the update's losses."""
+    from test_method_wiring import N_ENVS, T1, FakeEnv, features, reference
+
+    from accrue import rl_loop
+    from accrue.stage_rl import train_stage
+
+    buffer = ReplayBuffer(D, H, A)
+    collector = rl_loop.ChunkCollector(FakeEnv(N_ENVS, 5), reference, features, buffer, task_index=0, gamma=0.99)
+    collector.restart()
+    rl_loop.warmup(collector, 2)
+    evaluator = rl_loop.Evaluator(lambda t, n: FakeEnv(n, 100), {T1: reference}, features, 2, N_ENVS, H, 0.99)
+    settings = rl_loop.LoopSettings([T1], env_steps=16, eval_every=16, checkpoint_every=0)
+    seen = []
+    _, state = train_stage(
+        config("sequential"),
+        None,
+        None,
+        None,
+        collector,
+        evaluator,
+        settings,
+        on_update=lambda st, info: seen.append((st.updates, st.env_steps, sorted(info))),
+    )
+    losses_ = ["actor_loss", "critic_loss", "loss_cur", "q_mean"]
+    assert seen == [(1, 8, losses_), (2, 16, losses_)] and state.updates == 2
