@@ -503,3 +503,25 @@ def test_train_stage_hands_on_update_each_learner_update_with_its_losses():
     )
     losses_ = ["actor_loss", "critic_loss", "loss_cur", "q_mean"]
     assert seen == [(1, 8, losses_), (2, 16, losses_)] and state.updates == 2
+
+
+# ------------------------------------------------------------------------------------ device placement
+@pytest.mark.parametrize("algo", ["fasttd3", "fastsac"])
+def test_a_learner_makes_its_tensors_on_its_own_device_not_torchs_default(algo):
+    """A learner on one device while torch's default device is another (a CUDA learner in a process whose
+    default is the CPU): every tensor it makes must go to its own device. With the default set to `meta`,
+    a tensor made on the default meets the learner's CPU tensors and torch refuses the mix, so this checks
+    on a CPU-only machine what a GPU would. Kills sac.reset_optimizers 3, 6 (log α), td3._draw_std 7, 10,
+    _explore 11, 14 (the reset mask), 32, 35 (the exploration noise), _target_noise 6, 9."""
+    import numpy as np
+
+    learner = make_learner(config("accrue", algo=algo), D, H, A)
+    buffer = rows_buffer(12, seed=0)
+    s, ref = inputs(3)
+    with torch.device("meta"):
+        learner.reset_optimizers()
+        info = learner.train_step(buffer)
+        learner.act(s, ref, explore=True)  # the first call draws every env's std
+        acted = learner.act(s, ref, explore=True, reset_mask=np.array([False, True, False]))
+    assert acted.device.type == "cpu" and acted.shape == ref.shape
+    assert all(math.isfinite(v) for v in info.values())
