@@ -512,16 +512,22 @@ def test_a_learner_makes_its_tensors_on_its_own_device_not_torchs_default(algo):
     default is the CPU): every tensor it makes must go to its own device. With the default set to `meta`,
     a tensor made on the default meets the learner's CPU tensors and torch refuses the mix, so this checks
     on a CPU-only machine what a GPU would. Kills sac.reset_optimizers 3, 6 (log α), td3._draw_std 7, 10,
-    _explore 11, 14 (the reset mask), 32, 35 (the exploration noise), _target_noise 6, 9."""
+    _explore 11, 14 (the reset mask), 32, 35 (the exploration noise), _target_noise 6, 9; sac._gauss 3,
+    networks.GaussianActor.sample 9, 13 (SAC's ε); continual.estimate_fisher 6, 49 (EWC's v ~ N(0, I))."""
     import numpy as np
+
+    from accrue.learner import estimate_fisher
 
     learner = make_learner(config("accrue", algo=algo), D, H, A)
     buffer = rows_buffer(12, seed=0)
+    batch = buffer.sample(8, torch.Generator().manual_seed(0))
     s, ref = inputs(3)
     with torch.device("meta"):
         learner.reset_optimizers()
         info = learner.train_step(buffer)
         learner.act(s, ref, explore=True)  # the first call draws every env's std
         acted = learner.act(s, ref, explore=True, reset_mask=np.array([False, True, False]))
+        fisher = estimate_fisher(learner, batch, torch.Generator().manual_seed(1))
     assert acted.device.type == "cpu" and acted.shape == ref.shape
     assert all(math.isfinite(v) for v in info.values())
+    assert all(f.device.type == "cpu" and bool((f >= 0).all()) for f in fisher.values())

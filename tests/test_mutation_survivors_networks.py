@@ -130,25 +130,6 @@ def test_gaussian_actor_log_std_squashed_into_default_bounds_by_hand():
         torch.testing.assert_close(ls, -2.0 + (raw + 1) / 2)
 
 
-def test_gaussian_actor_sample_draws_eps_from_the_generator_in_the_actor_dtype():
-    """Kills networks `GaussianActor.sample` 1-8, 10-12, 14-29 (its draw from the given generator, in the
-    mean's dtype, the tanh-Gaussian sample and log-probability, the (B, H, d) shape)."""
-    torch.manual_seed(3)
-    actor = GaussianActor(D, H, A, [8, 8], 4, init_scale=1.0).double()
-    s, ref = inputs(3, dtype=torch.float64)
-    gen = torch.Generator().manual_seed(1234)
-    copy = torch.Generator().manual_seed(1234)
-    with torch.no_grad():
-        a, log_prob = actor.sample(s, ref, generator=gen)
-        mean, log_std = actor.dist_params(s, ref)
-        eps = torch.randn(mean.shape, generator=copy, dtype=torch.float64)
-        want_a, want_lp = tanh_gaussian_sample(mean, log_std, eps)
-    assert a.shape == (3, H, A) and log_prob.shape == (3,)
-    assert a.dtype == torch.float64
-    torch.testing.assert_close(a, want_a.view(3, H, A), rtol=0, atol=0)
-    torch.testing.assert_close(log_prob, want_lp, rtol=0, atol=0)
-
-
 def test_tanh_gaussian_sample_matches_change_of_variables_by_hand():
     """Kills networks `tanh_gaussian_sample` 2, 3 (u = μ + σ·ε), 5-16 (the Gaussian log-density, summed
     over the last (event) axis of a (2, 3, 4) batch), 19-31 (the tanh Jacobian term)."""

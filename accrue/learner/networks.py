@@ -173,13 +173,6 @@ class GaussianActor(Actor):
         log_std = self.log_std_min + 0.5 * (self.log_std_max - self.log_std_min) * (raw + 1)
         return mean, log_std
 
-    def sample(self, state: torch.Tensor, ref: torch.Tensor, generator: torch.Generator | None = None):
-        """Reparameterised sample and its log-probability."""
-        mean, log_std = self.dist_params(state, ref)
-        eps = torch.randn(mean.shape, generator=generator, device=mean.device, dtype=mean.dtype)
-        a, log_prob = tanh_gaussian_sample(mean, log_std, eps)
-        return a.view(-1, self.horizon, self.action_dim), log_prob
-
     def forward(self, state: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:
         mean, _ = self.dist_params(state, ref)
         return torch.tanh(mean).view(-1, self.horizon, self.action_dim)
