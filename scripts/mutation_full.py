@@ -272,6 +272,15 @@ def print_counts(counts: dict[str, Counter]) -> None:
         print(f"| **{top}/ in all** | " + " | ".join(f"{c[s]:,}" for s in columns + others) + f" | {c.total():,} |")
 
 
+def print_triage_counts(triage: Path) -> None:
+    """A Markdown table: per triage file, how many mutants it names killed and equivalent."""
+    print("| triage file | killed | equivalent |")
+    print("| --- | ---: | ---: |")
+    for path in sorted(triage.glob("*.tsv")) if triage.is_dir() else []:
+        c = Counter(line.split("\t")[1].strip() for line in path.read_text().splitlines() if "\t" in line)
+        print(f"| `{path.name}` | {c['killed']:,} | {c['equivalent']:,} |")
+
+
 def report(tree: Path, out: Path) -> dict[str, list[str]]:
     """mutmut's verdict per mutant (`mutmut results --all true`), grouped; survivors written to `out`."""
     res = subprocess.run(
@@ -314,7 +323,8 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         print_counts(verdict_counts(args.records))
         left = [n for n in survivors(args.records) if n not in triaged(args.triage)]
-        print(f"\nsurvivors: {len(survivors(args.records)):,}, not yet triaged in {args.triage}: {len(left):,}")
+        print(f"\nsurvivors: {len(survivors(args.records)):,}, not yet triaged in {args.triage}: {len(left):,}\n")
+        print_triage_counts(args.triage)
         if args.untriaged:
             args.untriaged.write_text("".join(f"{n}\n" for n in left))
         return 0

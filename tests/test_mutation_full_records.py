@@ -54,7 +54,7 @@ def mark_survived(mutants: Path, name: str) -> None:
     meta.write_text(json.dumps(data))
 
 
-def test_a_new_machine_resumes_from_the_kept_verdicts_and_remeasures_changed_functions(tmp_path):
+def test_a_new_machine_resumes_from_the_kept_verdicts_and_remeasures_changed_functions(tmp_path, capsys):
     script = load_script()
     first = make_project(tmp_path / "first")
     mutmut(first, "run", "--max-children", "1")
@@ -74,6 +74,9 @@ def test_a_new_machine_resumes_from_the_kept_verdicts_and_remeasures_changed_fun
     (tmp_path / "triage").mkdir()
     (tmp_path / "triage" / "r1.tsv").write_text("pkg.calc.x_add__mutmut_1\tequivalent\tsame sum\n")
     assert script.triaged(tmp_path / "triage") == {"pkg.calc.x_add__mutmut_1": "equivalent"}
+    (tmp_path / "triage" / "r2.tsv").write_text("pkg.calc.x_half__mutmut_1\tkilled\ttests/t.py::test_half\n")
+    script.print_triage_counts(tmp_path / "triage")
+    assert capsys.readouterr().out.splitlines()[2:] == ["| `r1.tsv` | 0 | 1 |", "| `r2.tsv` | 1 | 0 |"]
 
     second = make_project(tmp_path / "second", calc=CALC.replace("x / 2", "x * 0.5"))
     said = script.restore_records(records, second, script.mutmut_config(second))
