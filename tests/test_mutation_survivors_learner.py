@@ -475,6 +475,25 @@ def test_amp_on_a_cpu_learner_is_a_silent_no_op():
         assert "critic_loss" in learner.train_step(rows_buffer(12, seed=0))
 
 
+def test_ref_dropout_zero_keeps_every_reference_even_for_a_draw_of_exactly_zero():
+    """ref_dropout p = 0 means no reference dropout: a row is kept when its uniform draw u ≥ p, so a draw of
+    exactly 0.0 (torch.rand's float32 draws are multiples of 2⁻²⁴, 0 included) keeps its ã too. The test
+    seeds the learner's generator where the next draws contain a 0.0 (found by search, checked, not assumed).
+    Kills agent._dropout_keep 8 (u > p drops that row)."""
+    learner = make_learner(config("accrue", ref_dropout=0.0), D, H, A)
+    n = 1 << 16
+    for seed in range(5000):
+        learner.gen.manual_seed(seed)
+        if bool((torch.rand(n, generator=learner.gen) == 0).any()):
+            break
+    else:
+        pytest.fail("no float32 draw of exactly 0.0 in 5000 seeds")
+    learner.gen.manual_seed(seed)
+    keep = learner._dropout_keep(n)
+    assert keep.shape == (n, 1, 1) and keep.dtype == torch.float32
+    assert bool((keep == 1).all())
+
+
 # ------------------------------------------------------------------------------------------- train_stage
 def test_train_stage_hands_on_update_each_learner_update_with_its_losses():
     """Survivors stage_rl.train_stage 45, 57: on_update (the train step's loss tracking) reaches the loop and
