@@ -190,6 +190,22 @@ def test_project_target_keeps_a_return_above_v_max_on_the_top_atom_when_the_inde
     torch.testing.assert_close(out, want)
 
 
+def test_project_target_clips_a_return_past_either_end_to_exactly_that_end():
+    """Kills distributional `project_target` 15, 17 (the moved atoms not clipped at v_max). "Clipped to the
+    support": a return past v_max is projected bit for bit as a return of v_max, and one below v_min as
+    v_min. On −10..20 with 51 atoms float32 puts v_max's index at 49.999996, so a return at v_max leaves a
+    sliver on atom 48; unclipped, a larger return would be indexed past the top and leave none."""
+    support = torch.linspace(-10.0, 20.0, 51)
+    g = torch.Generator().manual_seed(0)
+    probs = torch.softmax(torch.randn(1, 51, generator=g), -1).expand(4, -1)
+    reward = torch.tensor([20.0, 35.0, -10.0, -25.0])
+    out = project_target(probs, reward, torch.zeros(4), support)
+    assert torch.equal(out[1], out[0]) and torch.equal(out[3], out[2])
+    torch.testing.assert_close(out[0, -1], torch.tensor(1.0))  # all of it on the top atom, up to rounding
+    torch.testing.assert_close(out[2, 0], torch.tensor(1.0))
+    assert out[2, 1:].sum() == 0
+
+
 def test_categorical_cross_entropy_over_atoms_averaged_over_heads_and_batch():
     """Kills distributional `categorical_cross_entropy` 2 (summed over the batch), 8 (log-softmax over the
     batch axis), 10 (summed over the batch axis): logits (heads, B, atoms) as its docstring allows."""

@@ -111,6 +111,43 @@ def test_sample_errors_are_exact():
         buf.sample(1, torch.Generator(), n_step=2)
 
 
+def test_sample_draws_its_rows_on_the_generators_device_not_torchs_default():
+    """Kills replay `ReplayBuffer.sample` 13, 18 (the indices drawn on torch's default device). A program may
+    set another default device (an accelerator); the rows must still be drawn where the caller's generator
+    is. With the default set to `meta`, an index drawn there cannot be moved to the CPU buffer."""
+    buf = ReplayBuffer(D, H, A)
+    add_rows(buf, 6)
+    want = buf.sample(5, torch.Generator().manual_seed(3))
+    with torch.device("meta"):
+        got = buf.sample(5, torch.Generator(device="cpu").manual_seed(3))
+    assert got.index.device == torch.device("cpu")
+    assert got.index.tolist() == want.index.tolist()
+    assert torch.equal(got.state, want.state)
+
+
+@pytest.fixture(scope="module")
+def meta_indexing():
+    """The first index into a meta tensor in a process imports torch's symbolic shapes (sympy, ~2 s on a busy
+    machine): paid once here, not inside a test's timing."""
+    torch.zeros(2, device="meta")[torch.tensor([1])]
+
+
+@pytest.mark.usefixtures("meta_indexing")
+def test_a_buffer_gathers_rows_given_on_another_device_onto_its_own(tmp_path):
+    """Kills replay `ReplayBuffer.gather` 2 (the row index left where the caller made it). A batch lives on
+    one device (`Batch.to_device` looks only at its state): a buffer on an accelerator (meta stands in for
+    one, loaded from a saved replay) given CPU rows returns a batch whose every tensor, the row index
+    included, is on the buffer's device."""
+    _, directory = saved(tmp_path)
+    buf = ReplayBuffer.load(directory, device="meta")
+    for batch in (buf.gather(torch.tensor([2, 0])), buf.sample(2, torch.Generator().manual_seed(0))):
+        for name in ("state", "action", "ref", "reward", "next_state", "next_ref", "done", "task", "episode"):
+            assert getattr(batch, name).device == torch.device("meta"), name
+        for name in ("index", "ended", "intervention"):
+            assert getattr(batch, name).device == torch.device("meta"), name
+        assert batch.index.shape == (2,)
+
+
 def n_step_buffer() -> ReplayBuffer:
     """Episode 0: 3 chunks (rewards 1, 2, 4), the last one terminates; distinct next_state and next_ref."""
     buf = ReplayBuffer(1, 1, 1)
