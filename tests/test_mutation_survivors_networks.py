@@ -19,7 +19,9 @@ from accrue.learner.config import LearnerConfig
 from accrue.learner.distributional import categorical_cross_entropy, project_target
 from accrue.learner.networks import (
     Actor,
+    Critic,
     EnsembleLayerNorm,
+    EnsembleLinear,
     GaussianActor,
     RunningNorm,
     pre_tanh,
@@ -69,6 +71,19 @@ def test_running_norm_fixed_tail_of_one_column_passes_raw():
     out = rn(x)
     assert out.shape == (3, 4)
     torch.testing.assert_close(out, want)
+
+
+def test_running_norm_fixed_tail_passes_raw_for_any_leading_shape():
+    """Kills networks `RunningNorm.forward` 24 (the tail concatenated along dim +1, not the feature axis −1).
+    Like `update` (which reshapes to (-1, dim)), forward maps s over any leading shape: one state (dim,) or
+    a (T, B, dim) stack. The learner itself only passes (B, dim) batches, where dims 1 and −1 coincide."""
+    rn = RunningNorm(4, fixed_tail=1)
+    rn.mean.fill_(1.0)
+    rn.var.fill_(3.0)
+    x = torch.arange(24.0).view(2, 3, 4) / 4 - 2
+    want = torch.cat([(x[..., :3] - 1.0) / math.sqrt(3.0 + 1e-6), x[..., 3:]], dim=-1)
+    torch.testing.assert_close(rn(x), want)
+    torch.testing.assert_close(rn(x[1, 2]), want[1, 2])  # a single unbatched state
 
 
 # ------------------------------------------------------------------------------------------- pre_tanh
@@ -162,6 +177,47 @@ def test_ensemble_layer_norm_normalises_each_row_over_features_only():
         torch.testing.assert_close(ln(x), want)
         # same row in a different batch gives the same output: nothing is shared across the batch
         torch.testing.assert_close(ln(x[:, :1]), want[:, :1])
+
+
+def test_ensemble_linear_init_is_nn_linear_default_per_head():
+    """Kills networks `EnsembleLinear.__init__` 14 (one bias shared by every head), 19, 20 (bound √d_in or
+    2/√d_in instead of 1/√d_in), 26, 27 (weight drawn from [bound, 1] or [−bound, 1]), 33, 34, 35 (bias
+    drawn from [bound, 1], [−bound, 1] or the single point bound). nn.Linear's default init: weight and
+    bias each uniform on [−1/√d_in, 1/√d_in], here per head, each head its own bias."""
+    torch.manual_seed(0)
+    n, d_in, d_out = 4, 16, 64
+    layer = EnsembleLinear(n, d_in, d_out)
+    bound = 0.25  # 1/√16
+    assert layer.weight.shape == (n, d_in, d_out) and layer.bias.shape == (n, 1, d_out)
+    for p, edge in ((layer.weight, 0.24), (layer.bias, 0.22)):
+        p = p.detach()
+        assert p.abs().max() <= bound
+        assert p.max() > edge and p.min() < -edge  # both ends of the interval are reached
+        assert abs(float(p.mean())) < 0.03
+        assert abs(float(p.std()) - bound / math.sqrt(3.0)) < 0.015  # uniform's σ = bound/√3
+    # heads differ in their biases too, and head i computes x_i W_i + b_i
+    assert not torch.equal(layer.bias[0], layer.bias[1])
+    x = torch.randn(n, 3, d_in, generator=torch.Generator().manual_seed(1))
+    with torch.no_grad():
+        out = layer(x)
+        for i in range(n):
+            torch.testing.assert_close(out[i], x[i] @ layer.weight[i] + layer.bias[i])
+
+
+def test_critic_defaults_are_two_heads_with_layer_norm():
+    """Kills networks `Critic.__init__` 1 (layer_norm off by default), 2 (three heads by default). The
+    learner builds its critic without num_heads: two heads, for the clipped double-Q minimum."""
+    torch.manual_seed(3)
+    critic = Critic(D, H, A, [8, 8], 4, 5)
+    explicit = Critic(D, H, A, [8, 8], 4, 5, layer_norm=True, num_heads=2)
+    explicit.load_state_dict(critic.state_dict())  # strict: same layers, same shapes
+    assert sum(isinstance(m, EnsembleLayerNorm) for m in critic.net) == 2
+    s, ref = inputs(3)
+    action = torch.rand(3, H, A) * 2 - 1
+    with torch.no_grad():
+        logits = critic(s, action, ref)
+        assert logits.shape == (2, 3, 5)
+        torch.testing.assert_close(logits, explicit(s, action, ref))
 
 
 # ------------------------------------------------------------------------------------------- distributional
