@@ -555,3 +555,56 @@ def test_a_botocore_error_without_a_code_is_shown_without_one():
     assert explained(exc) == (
         "remote origin (s3://b/p): An error occurred (Unknown) when calling the PutObject operation: Slow Down"
     )
+
+
+# ----------------------------------------------------------------------------- remotes.lazy.add_promised
+P_A, P_B, P_C = ("a" * 64, "b" * 64, "c" * 64)
+
+
+def test_overlapping_partial_pulls_note_each_promised_object_once(bare_store, tmp_path):
+    """lazy.add_promised 20 (what was noted already is noted again: remote remove miscounts), 22 (a second
+    partial pull from the same remote a traceback)."""
+    from artifacts.remotes.config import add_remote
+    from artifacts.remotes.forget import forget_remote
+    from artifacts.remotes.lazy import add_promised, promised_path
+
+    add_remote(bare_store, "nas", str(tmp_path / "remote"))
+    add_promised(bare_store, "nas", [P_B, P_A])
+    add_promised(bare_store, "nas", [P_C, P_B])  # a later pull --only leaves P_B there again
+    assert promised_path(bare_store, "nas").read_text() == f"{P_A}\n{P_B}\n{P_C}\n"
+    with pytest.raises(StoreError) as exc:
+        forget_remote(bare_store, "nas")
+    assert str(exc.value) == (
+        f"remote nas still holds 3 object(s) this partial clone left there (e.g. {P_A[:12]}); "
+        "pull them first, or remove --force"
+    )
+
+
+def test_noting_promised_objects_waits_for_another_process_noting_them(bare_store):
+    """lazy.add_promised 14, 17, 18 (another lock than locks/promised.lock: two partial pulls append at once)."""
+    from artifacts.locks import store_lock
+    from artifacts.remotes.lazy import add_promised, promised_path
+
+    with store_lock(bare_store.locks_dir, "promised"):
+        t = threading.Thread(target=add_promised, args=(bare_store, "nas", [P_A]))
+        t.start()
+        t.join(0.5)
+        assert t.is_alive()
+        assert not promised_path(bare_store, "nas").exists()
+    t.join(10)
+    assert not t.is_alive() and promised_path(bare_store, "nas").read_text() == f"{P_A}\n"
+    assert bare_store.is_promised(P_A)
+
+
+def test_the_promised_list_is_a_data_file_others_may_read_but_nobody_runs(bare_store):
+    """lazy.add_promised 33 (created 0o777 less the umask: executable), 36 (0o645: others may execute it)."""
+    import os
+
+    from artifacts.remotes.lazy import add_promised, promised_path
+
+    old = os.umask(0o022)
+    try:
+        add_promised(bare_store, "nas", [P_A])
+    finally:
+        os.umask(old)
+    assert promised_path(bare_store, "nas").stat().st_mode & 0o777 == 0o644
