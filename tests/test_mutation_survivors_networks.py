@@ -13,10 +13,12 @@ import math
 
 import pytest
 import torch
+import torch.nn.functional as F
+from torch import nn
 
 from accrue.errors import AccrueError
 from accrue.learner.config import LearnerConfig
-from accrue.learner.distributional import categorical_cross_entropy, project_target
+from accrue.learner.distributional import categorical_cross_entropy, make_support, project_target
 from accrue.learner.networks import (
     Actor,
     Critic,
@@ -86,6 +88,17 @@ def test_running_norm_fixed_tail_passes_raw_for_any_leading_shape():
     torch.testing.assert_close(rn(x[1, 2]), want[1, 2])  # a single unbatched state
 
 
+def test_running_norm_counts_rows_exactly_past_float32s_integer_range():
+    """Kills networks `RunningNorm.__init__` 30, 32 (the row count kept in float32, torch's default dtype).
+    At the paper's 8192-row batches the count passes 2**24 within a few thousand updates; a float32 count
+    stops there (2**24 + 1 rounds back down), so the mean's weight n / total would be wrong from then on."""
+    rn = RunningNorm(2)
+    assert rn.count.dtype == torch.float64
+    rn.count.fill_(2.0**24)
+    rn.update(torch.ones(1, 2))
+    assert float(rn.count) == 2.0**24 + 1
+
+
 # ------------------------------------------------------------------------------------------- pre_tanh
 def test_pre_tanh_clips_references_at_both_bounds():
     """Kills networks `pre_tanh` 2, 3, 5 (a bound of the clip dropped: atanh(±1) = ±inf)."""
@@ -121,6 +134,82 @@ def test_actor_without_residual_acts_from_delta_alone():
         delta = actor.features(s, ref)
         torch.testing.assert_close(actor.pre_tanh_mean(s, ref), delta)
         torch.testing.assert_close(actor(s, ref), torch.tanh(delta).view(3, H, A))
+
+
+def actor_features_by_hand(actor: Actor, s: torch.Tensor, ref: torch.Tensor, layer_norm: bool) -> torch.Tensor:
+    """proj = SiLU(LN(Linear)); trunk = (Linear, [LN], SiLU)* then Linear; head(SiLU(trunk)): Sec. IV-A's actor."""
+    p = dict(actor.named_parameters())
+    x = F.linear(actor.obs_norm(s), p["proj.0.weight"], p["proj.0.bias"])
+    x = F.silu(F.layer_norm(x, x.shape[-1:], p["proj.1.weight"], p["proj.1.bias"]))
+    x = torch.cat([x, ref.flatten(1)], -1)
+    linears = [m for m in actor.trunk if isinstance(m, nn.Linear)]
+    norms = [m for m in actor.trunk if isinstance(m, nn.LayerNorm)]
+    for i, lin in enumerate(linears):
+        x = F.linear(x, lin.weight, lin.bias)
+        if i < len(linears) - 1:
+            if layer_norm:
+                x = F.layer_norm(x, x.shape[-1:], norms[i].weight, norms[i].bias)
+            x = F.silu(x)
+    return F.linear(F.silu(x), actor.head.weight, actor.head.bias)
+
+
+@pytest.mark.parametrize("layer_norm", [True, False])
+def test_actor_layers_in_order_and_features_by_hand(layer_norm):
+    """Kills networks `mlp` 12, 13 (LayerNorm and SiLU after the trunk's last layer too), 14 (none after the
+    last hidden layer), 17, 18 (a LayerNorm sized for another layer: hidden widths 8, 6 differ), `projector`
+    5 (no LayerNorm), 6 (no SiLU)."""
+    torch.manual_seed(4)
+    actor = Actor(D, H, A, [8, 6], 4, layer_norm=layer_norm, init_scale=1.0)
+    described = [(type(m).__name__, tuple(p.shape for p in m.parameters())) for m in [*actor.proj, *actor.trunk]]
+    ln8 = [("LayerNorm", ((8,), (8,)))] if layer_norm else []
+    assert described == [
+        ("Linear", ((4, D), (4,))),
+        ("LayerNorm", ((4,), (4,))),
+        ("SiLU", ()),
+        ("Linear", ((8, 4 + CHUNK), (8,))),
+        *ln8,
+        ("SiLU", ()),
+        ("Linear", ((6, 8), (6,))),
+    ]
+    s, ref = inputs(3)
+    with torch.no_grad():
+        torch.testing.assert_close(actor.features(s, ref), actor_features_by_hand(actor, s, ref, layer_norm))
+
+
+def test_actor_defaults_layer_norm_small_head_and_an_identity_free_obs_norm():
+    """Kills networks `Actor.__init__` 1 (layer_norm off by default), 30 (layer_norm not passed to the trunk),
+    3 (init_scale 1.01 by default, not 0.01), 4 (obs normalisation off by default), 6 (a std floor of 1 by
+    default), 7 (z clipped to ±1 by default), 8 (the last column passed raw by default)."""
+    torch.manual_seed(5)
+    actor = Actor(D, H, A, [8, 6], 4)  # as the learner builds it, every optional argument defaulted
+    torch.manual_seed(5)
+    unscaled = Actor(D, H, A, [8, 6], 4, layer_norm=True, init_scale=1.0)
+    unscaled.load_state_dict(actor.state_dict() | {"head.weight": unscaled.head.weight}, strict=True)
+    assert sum(isinstance(m, nn.LayerNorm) for m in actor.trunk) == 1
+    torch.testing.assert_close(actor.head.weight, 0.01 * unscaled.head.weight)
+    assert not actor.head.bias.any()
+    # the observation normaliser is on, with no floor, no clip and no raw tail: plain z of every column
+    mean = torch.tensor([0.0, 1.0, -1.0, 2.0, 0.5])
+    var = torch.tensor([0.25, 0.01, 4.0, 1.0, 0.04])
+    actor.obs_norm.mean.copy_(mean)
+    actor.obs_norm.var.copy_(var)
+    s, ref = inputs(3)
+    torch.testing.assert_close(actor.obs_norm(s), (s - mean) / (var + 1e-6).sqrt())
+    assert actor.obs_norm(s).abs().max() > 3
+
+
+def test_actor_passes_its_obs_norm_settings_to_the_normaliser():
+    """Kills networks `Actor.__init__` 19 (obs_normalization=False ignored), 21 (obs_norm_clip ignored), 22
+    (obs_norm_fixed_tail ignored)."""
+    s, _ = inputs(4)
+    off = Actor(D, H, A, [8], 4, obs_normalization=False)
+    off.obs_norm.update(s)
+    torch.testing.assert_close(off.obs_norm(s), s)
+    on = Actor(D, H, A, [8], 4, obs_norm_clip=0.5, obs_norm_fixed_tail=1)
+    on.obs_norm.var.fill_(0.01)
+    z = s / (0.01 + 1e-6) ** 0.5
+    want = torch.cat([z[:, :-1].clamp(-0.5, 0.5), s[:, -1:]], -1)
+    torch.testing.assert_close(on.obs_norm(s), want)
 
 
 def test_gaussian_actor_log_std_squashed_into_default_bounds_by_hand():
@@ -220,7 +309,49 @@ def test_critic_defaults_are_two_heads_with_layer_norm():
         torch.testing.assert_close(logits, explicit(s, action, ref))
 
 
+def test_critic_layers_in_order_and_logits_by_hand():
+    """Kills networks `Critic.__init__` 27, 28 (LayerNorm and SiLU after the last, logit layer too), 29 (none
+    after the last hidden layer)."""
+    torch.manual_seed(6)
+    critic = Critic(D, H, A, [8, 6], 4, 5)
+    described = [(type(m).__name__, tuple(p.shape for p in m.parameters())) for m in critic.net]
+    assert described == [
+        ("EnsembleLinear", ((2, 4 + 2 * CHUNK, 8), (2, 1, 8))),
+        ("EnsembleLayerNorm", ((2, 1, 8), (2, 1, 8))),
+        ("SiLU", ()),
+        ("EnsembleLinear", ((2, 8, 6), (2, 1, 6))),
+        ("EnsembleLayerNorm", ((2, 1, 6), (2, 1, 6))),
+        ("SiLU", ()),
+        ("EnsembleLinear", ((2, 6, 5), (2, 1, 5))),
+    ]
+    s, ref = inputs(3)
+    action = torch.rand(3, H, A, generator=torch.Generator().manual_seed(1)) * 2 - 1
+    p = dict(critic.named_parameters())
+    with torch.no_grad():
+        x = F.linear(s, p["proj.0.weight"], p["proj.0.bias"])
+        x = F.silu(F.layer_norm(x, (4,), p["proj.1.weight"], p["proj.1.bias"]))
+        x = torch.cat([x, action.flatten(1), ref.flatten(1)], -1)
+        heads = []
+        for h in range(2):
+            y = x
+            for i, width in ((0, 8), (3, 6)):
+                y = y @ p[f"net.{i}.weight"][h] + p[f"net.{i}.bias"][h]
+                y = F.silu(F.layer_norm(y, (width,), p[f"net.{i + 1}.weight"][h, 0], p[f"net.{i + 1}.bias"][h, 0]))
+            heads.append(y @ p["net.6.weight"][h] + p["net.6.bias"][h])
+        torch.testing.assert_close(critic(s, action, ref), torch.stack(heads))
+
+
 # ------------------------------------------------------------------------------------------- distributional
+def test_make_support_is_made_on_the_device_asked_for():
+    """Kills distributional `make_support` 4, 8 (device dropped: the support made on torch's default device).
+    The learner makes its support on its own device, whatever torch's default is; on a CPU-only machine a
+    meta default device shows the difference."""
+    with torch.device("meta"):
+        support = make_support(-1.0, 1.0, 5, device="cpu")
+    assert support.device.type == "cpu"
+    torch.testing.assert_close(support, torch.tensor([-1.0, -0.5, 0.0, 0.5, 1.0]))
+
+
 def test_project_target_by_hand_on_a_four_atom_support():
     """The C51 projection of Eq. 2 written out: split by distance, clipped to the support at both ends."""
     support = torch.tensor([0.0, 1.0, 2.0, 3.0])
