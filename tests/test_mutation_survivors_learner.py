@@ -550,3 +550,104 @@ def test_a_learner_makes_its_tensors_on_its_own_device_not_torchs_default(algo):
     assert acted.device.type == "cpu" and acted.shape == ref.shape
     assert all(math.isfinite(v) for v in info.values())
     assert all(f.device.type == "cpu" and bool((f >= 0).all()) for f in fisher.values())
+
+
+# ------------------------------------------------------------------------------------ construction
+def test_the_config_reaches_the_networks_and_the_optimizers():
+    """Kills agent._actor_kwargs 19, 31 (layer_norm), 32 (actor_residual), 34 (obs_normalization),
+    36 (obs_norm_clip), 37 (obs_norm_fixed_tail), agent._make_critic 8, 15 (the critic's layer_norm),
+    agent._adamw 6, 7 (AdamW's lr and weight decay)."""
+    nets = dict(actor_hidden=[16, 16], critic_hidden=[16, 16])
+    on = make_learner(config("accrue", layer_norm=True, obs_norm_clip=7.0, obs_norm_fixed_tail=2, **nets), D, H, A)
+    off = make_learner(
+        config(
+            "accrue",
+            layer_norm=False,
+            actor_residual=False,
+            obs_normalization=False,
+            actor_lr=0.02,
+            critic_lr=0.03,
+            weight_decay=0.2,
+            **nets,
+        ),
+        D,
+        H,
+        A,
+    )
+
+    def norms(module):
+        return [m for m in module.modules() if "LayerNorm" in type(m).__name__]
+
+    # the projector always normalises (networks.projector); layer_norm adds one per hidden layer but the last
+    assert [len(norms(n)) for n in (on.actor, on.critic, on.critic_target)] == [2, 3, 3]
+    assert [len(norms(n)) for n in (off.actor, off.critic, off.critic_target)] == [1, 1, 1]
+    assert (on.actor.residual, off.actor.residual) == (True, False)
+    assert (on.actor.obs_norm.enabled, off.actor.obs_norm.enabled) == (True, False)
+    assert (on.actor.obs_norm.clip, on.actor.obs_norm.fixed_tail) == (7.0, 2)
+    for opt, lr in ((off.actor_opt, 0.02), (off.critic_opt, 0.03)):
+        group = opt.param_groups[0]
+        assert (group["lr"], group["weight_decay"]) == (lr, 0.2)
+
+
+def test_the_default_action_dim_is_six():
+    """Kills agent.ChunkLearner.__init__ 1 (the default action dimension of a learner built directly)."""
+    from accrue.learner.td3 import FastTD3Learner
+
+    learner = FastTD3Learner(config("accrue"), D, H)
+    assert learner.action_dim == 6
+    assert learner.act(torch.zeros(2, D), torch.zeros(2, H, 6)).shape == (2, H, 6)
+
+
+def test_a_single_env_gets_an_exploration_std_on_its_first_act():
+    """Kills agent.ChunkLearner.__init__ 43 (a fresh learner has no per-env std yet: the first act draws
+    one for every env, even for a single env)."""
+    learner = make_learner(config("accrue", std_min=0.3, std_max=0.9), D, H, A)
+    assert learner.noise_std.shape == (0,)
+    s, ref = inputs(1)
+    g = gen_copy(learner)
+    std = 0.3 + 0.6 * torch.rand(1, generator=g)
+    learner.act(s, ref, explore=True)
+    torch.testing.assert_close(learner.noise_std, std)
+
+
+def test_compile_compiles_both_loss_functions_with_the_configured_mode(monkeypatch):
+    """Kills agent.ChunkLearner.__init__ 61-70 (torch.compile of the critic and the actor loss, with
+    cfg.compile_mode). torch.compile is replaced by a recorder so that nothing is compiled."""
+    calls = []
+
+    def fake_compile(model=None, *, mode=None, **kw):
+        calls.append((model, mode))
+        return model
+
+    monkeypatch.setattr(torch, "compile", fake_compile)
+    learner = make_learner(config("accrue", compile=True, compile_mode="max-autotune"), D, H, A)
+    assert calls == [(learner._critic_loss, "max-autotune"), (learner._actor_loss, "max-autotune")]
+    assert learner._critic_loss_fn == learner._critic_loss and learner._actor_loss_fn == learner._actor_loss
+    calls.clear()
+    make_learner(config("accrue"), D, H, A)
+    assert calls == []
+
+
+def test_a_learner_built_under_another_default_device_keeps_its_own_tensors_on_its_device():
+    """A learner built while torch's default device is another one (a CUDA learner in a process whose
+    default is the CPU): the support, the generator and the per-env std go to the learner's device. The
+    networks are built on the CPU here (a `meta` module cannot be moved), everything else the learner makes
+    under the `meta` default. Kills agent.ChunkLearner.__init__ 30, 34 (the support), 40, 42 (the std)."""
+    from accrue.learner.td3 import FastTD3Learner
+
+    class NetworksOnTheCpu(FastTD3Learner):
+        def _make_actor(self):
+            with torch.device("cpu"):
+                return super()._make_actor()
+
+        def _make_critic(self):
+            with torch.device("cpu"):
+                return super()._make_critic()
+
+    with torch.device("meta"):
+        learner = NetworksOnTheCpu(config("accrue", v_min=-3.0, v_max=5.0), D, H, A)
+    assert learner.support.device.type == "cpu" and learner.noise_std.device.type == "cpu"
+    assert learner.gen.device.type == "cpu"
+    torch.testing.assert_close(learner.support, torch.linspace(-3.0, 5.0, learner.cfg.num_atoms))
+    s, ref = inputs(2)
+    assert learner.act(s, ref, explore=True).device.type == "cpu"
