@@ -335,3 +335,62 @@ def test_retain_one_episode_and_a_negative_n():
     assert torch.equal(kept.column("state"), buf.column("state")[2:])
     with raises_exactly("retain_last_episodes: n must be >= 0 (got -1)"):
         retain_last_episodes(buf, -1)
+
+
+# ------------------------------------------------------------------------------------------- construction, growth
+def test_a_new_buffer_holds_six_dim_actions_and_1024_rows_by_default():
+    """Kills replay `ReplayBuffer.__init__` 1 (action_dim defaults to 6: `replay_from_episodes` builds its
+    buffers without one, for the arm's 6 joints) and 4 (1024 rows before the first growth)."""
+    buf = ReplayBuffer(D, H)
+    assert buf.action_dim == 6 and buf.capacity == 1024
+    chunk = torch.ones(1, H, 6)
+    buf.add(torch.ones(1, D), chunk, chunk, torch.ones(1), torch.ones(1, D), chunk, torch.tensor([False]), 0, 0)
+    assert buf.column("action").shape == (1, H, 6)
+
+
+def test_a_buffer_built_under_another_default_device_keeps_its_storage_on_its_own():
+    """Kills replay `ReplayBuffer.__init__` 21, 24 (the columns) and 29, 33 (the next-chunk pointers) made on
+    torch's default device. A program may set another default device (an accelerator; meta stands in for
+    one) and still build a CPU buffer: rows added later, after the default is back, must be readable, and
+    n-step sampling must follow the pointers."""
+    with torch.device("meta"):
+        buf = ReplayBuffer(D, H, A, device="cpu")
+    add_rows(buf, 2)
+    for name in ("state", "action", "ref", "reward", "next_state", "next_ref", "done", "task", "episode"):
+        assert buf.column(name).device == torch.device("cpu"), name
+    assert buf.column("reward").tolist() == [0.0, 1.0]
+    batch = buf.sample(8, torch.Generator().manual_seed(0), n_step=2, gamma=0.5)
+    rewards = {0: 0.0 + 0.25 * 1.0, 1: 1.0}  # γ^H = 0.25; row 0's next chunk is row 1
+    assert batch.reward.tolist() == [rewards[i] for i in batch.index.tolist()]
+
+
+def test_growing_doubles_the_capacity_and_keeps_every_row_and_pointer():
+    """Kills replay `ReplayBuffer._grow` 5 (the capacity doubles: 1 → 4 → 8) and 26 (rows made by a growth
+    have no next chunk until one is added: an episode's last row, added after a growth, ends its n-step sum).
+    Every column keeps its values and dtype across the growths."""
+    buf = ReplayBuffer(D, H, A, initial_capacity=1)
+    flat = ReplayBuffer(D, H, A)  # the same rows, never grown
+    caps = [buf.capacity]
+    for b in (buf, flat):
+        add_rows(b, 1, episode=0)
+    caps.append(buf.capacity)
+    for b in (buf, flat):
+        add_rows(b, 2, episode=torch.tensor([1, 0]), start=10.0, intervention=torch.tensor([True, False]))
+    caps.append(buf.capacity)
+    for b in (buf, flat):
+        add_rows(b, 2, task=3, episode=2, start=20.0, ended=torch.tensor([False, True]))
+    caps.append(buf.capacity)
+    assert caps == [1, 1, 4, 8] and len(buf) == 5
+    dtypes = {"done": torch.bool, "task": torch.int64, "episode": torch.int64, "ended": torch.bool}
+    dtypes["intervention"] = torch.bool
+    for name in ("state", "action", "ref", "reward", "next_state", "next_ref", *dtypes):
+        got = buf.column(name)
+        assert got.dtype == dtypes.get(name, torch.float32) and got.device == torch.device("cpu"), name
+        assert torch.equal(got, flat.column(name)), name
+    assert buf.column("reward").tolist() == [0.0, 10.0, 11.0, 20.0, 21.0]
+    assert buf.column("intervention").tolist() == [False, True, False, False, False]
+    # episodes: 0 = rows 0, 2; 1 = row 1; 2 = rows 3, 4. Two-step sums with γ^H = 0.25:
+    want = {0: 0.0 + 0.25 * 11.0, 1: 10.0, 2: 11.0, 3: 20.0 + 0.25 * 21.0, 4: 21.0}
+    batch = buf.sample(64, torch.Generator().manual_seed(0), n_step=2, gamma=0.5)
+    assert set(batch.index.tolist()) == set(want)
+    assert batch.reward.tolist() == [want[i] for i in batch.index.tolist()]
