@@ -410,3 +410,26 @@ def test_an_other_s3_error_shows_its_code_then_its_first_line_cut_to_200_charact
     first = "Generic S3 error: status 503: <Error><Code>SlowDown</Code></Error> " + "x" * 200
     explained = str(explain_s3_error(Exception(f"{first}\nDebug source: retry"), WHERE))
     assert explained == f"{WHERE}: SlowDown: {first[:200]}"
+
+
+def test_a_missing_object_in_a_bucket_named_nosuchbucket_is_absent_not_an_error(moto):
+    """S3Backend.head 8 (the bucket's own name, lower case, taken for S3's NoSuchBucket code)."""
+    bucket = f"nosuchbucket-{uuid.uuid4().hex[:12]}"
+    s3_client(moto).create_bucket(Bucket=bucket)
+    s3_client(moto).put_object(Bucket=bucket, Key="team/objects/here", Body=b"12345")
+    b = backend(f"s3://{bucket}/team")
+    assert b.head("objects/missing") is None
+    assert b.head("objects/here") == 5
+
+
+def test_a_prefix_named_nosuchbucket_does_not_turn_a_missing_object_into_an_error(moto):
+    """A missing bucket is S3's error code, not the text NoSuchBucket anywhere in the message: a remote whose
+    prefix is named NoSuchBucket used to fail `head` (and so every push) on each object not yet there.
+    Kills S3Backend.head 7 by fixing what it exposed."""
+    bucket = f"b-{uuid.uuid4().hex[:12]}"
+    s3_client(moto).create_bucket(Bucket=bucket)
+    s3_client(moto).put_object(Bucket=bucket, Key="NoSuchBucket/objects/here", Body=b"123")
+    b = backend(f"s3://{bucket}/NoSuchBucket")
+    assert b.head("objects/missing") is None
+    assert b.get_bytes("objects/missing") is None
+    assert b.head("objects/here") == 3

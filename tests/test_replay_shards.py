@@ -187,3 +187,31 @@ def test_n_step_returns_follow_the_episode():
     assert batch.discount.tolist() == pytest.approx([gh * gh, 0.0, 0.0])  # terminal chunks don't bootstrap
     batch = buf._n_step(buf.gather(torch.tensor([5])), 3, gamma)  # episode 1 has no later chunk yet
     assert batch.reward.tolist() == [9.0] and batch.discount.tolist() == pytest.approx([gh])
+
+
+def test_n_step_chains_rows_of_one_episode_within_and_across_adds_and_never_across_tasks():
+    """Kills replay `ReplayBuffer._link_episodes` 4 (episodes linked across tasks), 10 and 12 (the rows of
+    one `add` linked to `start - i`)."""
+    gamma, buf = 0.9, ReplayBuffer(1, 2, 1)
+
+    def add(rewards, tasks, episodes):
+        n = len(rewards)
+        z = torch.zeros(n, 2, 1)
+        s = torch.zeros(n, 1)
+        buf.add(s, z, z, torch.tensor(rewards), s, z, torch.zeros(n, dtype=torch.bool), torch.tensor(tasks), episodes)
+
+    add([1.0, 2.0], [0, 0], 0)  # rows 0, 1: task 0, episode 0
+    add([8.0, 4.0], [1, 0], 0)  # row 2: task 1, episode 0; row 3: task 0, episode 0 again
+    gh = gamma**2
+    batch = buf._n_step(buf.gather(torch.tensor([0, 1, 2])), 3, gamma)
+    assert batch.reward.tolist() == pytest.approx([1 + gh * 2 + gh * gh * 4, 2 + gh * 4, 8.0])
+
+
+def test_add_refuses_a_scalar_where_a_row_per_transition_is_needed_in_one_line():
+    """Kills replay `ReplayBuffer.add` 50 (any 0-d column broadcast to N rows), 62 and 63 (the message)."""
+    buf, n = ReplayBuffer(D, H, A), 2
+    s, chunk = torch.zeros(n, D), torch.zeros(n, H, A)
+    with pytest.raises(AccrueError) as exc:
+        buf.add(s, chunk, chunk, torch.tensor(1.0), s, chunk, torch.zeros(n, dtype=torch.bool), 0, 0)
+    assert str(exc.value) == "replay add: reward has shape (), expected (2,)"
+    assert len(buf) == 0

@@ -104,6 +104,13 @@ def _botocore_code(exc: BaseException) -> str:
     return str(error.get("Code") or "") if isinstance(error, dict) else ""
 
 
+def _no_such_bucket(exc: BaseException) -> bool:
+    """S3 said the bucket is missing: its error code, never the text elsewhere in the message (a prefix or
+    bucket named "NoSuchBucket" is in the URL there). A HEAD answer has no body, hence no code: a missing bucket
+    then reads as a missing object."""
+    return (_S3_CODE.search(str(exc)) or [None, ""])[1] == "NoSuchBucket"
+
+
 def explain_s3_error(exc: BaseException, where: str, endpoint: str | None = None) -> StoreError:
     text = str(exc)
     # obstore puts S3's XML error body in its text; botocore parses it into `response["Error"]["Code"]`
@@ -171,7 +178,7 @@ class S3Backend(Backend):
         except RefMoved:
             raise
         except FileNotFoundError as exc:
-            if "NoSuchBucket" in str(exc):
+            if _no_such_bucket(exc):
                 raise explain_s3_error(exc, self.describe(), endpoint_of(self.spec)) from None
             raise
         except (BaseError, OSError) as exc:
@@ -189,7 +196,7 @@ class S3Backend(Backend):
                 result = obstore.get(self.store, key)
                 data = bytes(result.bytes())
             except FileNotFoundError as exc:
-                if "NoSuchBucket" in str(exc):
+                if _no_such_bucket(exc):
                     raise
                 return None
         return data, result.meta["e_tag"] or ""
@@ -211,7 +218,7 @@ class S3Backend(Backend):
             except (AlreadyExistsError, PreconditionError):
                 raise RefMoved(key) from None
             except FileNotFoundError as exc:  # If-Match on a key deleted meanwhile
-                if "NoSuchBucket" in str(exc):
+                if _no_such_bucket(exc):
                     raise
                 raise RefMoved(key) from None
         return result["e_tag"] or ""
@@ -241,7 +248,7 @@ class S3Backend(Backend):
             try:
                 obstore.delete(self.store, key)
             except FileNotFoundError as exc:
-                if "NoSuchBucket" in str(exc):
+                if _no_such_bucket(exc):
                     raise
 
     def list_aged(self, prefix: str) -> dict[str, tuple[int, float]]:
@@ -309,7 +316,7 @@ class S3Backend(Backend):
             try:
                 return obstore.head(self.store, key)["size"]
             except FileNotFoundError as exc:
-                if "NoSuchBucket" in str(exc):
+                if _no_such_bucket(exc):
                     raise
                 return None
 
@@ -352,7 +359,7 @@ class S3Backend(Backend):
             try:
                 result = obstore.get(self.store, key)
             except FileNotFoundError as exc:
-                if "NoSuchBucket" in str(exc):
+                if _no_such_bucket(exc):
                     raise
                 raise MissingOnRemote(f"{self.describe()}: lacks {key}") from None
             for chunk in result.stream(min_chunk_size=CHUNK_SIZE):
