@@ -651,3 +651,28 @@ def test_a_learner_built_under_another_default_device_keeps_its_own_tensors_on_i
     torch.testing.assert_close(learner.support, torch.linspace(-3.0, 5.0, learner.cfg.num_atoms))
     s, ref = inputs(2)
     assert learner.act(s, ref, explore=True).device.type == "cpu"
+
+
+@pytest.mark.parametrize("algo", ["fasttd3", "fastsac"])
+def test_building_a_learner_leaves_the_callers_torch_generators_as_they_were(monkeypatch, algo):
+    """A learner's networks come from cfg.seed alone: building one (and a reset-critic stage's fresh critic)
+    must neither advance the caller's CPU stream nor reseed a GPU's. Before the fix the target critic was
+    built outside the seeded block (the caller's stream moved on), and torch.manual_seed reseeded every
+    GPU, which fork_rng(devices=[]) does not restore."""
+    from accrue.learner import begin_stage
+
+    torch.manual_seed(123)
+    expected = torch.rand(4)
+    torch.manual_seed(123)
+    gpu_reseeds = []
+    monkeypatch.setattr(torch.cuda, "manual_seed_all", gpu_reseeds.append)
+    monkeypatch.setattr(torch.cuda, "manual_seed", gpu_reseeds.append)
+    first = make_learner(config("accrue", algo=algo), D, H, A)
+    second = begin_stage(first, config("accrue", algo=algo).replace(ablation="reset-critic"), D, H, A)
+    assert torch.equal(torch.rand(4), expected)
+    assert gpu_reseeds == []
+    again = make_learner(config("accrue", algo=algo), D, H, A)  # and the seed alone fixes the weights
+    for built, rebuilt in zip(first.actor.parameters(), again.actor.parameters(), strict=True):
+        assert torch.equal(built, rebuilt)
+    for target, critic in zip(second.critic_target.parameters(), second.critic.parameters(), strict=True):
+        assert torch.equal(target, critic)

@@ -26,6 +26,7 @@ from accrue.learner.config import LearnerConfig
 from accrue.learner.distributional import expected_value, make_support
 from accrue.learner.networks import Actor, Critic
 from accrue.learner.replay import Batch, ReplayBuffer
+from accrue.torch_rng import seeded_torch_rng
 
 
 class ChunkLearner:
@@ -38,11 +39,10 @@ class ChunkLearner:
         if self.device.type == "cuda" and not torch.cuda.is_available():
             raise AccrueError("learner.device: CUDA requested but no GPU is available")
         # networks are initialised from cfg.seed without touching the global torch RNG
-        with torch.random.fork_rng(devices=[]):
-            torch.manual_seed(cfg.seed)
+        with seeded_torch_rng(cfg.seed):  # built on the CPU, then moved: only the CPU's generator draws
             self.actor = self._make_actor().to(self.device)
             self.critic = self._make_critic().to(self.device)
-        self.critic_target = self._make_critic().to(self.device)
+            self.critic_target = self._make_critic().to(self.device)
         self.critic_target.load_state_dict(self.critic.state_dict())
         self.critic_target.requires_grad_(False)
         self.support = make_support(cfg.v_min, cfg.v_max, cfg.num_atoms, self.device)

@@ -29,6 +29,7 @@ from accrue.learner.networks import Actor
 from accrue.learner.replay import Batch
 from accrue.learner.sac import FastSACLearner
 from accrue.learner.td3 import FastTD3Learner
+from accrue.torch_rng import seeded_torch_rng
 
 
 def make_learner(cfg: LearnerConfig, state_dim: int, horizon: int, action_dim: int = 6) -> ChunkLearner:
@@ -67,8 +68,7 @@ def begin_stage(
         learner.critic.load_state_dict(prev.critic.state_dict())
         learner.critic_target.load_state_dict(prev.critic_target.state_dict())
     else:  # reset-critic: fresh critic from a stage-dependent seed
-        with torch.random.fork_rng(devices=[]):
-            torch.manual_seed(cfg.seed + stage)
+        with seeded_torch_rng(cfg.seed + stage):
             learner.critic = learner._make_critic().to(learner.device)
         learner.critic_target.load_state_dict(learner.critic.state_dict())
     learner.reset_optimizers()  # optimisers must point at the (possibly new) parameters

@@ -131,6 +131,8 @@ class BasePolicy:
         """(B, H, d) float32 actions in [-1, 1]; a pure function of (checkpoint, obs, instruction, seed)."""
         import torch
 
+        from accrue.torch_rng import seeded_torch_rng
+
         horizon = self.max_horizon if horizon is None else int(horizon)
         if not 1 <= horizon <= self.max_horizon:
             raise AccrueError(
@@ -144,8 +146,8 @@ class BasePolicy:
             else list(instruction)
         )
         batch = self.preprocessor(self._batch(obs, instructions))
-        with torch.no_grad(), torch.random.fork_rng(devices=[]):
-            torch.manual_seed(self.seed)  # diffusion noise etc. is drawn from a per-call seeded stream
+        # diffusion noise etc. is drawn from a per-call seeded stream on the policy's device
+        with torch.no_grad(), seeded_torch_rng(self.seed, self.device):
             chunk = self._normalised_chunk(batch, horizon)
         actions = self.postprocessor(chunk)
         out = actions.detach().to("cpu", torch.float32).numpy()
