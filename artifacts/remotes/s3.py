@@ -215,7 +215,9 @@ class S3Backend(Backend):
         with self._errors():
             try:
                 result = obstore.put(self.store, key, data, mode=mode)
-            except (AlreadyExistsError, PreconditionError):
+            except (AlreadyExistsError, PreconditionError) as exc:
+                if _no_such_bucket(exc):  # obstore reports If-Match's 404 as a failed precondition
+                    raise
                 raise RefMoved(key) from None
             except FileNotFoundError as exc:  # If-Match on a key deleted meanwhile
                 if _no_such_bucket(exc):
@@ -315,9 +317,7 @@ class S3Backend(Backend):
         with self._errors():
             try:
                 return obstore.head(self.store, key)["size"]
-            except FileNotFoundError as exc:
-                if _no_such_bucket(exc):
-                    raise
+            except FileNotFoundError:  # a HEAD answer has no body: a missing bucket reads as a missing object
                 return None
 
     def upload_object(self, oid: str, path: Path, size: int, replace: bool = False) -> None:
