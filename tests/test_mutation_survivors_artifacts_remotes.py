@@ -608,3 +608,23 @@ def test_the_promised_list_is_a_data_file_others_may_read_but_nobody_runs(bare_s
     finally:
         os.umask(old)
     assert promised_path(bare_store, "nas").stat().st_mode & 0o777 == 0o644
+
+
+def test_a_directory_remote_lacking_an_object_names_itself_and_the_key(tmp_path):
+    """A pull that meets an object the remote lost stops on this line (MissingOnRemote is a StoreError);
+    the object that is there downloads whole with its id and size. Kills DirBackend.download_to 18 (the
+    message None)."""
+    from artifacts.remotes.backends import MissingOnRemote, object_key
+
+    b = dir_backend(tmp_path / "remote")
+    data = b"an object's bytes"
+    oid = hash_bytes(data)
+    (tmp_path / "remote" / object_key(oid)).parent.mkdir(parents=True)
+    (tmp_path / "remote" / object_key(oid)).write_bytes(data)
+    missing = object_key(hash_bytes(b"never pushed"))
+    with (tmp_path / "download").open("wb") as out:
+        with pytest.raises(MissingOnRemote) as raised:
+            b.download_to(missing, out.fileno())
+        assert str(raised.value) == f"{b.describe()}: lacks {missing}"
+        assert b.download_to(object_key(oid), out.fileno()) == (oid, len(data))
+    assert (tmp_path / "download").read_bytes() == data

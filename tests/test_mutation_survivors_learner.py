@@ -676,3 +676,27 @@ def test_building_a_learner_leaves_the_callers_torch_generators_as_they_were(mon
         assert torch.equal(built, rebuilt)
     for target, critic in zip(second.critic_target.parameters(), second.critic.parameters(), strict=True):
         assert torch.equal(target, critic)
+
+
+def test_a_bad_learner_setting_is_one_line_naming_it_what_is_allowed_and_at_most_200_characters_of_it():
+    """What a user sees for a wrong workflow value. Kills LearnerConfig.validate 43, 47 (the allowed values),
+    56, 61 (ablation with another method), 9-14 (the value's repr cut to 199 characters and an ellipsis once it
+    is over 200: one of exactly 200 is kept whole, one of 201 is cut)."""
+    import reprlib
+
+    from accrue.learner import LearnerConfig
+
+    def error(**settings) -> str:
+        with pytest.raises(AccrueError) as raised:
+            LearnerConfig(**settings)
+        return str(raised.value)
+
+    assert error(algo="td3") == "learner.algo: must be one of fasttd3, fastsac (got 'td3')"
+    assert error(method="sequential", ablation="reset-critic") == (
+        "learner.ablation: ablations apply to method 'accrue' only (got 'reset-critic')"
+    )
+    hidden = "learner.actor_hidden: must be a non-empty list of positive integers (got {})"
+    exactly_200, over_200 = [["y" * 4] * 6] * 4, [["y" * 6] * 7] * 3
+    assert len(reprlib.repr(exactly_200)) == 200 and len(reprlib.repr(over_200)) == 201
+    assert error(actor_hidden=exactly_200) == hidden.format(reprlib.repr(exactly_200))
+    assert error(actor_hidden=over_200) == hidden.format(reprlib.repr(over_200)[:199] + "…")
