@@ -3,12 +3,13 @@ store, its audit log and quarantine; docs/MUTATION.md, "The fourth sweep"). Each
 mutmut ids it kills. What they pin: the log-repaired event a repair appends (its fields, its bounded
 problem list), that a repair which cannot write leaves the log as it was with a one-line reason, the
 quarantined event a damaged object leaves behind, and how a checkpoint copy handles a damaged object
-or a file still being written, and how a message quotes what the user gave. Everything runs in a
-temporary directory.
+or a file still being written, how a message quotes what the user gave, and what a full verify reports,
+counts, moves aside and logs (also on a store it cannot write). Everything runs in a temporary directory.
 """
 
 from __future__ import annotations
 
+import errno
 import os
 import socket
 import subprocess
@@ -34,6 +35,7 @@ from artifacts.hashing import hash_bytes
 from artifacts.ingest import add_path
 from artifacts.manifests import content_objects, read_artifact, verify_artifact
 from artifacts.store import Store
+from artifacts.verify import verify_store
 from artifacts.writers import _holder_pid, _lock_path, exclusive
 
 
@@ -386,3 +388,97 @@ def test_status_says_a_ref_deleted_on_the_remote_since_the_last_push_is_gone_the
     finally:
         a.close()
         b.close()
+
+
+# ----------------------------------------------------------------------------- verify._rehash
+def _loose(store: Store, *blobs: bytes) -> list[str]:
+    """Store each blob as a loose object; their ids in the order a full verify walks them."""
+    return sorted(store.put_bytes(b) for b in blobs)
+
+
+def _damage(store: Store, oid: str) -> None:
+    path = store.object_path(oid)
+    os.chmod(path, 0o644)
+    path.write_bytes(b"not what was stored")
+
+
+def test_a_full_verify_names_an_unreadable_object_then_hashes_the_rest(store):
+    """verify._rehash 7, 8, 9 (the unreadable object's line), 10 (the objects after it are still
+    hashed), 14, 15 (bytes_hashed sums every object's size)."""
+    ids = _loose(store, b"a" * 10, b"b" * 200, b"c" * 3000)
+    unreadable = "0" * 64  # walked first; a directory where its file should be
+    assert ids[0] > unreadable
+    store.object_path(unreadable).mkdir(parents=True)
+    seen: list[int] = []
+    report = verify_store(store, full=True, progress=seen.append)
+    assert report.problems == [
+        f"object {unreadable[:12]} cannot be read: {store.object_path(unreadable)}: Is a directory"
+    ]
+    assert (report.objects_checked, report.bytes_hashed) == (3, 3210)
+    assert sorted(seen) == [10, 200, 3000] and report.quarantined == [] and report.notes == []
+
+
+def test_a_full_verify_quarantines_every_corrupt_object_and_logs_each(store):
+    """verify._rehash 26, 27 (the 'moved to' line), 43 (the objects after a quarantined one are still
+    checked), 30, 31, 32, 35, 36, 37, 38, 39, 40 (the quarantined event: its name, object and reason)."""
+    first, second, good = _loose(store, b"one" * 50, b"two" * 50, b"three" * 50)
+    _damage(store, first)
+    _damage(store, second)
+    report = verify_store(store, full=True)
+    assert report.quarantined == [first, second]
+    moved = {p.name.split(".")[0]: p.name for p in store.quarantine_dir.iterdir()}
+    assert report.problems == [
+        f"object {first[:12]} is corrupt: moved to quarantine/{moved[first]}",
+        f"object {second[:12]} is corrupt: moved to quarantine/{moved[second]}",
+    ]
+    assert not store.has_object(first) and not store.has_object(second) and store.has_object(good)
+    events = [{k: e.get(k) for k in ("event", "object", "reason")} for e in iter_events(store)]
+    assert events == [
+        {"event": "quarantined", "object": first, "reason": "hash mismatch"},
+        {"event": "quarantined", "object": second, "reason": "hash mismatch"},
+    ]
+    assert report.notes == [] and report.objects_checked == 3
+
+
+def test_a_quarantine_the_log_cannot_record_is_still_done_and_noted(store, full_disk):
+    """verify._rehash 41, 42: the object is moved aside; a note says its event was not logged, and why."""
+    [oid] = _loose(store, b"payload" * 30)
+    _damage(store, oid)
+    full_disk["on"] = True
+    report = verify_store(store, full=True)
+    full_disk["on"] = False
+    assert report.quarantined == [oid] and not store.has_object(oid)
+    assert report.notes == [
+        f"quarantine of {oid[:12]} not logged: cannot write the audit log: "
+        f"{store.log_path}: No space left on device (short write)"
+    ]
+    assert list(iter_events(store)) == []
+
+
+def test_on_a_store_it_cannot_write_a_full_verify_says_so_once_and_reports_the_corrupt(store, monkeypatch):
+    """verify._rehash 22 (one note, one attempt to move), 23, 24 (the note names the error), 44, 45
+    (each corrupt object's line)."""
+    first, second = _loose(store, b"left" * 40, b"right" * 40)
+    _damage(store, first)
+    _damage(store, second)
+    real_rename = os.rename
+    tries: list[str] = []
+
+    def rename(src, dst, *a, **kw):
+        if Path(src).parent.parent == store.objects_dir:
+            tries.append(Path(src).name)
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(src))
+        return real_rename(src, dst, *a, **kw)
+
+    monkeypatch.setattr(os, "rename", rename)
+    report = verify_store(store, full=True)
+    assert report.notes == [
+        f"the store cannot be written ({store.object_path(first)}: Read-only file system): "
+        "corrupt objects are reported, not quarantined"
+    ]
+    assert report.problems == [
+        f"object {first[:12]} is corrupt (its bytes no longer match its id)",
+        f"object {second[:12]} is corrupt (its bytes no longer match its id)",
+    ]
+    assert tries == [first[2:]] and report.quarantined == []
+    assert store.has_object(first) and store.has_object(second) and list(iter_events(store)) == []

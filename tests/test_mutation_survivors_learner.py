@@ -680,7 +680,7 @@ def test_building_a_learner_leaves_the_callers_torch_generators_as_they_were(mon
 
 def test_a_bad_learner_setting_is_one_line_naming_it_what_is_allowed_and_at_most_200_characters_of_it():
     """What a user sees for a wrong workflow value. Kills LearnerConfig.validate 43, 47 (the allowed values),
-    56, 61 (ablation with another method), 9-14 (the value's repr cut to 199 characters and an ellipsis once it
+    56, 61 (ablation with another method), 62 (its message in capitals), 9-14 (the value's repr cut to 199 characters and an ellipsis once it
     is over 200: one of exactly 200 is kept whole, one of 201 is cut)."""
     import reprlib
 
@@ -700,3 +700,88 @@ def test_a_bad_learner_setting_is_one_line_naming_it_what_is_allowed_and_at_most
     assert len(reprlib.repr(exactly_200)) == 200 and len(reprlib.repr(over_200)) == 201
     assert error(actor_hidden=exactly_200) == hidden.format(reprlib.repr(exactly_200))
     assert error(actor_hidden=over_200) == hidden.format(reprlib.repr(over_200)[:199] + "…")
+
+
+# Each rule of LearnerConfig.validate: a value just outside it, the setting the line names, and why.
+NON_NEGATIVE = ("weight_decay", "max_grad_norm", "std_min", "policy_noise", "noise_clip", "beta", "lam")
+NON_NEGATIVE += ("ewc_lambda", "obs_norm_min_std", "obs_norm_clip")
+REFUSED_SETTINGS = [
+    ({"actor_hidden": []}, "actor_hidden", "must be a non-empty list of positive integers"),
+    ({"critic_hidden": [16, 0]}, "critic_hidden", "must be a non-empty list of positive integers"),
+    ({"actor_hidden": [16, True]}, "actor_hidden", "must be a non-empty list of positive integers"),
+    ({"actor_hidden": [16.0]}, "actor_hidden", "must be a non-empty list of positive integers"),
+    ({"critic_hidden": "16"}, "critic_hidden", "must be a non-empty list of positive integers"),
+    ({"num_atoms": 0}, "num_atoms", "must be a positive integer"),
+    ({"num_atoms": 1}, "num_atoms", "needs at least 2 atoms"),
+    ({"seed": -1}, "seed", "must be a non-negative integer"),
+    ({"seed": True}, "seed", "must be a non-negative integer"),
+    ({"retain_interval": "3"}, "retain_interval", "must be a non-negative integer"),
+    ({"learning_starts": 1.5}, "learning_starts", "must be a non-negative integer"),
+    ({"obs_norm_fixed_tail": -2}, "obs_norm_fixed_tail", "must be a non-negative integer"),
+    ({"gamma": "fast"}, "gamma", "must be a number"),
+    ({"gamma": float("nan")}, "gamma", "must be a finite number"),
+    ({"tau": True}, "tau", "must be a finite number"),
+    ({"lam": "inf"}, "lam", "must be a finite number"),
+    ({"v_min": 2.0, "v_max": 2.0}, "v_max", "must be greater than v_min"),
+    ({"gamma": 0.0}, "gamma", "must be in (0, 1]"),
+    ({"gamma": 1.01}, "gamma", "must be in (0, 1]"),
+    ({"tau": 0.0}, "tau", "must be in (0, 1]"),
+    ({"tau": 1.5}, "tau", "must be in (0, 1]"),
+    ({"ref_dropout": -0.1}, "ref_dropout", "must be in [0, 1]"),
+    ({"ref_dropout": 1.1}, "ref_dropout", "must be in [0, 1]"),
+    ({"retain_alpha": -0.1}, "retain_alpha", "must be in [0, 1]"),
+    ({"retain_alpha": 1.1}, "retain_alpha", "must be in [0, 1]"),
+    *[({name: 0.0}, name, "must be positive") for name in ("actor_lr", "critic_lr", "alpha_lr", "alpha_init")],
+    ({"actor_init_scale": -1.0}, "actor_init_scale", "must be positive"),
+    *[({name: -0.5}, name, "must be non-negative") for name in NON_NEGATIVE],
+    ({"std_min": 0.3, "std_max": 0.2}, "std_max", "must be >= std_min"),
+    ({"log_std_min": -1.0, "log_std_max": -1.0}, "log_std_max", "must be greater than log_std_min"),
+    *[({name: 1}, name, "must be true or false") for name in ("layer_norm", "actor_residual", "use_cdq")],
+    *[({name: "yes"}, name, "must be true or false") for name in ("obs_normalization", "amp", "compile")],
+    ({"compile_mode": "fast"}, "compile_mode", "must be one of default, reduce-overhead, max-autotune"),
+    ({"device": "mps"}, "device", "must be 'cpu' or 'cuda[:n]'"),
+    ({"device": 0}, "device", "must be 'cpu' or 'cuda[:n]'"),
+]
+
+
+@pytest.mark.parametrize(("settings", "name", "why"), REFUSED_SETTINGS, ids=lambda v: str(v)[:40])
+def test_every_refused_learner_setting_is_one_line_naming_it_and_the_rule(settings, name, why):
+    """A workflow's learner block with one value just past a rule: the line names that setting, the rule
+    and the value as given. Kills LearnerConfig.validate's mutants of its bounds, its messages and the
+    names they report (round 8: 90-100, 135-165, 225-282 and the like)."""
+    import reprlib
+
+    from accrue.learner import LearnerConfig
+
+    with pytest.raises(AccrueError) as raised:
+        LearnerConfig(**settings)
+    assert str(raised.value) == f"learner.{name}: {why} (got {reprlib.repr(settings[name])})"
+
+
+def test_learner_settings_on_each_rules_edge_are_accepted_and_normalised():
+    """The edges each rule lets through, and what validate stores: hidden sizes as a list (a tuple from
+    Python), numbers given as YAML strings as floats. Kills LearnerConfig.validate 72-83 (the tuple made a
+    list), 94 (a layer of 1 unit refused), 132, 133 (2 atoms refused), 259-274 (γ, τ of 1 refused) and the like."""
+    from accrue.learner import LearnerConfig
+
+    cfg = LearnerConfig(
+        actor_hidden=(16, 8),
+        critic_hidden=(1,),
+        num_atoms=2,
+        seed=0,
+        retain_interval=0,
+        gamma=1.0,
+        tau="1e0",
+        ref_dropout=1.0,
+        retain_alpha=0.0,
+        std_min=0.2,
+        std_max=0.2,
+        beta=0,
+        v_min=-1e-9,
+        v_max=0.0,
+    )
+    assert cfg.actor_hidden == [16, 8] and cfg.critic_hidden == [1]
+    assert cfg.tau == 1.0 and isinstance(cfg.tau, float) and isinstance(cfg.beta, float)
+    assert (cfg.num_atoms, cfg.gamma, cfg.ref_dropout, cfg.retain_alpha) == (2, 1.0, 1.0, 0.0)
+    edges = LearnerConfig(gamma=1e-9, tau=1e-9, ref_dropout=0.0, retain_alpha=1.0)
+    assert (edges.gamma, edges.tau, edges.ref_dropout, edges.retain_alpha) == (1e-9, 1e-9, 0.0, 1.0)
