@@ -91,6 +91,8 @@ def _rehash(store: Store, report: VerifyReport, progress: Callable[[int], None] 
     for oid in list(store.iter_object_ids()):
         try:
             actual, size = hash_file(store.object_path(oid))
+        except FileNotFoundError:
+            continue  # removed since it was listed (a gc beside this verify): nothing left to check
         except OSError as exc:
             report.problems.append(f"object {oid[:12]} cannot be read: {os_error_text(exc)}")
             continue
@@ -103,6 +105,8 @@ def _rehash(store: Store, report: VerifyReport, progress: Callable[[int], None] 
         if writable:
             try:
                 dest = store.quarantine(oid)
+            except FileNotFoundError:
+                continue  # removed meanwhile: no corrupt copy is left to move aside or report
             except OSError as exc:
                 writable = False
                 report.notes.append(

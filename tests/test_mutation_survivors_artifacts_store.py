@@ -20,6 +20,7 @@ from pathlib import Path
 import pytest
 
 import artifacts.store
+import artifacts.verify
 from artifacts.auditlog import (
     LOG_FORMAT,
     LogCheck,
@@ -482,3 +483,32 @@ def test_on_a_store_it_cannot_write_a_full_verify_says_so_once_and_reports_the_c
     ]
     assert tries == [first[2:]] and report.quarantined == []
     assert store.has_object(first) and store.has_object(second) and list(iter_events(store)) == []
+
+
+def test_an_object_removed_while_a_full_verify_runs_is_no_problem_and_stops_no_quarantine(store, monkeypatch):
+    """A gc beside `accrue verify --full` removes objects it has listed: one gone before it is hashed and one
+    gone before its quarantine are skipped, not reported as unreadable, and do not turn quarantining off
+    for the corrupt objects after them (it used to note "the store cannot be written (… No such file …)")."""
+    gone_first, corrupt_then_gone, corrupt = _loose(store, b"one", b"two", b"three")  # in the order walked
+    for oid in (corrupt_then_gone, corrupt):
+        _damage(store, oid)
+    real_hash_file = artifacts.verify.hash_file
+    real_quarantine = Store.quarantine
+
+    def hash_file(path):
+        if path == store.object_path(gone_first):
+            path.unlink()
+        return real_hash_file(path)
+
+    def quarantine(self, oid):
+        if oid == corrupt_then_gone:
+            self.object_path(oid).unlink()
+        return real_quarantine(self, oid)
+
+    monkeypatch.setattr(artifacts.verify, "hash_file", hash_file)
+    monkeypatch.setattr(Store, "quarantine", quarantine)
+    report = verify_store(store, full=True)
+    assert report.quarantined == [corrupt] and report.notes == []
+    (moved,) = store.quarantine_dir.iterdir()
+    assert report.problems == [f"object {corrupt[:12]} is corrupt: moved to quarantine/{moved.name}"]
+    assert report.objects_checked == 2
