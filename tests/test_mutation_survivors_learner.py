@@ -761,7 +761,9 @@ def test_every_refused_learner_setting_is_one_line_naming_it_and_the_rule(settin
 def test_learner_settings_on_each_rules_edge_are_accepted_and_normalised():
     """The edges each rule lets through, and what validate stores: hidden sizes as a list (a tuple from
     Python), numbers given as YAML strings as floats. Kills LearnerConfig.validate 72-83 (the tuple made a
-    list), 94 (a layer of 1 unit refused), 132, 133 (2 atoms refused), 259-274 (γ, τ of 1 refused) and the like."""
+    list), 94 (a layer of 1 unit refused), 132, 133 (2 atoms refused), 259-274 (γ, τ of 1 refused), 298,
+    299, 363 (α_RETAIN of 0 or 1, std_max = std_min refused), 403, 404 (a compile mode refused) and the
+    like."""
     from accrue.learner import LearnerConfig
 
     cfg = LearnerConfig(
@@ -783,5 +785,6 @@ def test_learner_settings_on_each_rules_edge_are_accepted_and_normalised():
     assert cfg.actor_hidden == [16, 8] and cfg.critic_hidden == [1]
     assert cfg.tau == 1.0 and isinstance(cfg.tau, float) and isinstance(cfg.beta, float)
     assert (cfg.num_atoms, cfg.gamma, cfg.ref_dropout, cfg.retain_alpha) == (2, 1.0, 1.0, 0.0)
-    edges = LearnerConfig(gamma=1e-9, tau=1e-9, ref_dropout=0.0, retain_alpha=1.0)
+    edges = LearnerConfig(gamma=1e-9, tau=1e-9, ref_dropout=0.0, retain_alpha=1.0, compile_mode="reduce-overhead")
     assert (edges.gamma, edges.tau, edges.ref_dropout, edges.retain_alpha) == (1e-9, 1e-9, 0.0, 1.0)
+    assert LearnerConfig(compile_mode="max-autotune").compile_mode == "max-autotune"
