@@ -258,6 +258,20 @@ def triaged(triage: Path) -> dict[str, str]:
     return verdicts
 
 
+def stale_triage(records: Path, triage: Path) -> list[str]:
+    """Triage lines the kept verdicts no longer bear out: a mutant called equivalent that the sweep now kills,
+    or a name no kept verdict has. Both happen when a function's code changed after its triage: mutmut numbers
+    a function's mutants afresh, so an old line then names another mutation (or none); look at it again."""
+    codes = {}
+    for rel in record_files(records):
+        codes.update(json.loads((records / rel).read_text()).get("exit_code_by_key", {}))
+    return sorted(
+        name
+        for name, verdict in triaged(triage).items()
+        if name not in codes or (verdict == "equivalent" and codes[name] == 1)
+    )
+
+
 def print_counts(counts: dict[str, Counter]) -> None:
     """A Markdown table: one row per mutated file, a total row per top-level package."""
     columns = ["killed", "survived", "timeout", "no tests", "not checked"]
@@ -314,7 +328,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--report", action="store_true", help="only print what is known so far")
     ap.add_argument("--counts", action="store_true", help="print the kept verdicts' counts per file (Markdown)")
     ap.add_argument("--triage", type=Path, default=TRIAGE, help="the triage files (with --counts)")
-    ap.add_argument("--untriaged", type=Path, help="with --counts: write the survivors not yet triaged here")
+    ap.add_argument(
+        "--untriaged",
+        type=Path,
+        help="with --counts: write the survivors not yet triaged, and stale triage lines, here",
+    )
     ap.add_argument("--records", type=Path, default=RECORDS, help="where the verdicts are kept between machines")
     args = ap.parse_args(argv)
     if args.counts:
@@ -325,8 +343,12 @@ def main(argv: list[str] | None = None) -> int:
         left = [n for n in survivors(args.records) if n not in triaged(args.triage)]
         print(f"\nsurvivors: {len(survivors(args.records)):,}, not yet triaged in {args.triage}: {len(left):,}\n")
         print_triage_counts(args.triage)
+        stale = stale_triage(args.records, args.triage)
+        if stale:
+            print(f"\ntriage lines to look at again (equivalent but now killed, or no such mutant): {len(stale):,}")
+            print("".join(f"- {n}\n" for n in stale), end="")
         if args.untriaged:
-            args.untriaged.write_text("".join(f"{n}\n" for n in left))
+            args.untriaged.write_text("".join(f"{n}\n" for n in left + stale))
         return 0
     if not MUTMUT.exists():
         print("error: mutmut is not installed: run `bash scripts/setup.sh` (it is a dev dependency)", file=sys.stderr)

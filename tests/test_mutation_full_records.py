@@ -139,3 +139,21 @@ def test_verify_runs_each_mutant_in_its_own_pytest_and_copies_new_tests_in(tmp_p
     assert out.read_text() == "pkg.calc.x_add__mutmut_1\tkilled\n"
     subprocess.run([*verify, str(names), "tests/test_weak.py", *common], check=True, capture_output=True, timeout=120)
     assert out.read_text() == "pkg.calc.x_add__mutmut_1\tsurvived\n"
+
+
+def test_triage_lines_the_kept_verdicts_no_longer_bear_out_are_listed_to_look_at_again(tmp_path):
+    """After a function's code changes, mutmut numbers its mutants afresh: a line calling a mutant equivalent
+    that the sweep now kills, or naming a mutant that no longer exists, describes another mutation."""
+    script = load_script()
+    records, triage = tmp_path / "records", tmp_path / "triage"
+    (records / "pkg").mkdir(parents=True)
+    codes = {"pkg.calc.x_add__mutmut_1": 1, "pkg.calc.x_add__mutmut_2": 0, "pkg.calc.x_add__mutmut_3": 1}
+    (records / "pkg" / "calc.py.meta").write_text(json.dumps({"exit_code_by_key": codes}))
+    triage.mkdir()
+    (triage / "a.tsv").write_text(
+        "pkg.calc.x_add__mutmut_1\tequivalent\tsame sum\n"  # now killed: stale
+        "pkg.calc.x_add__mutmut_2\tequivalent\tsame sum\n"  # still survives: stands
+        "pkg.calc.x_add__mutmut_3\tkilled\ttests/t.py::test_add\n"  # killed and said so: stands
+    )
+    (triage / "b.tsv").write_text("pkg.calc.x_add__mutmut_9\tkilled\ttests/t.py::test_add\n")  # gone
+    assert script.stale_triage(records, triage) == ["pkg.calc.x_add__mutmut_1", "pkg.calc.x_add__mutmut_9"]
