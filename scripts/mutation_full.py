@@ -340,8 +340,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"error: no kept verdicts in {args.records}", file=sys.stderr)
             return 2
         print_counts(verdict_counts(args.records))
-        left = [n for n in survivors(args.records) if n not in triaged(args.triage)]
-        print(f"\nsurvivors: {len(survivors(args.records)):,}, not yet triaged in {args.triage}: {len(left):,}\n")
+        alive, known = survivors(args.records), triaged(args.triage)
+        left = [n for n in alive if n not in known]
+        print(f"\nsurvivors: {len(alive):,}, not yet triaged in {args.triage}: {len(left):,}\n")
         print_triage_counts(args.triage)
         stale = stale_triage(args.records, args.triage)
         if stale:

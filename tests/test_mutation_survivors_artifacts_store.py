@@ -392,6 +392,8 @@ def test_status_says_a_ref_deleted_on_the_remote_since_the_last_push_is_gone_the
 
 
 # ----------------------------------------------------------------------------- verify._rehash
+# The mutant ids below are those of _rehash at ae7ad85; 6118c4f's two FileNotFoundError branches renumbered
+# them (the equivalent `writable = None`, 21 here, is 23 since: benchmarks/results/mutation/triage/round8-batch-U.tsv).
 def _loose(store: Store, *blobs: bytes) -> list[str]:
     """Store each blob as a loose object; their ids in the order a full verify walks them."""
     return sorted(store.put_bytes(b) for b in blobs)

@@ -42,9 +42,7 @@ class ChunkLearner:
         with seeded_torch_rng(cfg.seed):  # built on the CPU, then moved: only the CPU's generator draws
             self.actor = self._make_actor().to(self.device)
             self.critic = self._make_critic().to(self.device)
-            self.critic_target = self._make_critic().to(self.device)
-        self.critic_target.load_state_dict(self.critic.state_dict())
-        self.critic_target.requires_grad_(False)
+        self.critic_target = copy.deepcopy(self.critic).requires_grad_(False)
         self.support = make_support(cfg.v_min, cfg.v_max, cfg.num_atoms, self.device)
         self.gen = torch.Generator(device=self.device)
         self.gen.manual_seed(cfg.seed)

@@ -215,11 +215,9 @@ class S3Backend(Backend):
         with self._errors():
             try:
                 result = obstore.put(self.store, key, data, mode=mode)
-            except (AlreadyExistsError, PreconditionError) as exc:
-                if _no_such_bucket(exc):  # obstore reports If-Match's 404 as a failed precondition
-                    raise
-                raise RefMoved(key) from None
-            except FileNotFoundError as exc:  # If-Match on a key deleted meanwhile
+            # moved, or deleted meanwhile (If-Match's 404), unless the 404 is for the bucket: obstore reports
+            # that as a failed precondition too
+            except (AlreadyExistsError, PreconditionError, FileNotFoundError) as exc:
                 if _no_such_bucket(exc):
                     raise
                 raise RefMoved(key) from None
