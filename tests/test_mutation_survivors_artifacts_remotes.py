@@ -628,3 +628,184 @@ def test_a_directory_remote_lacking_an_object_names_itself_and_the_key(tmp_path)
         assert str(raised.value) == f"{b.describe()}: lacks {missing}"
         assert b.download_to(object_key(oid), out.fileno()) == (oid, len(data))
     assert (tmp_path / "download").read_bytes() == data
+
+
+# ============================================================================= round 9 batch V
+# ----------------------------------------------------------------------------- remotes.check.verify_remote
+def overwrite(path: Path, data: bytes) -> None:
+    """Damage a (read-only) object file in place."""
+    path.chmod(0o644)
+    path.write_bytes(data)
+
+
+def put_on_remote(remote: Path, data: bytes) -> str:
+    """An object the remote holds under its right id, that no push sent."""
+    from artifacts.remotes.backends import object_key
+
+    oid = hash_bytes(data)
+    (remote / object_key(oid)).parent.mkdir(parents=True, exist_ok=True)
+    (remote / object_key(oid)).write_bytes(data)
+    return oid
+
+
+def remote_bytes(remote: Path) -> int:
+    return sum(p.stat().st_size for p in (remote / "objects").rglob("*") if p.is_file())
+
+
+def test_verify_remote_of_an_empty_directory_refuses_and_leaves_it_empty(tmp_path):
+    """remotes.check.verify_remote 21 (create=True: verify would make the directory a remote)."""
+    from artifacts.remotes.check import verify_remote
+    from artifacts.remotes.config import add_remote
+
+    store, _ = Store.init(tmp_path / "store")
+    remote = tmp_path / "remote"
+    remote.mkdir()
+    add_remote(store, "nas", str(remote))
+    with pytest.raises(StoreError) as exc:
+        verify_remote(store, "nas")
+    assert str(exc.value) == f"remote nas ({remote}) holds no accrue store yet (push to it first)"
+    assert list(remote.iterdir()) == []
+    store.close()
+
+
+def test_verify_remote_names_a_lost_or_short_object_and_the_manifest_that_names_it(tmp_path):
+    """remotes.check.verify_remote 58, 68 (13 characters of the id), 69 (the short object's id None in
+    damaged), 97-101 (the naming manifest's type and 12-character id lost)."""
+    from artifacts.refs import read_ref
+    from artifacts.remotes.backends import object_key
+    from artifacts.remotes.check import verify_remote
+
+    store, remote, contents = pushed_store(tmp_path)
+    a, b = contents["a"], contents["b"]
+    ma, mb = read_ref(store, "team/a"), read_ref(store, "team/b")
+    lose_on_remote(remote, [a])
+    overwrite(remote / object_key(b), b"short")
+    report = verify_remote(store, "nas")
+    assert report.problems == [
+        f"remote object {b[:12]} has size 5, expected 200 (named by artifact {mb[:12]})",
+        f"remote nas lacks object {a[:12]} (named by artifact {ma[:12]})",
+    ]
+    assert report.damaged == [b, a]
+    store.close()
+
+
+def test_verify_remote_reports_a_corrupt_local_manifest_once_and_walks_the_other_refs(tmp_path):
+    """remotes.check.verify_remote 75, 78 (the store's copy read unverified), 91 (None in damaged),
+    93 (a StoreError shown as "not a manifest"), 96 (the walk stops at the first bad manifest)."""
+    from artifacts.refs import read_ref
+    from artifacts.remotes.check import verify_remote
+
+    store, remote, contents = pushed_store(tmp_path)
+    whole = verify_remote(store, "nas").reachable
+    me = read_ref(store, "team/e")  # walked right after the log: team/b and team/a are still to come
+    manifest = store.read_json(me)
+    overwrite(store.object_path(me), json.dumps({**manifest, "size": 1}).encode())
+    lose_on_remote(remote, [contents["a"]])
+    report = verify_remote(store, "nas")
+    assert report.problems == [
+        f"object {me[:12]} is corrupt (its bytes no longer match its id); run `accrue verify --full` "
+        "(named by ref team/e)",
+        f"remote nas lacks object {contents['a'][:12]} (named by artifact {read_ref(store, 'team/a')[:12]})",
+    ]
+    assert report.damaged == [me, contents["a"]]
+    assert report.reachable == whole - 1  # all but team/e's content, which only its manifest names
+    store.close()
+
+
+def test_verify_remote_reports_a_ref_to_an_object_that_is_no_manifest(tmp_path):
+    """remotes.check.verify_remote 87 (children told no id: a traceback), 91 (None in damaged), 94 (the
+    JSON error's own text shown), 95 (13 characters of the id)."""
+    from artifacts.remotes.check import verify_remote
+
+    store, remote, contents = pushed_store(tmp_path)
+    mystery = put_on_remote(remote, b'{"type": "mystery"}')
+    (remote / "refs" / "team" / "b").write_text(contents["a"] + "\n")  # data, not JSON
+    (remote / "refs" / "team" / "e").write_text(mystery + "\n")  # JSON of no manifest type
+    report = verify_remote(store, "nas")
+    assert report.problems == [
+        f"object {mystery[:12]} is not a manifest (named by ref team/e)",
+        f"remote object {contents['a'][:12]} is not a manifest (named by ref team/b)",
+    ]
+    assert report.damaged == [mystery, contents["a"]]
+    store.close()
+
+
+def test_verify_remote_full_rehashes_every_reachable_object_on_the_callers_meter(tmp_path):
+    """remotes.check.verify_remote 113 (the meter told no byte total), 131 (advanced by None), 153
+    (bytes_hashed None)."""
+    from artifacts.remotes.check import verify_remote
+
+    store, remote, _ = pushed_store(tmp_path)
+    total = remote_bytes(remote)
+    meter = RecordingMeter()
+    report = verify_remote(store, "nas", full=True, jobs=2, meter=meter)
+    assert report.ok and report.bytes_hashed == total
+    assert meter.starts == [("re-hashing nas", report.reachable, total)]
+    assert sum(meter.advanced) == total
+    store.close()
+
+
+def test_verify_remote_full_adds_corrupt_and_vanished_objects_to_the_walks_problems(tmp_path):
+    """remotes.check.verify_remote 130, 135 (13 characters of the id), 143 (the walk's problems
+    replaced by the re-hash's)."""
+    from artifacts.refs import read_ref
+    from artifacts.remotes.backends import object_key
+    from artifacts.remotes.check import verify_remote
+
+    store, remote, contents = pushed_store(tmp_path)
+    a, b, e = contents["a"], contents["b"], contents["e"]
+    lose_on_remote(remote, [b])
+    overwrite(remote / object_key(a), b"A" * 500)  # the right size: only re-hashing tells
+
+    class VanishingMeter(RecordingMeter):
+        def start(self, what: str, objects: int, nbytes: int) -> None:
+            super().start(what, objects, nbytes)
+            lose_on_remote(remote, [e])  # gone after the listing, before its download
+
+    report = verify_remote(store, "nas", full=True, jobs=1, meter=VanishingMeter())
+    later = {
+        a: f"remote object {a[:12]} is corrupt (its bytes do not hash to its id)",
+        e: f"remote nas lacks object {e[:12]}",
+    }
+    assert report.problems == [
+        f"remote nas lacks object {b[:12]} (named by artifact {read_ref(store, 'team/b')[:12]})",
+        *[later[o] for o in sorted(later)],
+    ]
+    assert sorted(report.damaged[1:]) == sorted([a, e]) and report.damaged[0] == b
+    store.close()
+
+
+NOT_MANIFESTS = {
+    "a list": b"[1]",
+    "an artifact without content": b'{"type": "artifact"}',
+    "a tree entry that is a number": b'{"type": "tree", "entries": [1]}',
+    "a tree entry whose id is a number": b'{"type": "tree", "entries": [{"id": 7, "size": 1}]}',
+    "an artifact whose size is text": b'{"type": "artifact", "layout": "file", "content": "' + b"a" * 64 + b'", '
+    b'"size": "200"}',
+    "a step record whose inputs are a list": b'{"type": "step-record", "inputs": ["x"]}',
+}
+
+
+@pytest.mark.parametrize("data", NOT_MANIFESTS.values(), ids=NOT_MANIFESTS.keys())
+def test_a_remote_ref_to_json_of_no_manifests_shape_is_one_problem_for_verify_and_one_error_for_fetch(tmp_path, data):
+    """A found bug (round 9): a remote ref naming JSON that hashes right but is shaped like no manifest
+    was a traceback from closure.children (AttributeError, KeyError, TypeError) in `verify --remote`
+    and in fetch. A remote's objects are anyone's bytes: now one problem line, and fetch refuses in one
+    line and keeps what the store had."""
+    from artifacts.refs import read_ref
+    from artifacts.remotes.check import verify_remote
+    from artifacts.remotes.pull import fetch
+
+    store, remote, _ = pushed_store(tmp_path)
+    odd = put_on_remote(remote, data)
+    (remote / "refs" / "team" / "e").write_text(odd + "\n")
+    report = verify_remote(store, "nas")
+    assert report.problems == [f"object {odd[:12]} is not a manifest (named by ref team/e)"]
+    assert report.damaged == [odd]
+    before = read_ref(store, "remotes/nas/team/e")
+    with pytest.raises(StoreError) as exc:
+        fetch(store, "nas")
+    assert f"object {odd[:12]} is not a manifest" in str(exc.value)
+    assert "\n" not in str(exc.value)
+    assert read_ref(store, "remotes/nas/team/e") == before
+    store.close()
