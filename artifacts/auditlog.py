@@ -319,8 +319,8 @@ def check_log(store: Store, anchors: list[tuple[str, dict]] = (), has_history: b
         )
     for what, anchor in anchors:
         seq, digest = anchor.get("seq"), anchor.get("hash")
-        if not isinstance(seq, int) or seq < 0:
-            continue
+        if not isinstance(seq, int) or seq < 0 or not isinstance(digest, str):
+            continue  # not an anchor (a damaged record): nothing to hold the log to
         if seq >= len(lines) or hash_bytes(lines[seq]) != digest:
             had = "does not hold it" if seq >= len(lines) else "holds a different line there"
             found.append(

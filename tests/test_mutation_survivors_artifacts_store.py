@@ -10,6 +10,7 @@ counts, moves aside and logs (also on a store it cannot write). Everything runs 
 from __future__ import annotations
 
 import errno
+import json
 import os
 import socket
 import subprocess
@@ -35,6 +36,7 @@ from artifacts.errors import QUOTE_LIMIT, StoreError, quote
 from artifacts.hashing import hash_bytes
 from artifacts.ingest import add_path
 from artifacts.manifests import content_objects, read_artifact, verify_artifact
+from artifacts.records import write_attempt
 from artifacts.store import Store
 from artifacts.verify import verify_store
 from artifacts.writers import _holder_pid, _lock_path, exclusive
@@ -514,3 +516,64 @@ def test_an_object_removed_while_a_full_verify_runs_is_no_problem_and_stops_no_q
     (moved,) = store.quarantine_dir.iterdir()
     assert report.problems == [f"object {corrupt[:12]} is corrupt: moved to quarantine/{moved.name}"]
     assert report.objects_checked == 2
+
+
+# ----------------------------------------------------------------------------- verify.verify_store
+def _missing_log_problem(store: Store) -> str:
+    return f"the audit log {store.log_path} is missing or empty, but the store has refs and records: it was deleted"
+
+
+def _attempt(key: str, number: int, state: str, pid: int) -> dict:
+    return {"cache_key": key, "attempt": number, "step": "train", "state": state, "pid": pid, "inputs": {}}
+
+
+def test_verify_says_a_store_with_refs_but_no_attempts_lost_its_audit_log(store, tmp_path):
+    """verify.verify_store 34, 35 (refs alone are history), 39, 40 (a ref file in a folder under refs/),
+    44, 47 (check_log is told of that history)."""
+    _two_refs(store, tmp_path, "team/demos")
+    store.log_path.unlink()
+    head_path(store).unlink()
+    report = verify_store(store)
+    assert report.problems == [_missing_log_problem(store)]
+    assert report.log_events == 0 and report.notes == []
+
+
+def test_verify_says_a_store_with_attempt_records_but_no_refs_lost_its_audit_log(store):
+    """verify.verify_store 35, 36 (attempt records alone are history): a record written before any event
+    has no anchor, so only the missing log is reported."""
+    write_attempt(store, _attempt("ab" * 32, 1, "committed", 4242))
+    assert not store.log_path.exists() and not any(store.refs_dir.rglob("*"))
+    assert verify_store(store).problems == [_missing_log_problem(store)]
+
+
+def test_verify_notes_each_running_attempt_with_its_key_number_step_and_pid(store):
+    """verify.verify_store 71, 72, 73 (only the running attempt is noted), 74, 77 (its 12-character key),
+    82, 83, 84 (the pid it is marked running by)."""
+    append_event(store, "custom", note="before")
+    write_attempt(store, _attempt("ab" * 32, 1, "committed", 1111))
+    write_attempt(store, _attempt("ab" * 32, 2, "running", 2222))
+    report = verify_store(store)
+    assert report.problems == []
+    assert report.notes == ["attempt abababababab/0002 (train) is marked running by pid 2222"]
+
+
+def test_a_record_whose_log_anchor_has_no_hash_anchors_nothing_and_repair_still_runs(store):
+    """A found bug (round 9): two records anchored at the same seq, one with a null hash, made `verify
+    --repair` a TypeError (sorting (0, None) against (0, "zz")). An anchor without a hash holds the log
+    to nothing, like one without a seq; the other is sealed as before."""
+    from artifacts.records import attempt_path
+
+    append_event(store, "custom", note="before")
+    for number, digest in ((1, None), (2, "zz")):
+        write_attempt(store, _attempt("ab" * 32, number, "failed", 1111))
+        path = attempt_path(store, "ab" * 32, number)
+        record = json.loads(path.read_bytes())
+        path.write_text(json.dumps({**record, "log_anchor": {"seq": 0, "hash": digest}}))
+    damaged = (
+        "attempt abababababab/0002 (train) was written after log event seq 0, but the log holds a different "
+        "line there: it was cut or rewritten"
+    )
+    assert verify_store(store).problems == [damaged]
+    repaired = verify_store(store, repair=True)
+    assert repaired.problems == []
+    assert verify_store(store).problems == []
