@@ -805,3 +805,117 @@ def test_push_delete_deletes_what_this_store_saw_refuses_the_rest_and_logs_one_e
     finally:
         a.close()
         b.close()
+
+
+# ----------------------------------------------------------------------------- auditlog: log/head against the log
+def three_events(store: Store) -> list[bytes]:
+    """A log of three events (seq 0-2) with its head; the log's lines, each with its newline."""
+    for n in range(3):
+        append_event(store, "custom", note=f"event {n}")
+    return store.log_path.read_bytes().splitlines(keepends=True)
+
+
+def log_problems(store: Store) -> list[tuple[str, int | None]]:
+    from artifacts.auditlog import check_log
+
+    return [(p.text, p.line) for p in check_log(store).problems]
+
+
+def test_a_head_beside_an_empty_or_missing_log_says_whether_the_log_was_cut_or_deleted(store):
+    """auditlog._head_problems 3, 5-7 (empty / missing), 9-14 (cut / deleted); _read_lines 43, 49 (an
+    empty file is present: "empty ... cut", not "missing ... deleted")."""
+    three_events(store)
+    store.log_path.write_bytes(b"")
+    cut = "the audit log is empty, but log/head says it ended at seq 2: it was cut"
+    assert log_problems(store) == [(cut, None)]
+    store.log_path.unlink()
+    deleted = "the audit log is missing, but log/head says it ended at seq 2: it was deleted"
+    assert log_problems(store) == [(deleted, None)]
+
+
+def test_a_cut_tail_names_the_last_whole_event_and_both_byte_offsets(store):
+    """auditlog._head_problems 19, 21, 22 (which line is the last), 24, 26, 28, 29 (its seq), 31, 32
+    (its end); 25, 27, 30: a last line that is half a line has no seq, shown as "?"."""
+    lines = three_events(store)
+    kept = b"".join(lines[:2])
+    store.log_path.write_bytes(kept)
+    assert log_problems(store) == [
+        (
+            f"the log ends at seq 1 (byte {len(kept)}), but log/head says it ended at seq 2 "
+            f"(byte {len(b''.join(lines))}): its tail was cut",
+            None,
+        )
+    ]
+    half = kept + lines[2][:10]
+    store.log_path.write_bytes(half)
+    problems = log_problems(store)
+    assert problems[-1] == (
+        f"the log ends at seq ? (byte {len(half)}), but log/head says it ended at seq 2 "
+        f"(byte {len(b''.join(lines))}): its tail was cut",
+        None,
+    )
+
+
+@pytest.mark.parametrize("events", [1, 3])
+def test_a_last_line_edited_to_another_length_is_named_by_where_it_starts(store, events):
+    """auditlog._head_problems 34 (the first line starts at byte 0: a one-line log), 45 (the line
+    number counts from 1), 65, 67 (the problem carries its line)."""
+    lines = three_events(store) if events == 3 else None
+    if lines is None:
+        append_event(store, "custom", note="event 0")
+        lines = store.log_path.read_bytes().splitlines(keepends=True)
+    longer = lines[-1].replace(b'"note":"event', b'"note":"the event')
+    assert longer != lines[-1]
+    store.log_path.write_bytes(b"".join(lines[:-1]) + longer)
+    seq = events - 1
+    assert log_problems(store) == [
+        (f"log line {events} (seq {seq}) is not the line log/head recorded: it was edited", events)
+    ]
+
+
+def test_an_edit_of_the_same_length_names_the_line_and_its_seq(store):
+    """auditlog._head_problems 68-70 (the edited event's seq), 65, 67 (its line)."""
+    lines = three_events(store)
+    edited = lines[2].replace(b"event 2", b"event 9")
+    store.log_path.write_bytes(b"".join(lines[:2]) + edited)
+    assert log_problems(store) == [("log line 3 (seq 2) is not the line log/head recorded: it was edited", 3)]
+
+
+def test_a_log_whose_lines_all_moved_was_rewritten(store):
+    """auditlog._head_problems 49: no line starts or ends where log/head says the last one did."""
+    lines = three_events(store)
+    first = lines[0].replace(b'"note":"event', b'"note":"an event')
+    store.log_path.write_bytes(first + b"".join(lines[1:]))
+    problems = log_problems(store)
+    end = len(b"".join(lines))
+    assert (f"no log line ends at byte {end}, where log/head says seq 2 ends: the log was rewritten", None) in problems
+
+
+def test_a_cut_off_log_whose_events_hold_spaces_is_split_at_newlines_only(store):
+    """auditlog._read_lines 23: a log whose last write was cut off is still split at newlines, not at
+    every space."""
+    for n in range(2):
+        append_event(store, "custom", note=f"a note with spaces {n}")
+    data = store.log_path.read_bytes()
+    store.log_path.write_bytes(data + b'{"seq":2,"note":"half ')
+    assert log_problems(store) == [("log line 3: incomplete (a write was cut off)", 3)]
+
+
+def test_an_unreadable_log_is_one_line_naming_it_and_why(store):
+    """auditlog._read_lines 12, 13."""
+    from artifacts.auditlog import check_log
+
+    store.log_path.parent.mkdir(exist_ok=True)
+    store.log_path.mkdir()
+    with pytest.raises(StoreError) as exc:
+        check_log(store)
+    assert str(exc.value) == f"cannot read the audit log: {store.log_path}: Is a directory"
+
+
+def test_the_log_on_its_own_does_not_call_a_new_store_without_a_log_damaged(store):
+    """auditlog.check_log 1 (has_history defaults to True): a store that never wrote an event has no log
+    and no head, and check_chain, which sees no refs or records, finds nothing wrong."""
+    from artifacts.auditlog import check_chain
+
+    assert not store.log_path.exists()
+    assert check_chain(store) == (0, [])
