@@ -590,7 +590,8 @@ def test_the_config_reaches_the_networks_and_the_optimizers():
 
 
 def test_the_default_action_dim_is_six():
-    """Kills agent.ChunkLearner.__init__ 1 (the default action dimension of a learner built directly)."""
+    """Kills agent.ChunkLearner.__init__ 1 (the default action dimension of a learner built directly).
+    (ChunkLearner.__init__ ids in this file are those of fdd22d3.)"""
     from accrue.learner.td3 import FastTD3Learner
 
     learner = FastTD3Learner(config("accrue"), D, H)
@@ -599,7 +600,7 @@ def test_the_default_action_dim_is_six():
 
 
 def test_a_single_env_gets_an_exploration_std_on_its_first_act():
-    """Kills agent.ChunkLearner.__init__ 43 (a fresh learner has no per-env std yet: the first act draws
+    """Kills agent.ChunkLearner.__init__ 37, 38, 42 (a fresh learner has no per-env std yet: the first act draws
     one for every env, even for a single env)."""
     learner = make_learner(config("accrue", std_min=0.3, std_max=0.9), D, H, A)
     assert learner.noise_std.shape == (0,)
@@ -611,7 +612,7 @@ def test_a_single_env_gets_an_exploration_std_on_its_first_act():
 
 
 def test_compile_compiles_both_loss_functions_with_the_configured_mode(monkeypatch):
-    """Kills agent.ChunkLearner.__init__ 61-70 (torch.compile of the critic and the actor loss, with
+    """Kills agent.ChunkLearner.__init__ 60-69 (torch.compile of the critic and the actor loss, with
     cfg.compile_mode). torch.compile is replaced by a recorder so that nothing is compiled."""
     calls = []
 
@@ -632,7 +633,7 @@ def test_a_learner_built_under_another_default_device_keeps_its_own_tensors_on_i
     """A learner built while torch's default device is another one (a CUDA learner in a process whose
     default is the CPU): the support, the generator and the per-env std go to the learner's device. The
     networks are built on the CPU here (a `meta` module cannot be moved), everything else the learner makes
-    under the `meta` default. Kills agent.ChunkLearner.__init__ 30, 34 (the support), 40, 42 (the std)."""
+    under the `meta` default. Kills agent.ChunkLearner.__init__ 29, 33 (the support), 39, 41 (the std)."""
     from accrue.learner.td3 import FastTD3Learner
 
     class NetworksOnTheCpu(FastTD3Learner):
