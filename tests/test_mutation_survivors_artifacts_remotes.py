@@ -809,3 +809,144 @@ def test_a_remote_ref_to_json_of_no_manifests_shape_is_one_problem_for_verify_an
     assert "\n" not in str(exc.value)
     assert read_ref(store, "remotes/nas/team/e") == before
     store.close()
+
+
+# ============================================================================= round 9 batch Y
+# ----------------------------------------------------------------------------- remotes.config._copied
+COPIED = (
+    "this store's id {} was made in another directory (a copy, e.g. cp -a?); "
+    "run `accrue remote rekey` to give this copy its own id"
+)
+
+
+def keyed_store(root: Path) -> tuple[Store, str]:
+    """A store whose id was made (with its directory recorded) in root."""
+    from artifacts.remotes.config import store_id
+
+    store, _ = Store.init(root)
+    return store, store_id(store)
+
+
+def test_a_store_with_the_old_inode_marker_keeps_its_id_in_place_and_is_refused_elsewhere(tmp_path):
+    """config._copied 1 (the inode test inverted), 2, 3 (a KeyError): a store_home written by an older
+    accrue is the directory's inode alone; the same inode is this store, another one a copy."""
+    from artifacts.remotes.config import check_not_copied, store_id
+
+    store, sid = keyed_store(tmp_path / "store")
+    ino = (tmp_path / "store").stat().st_ino
+    store.update_config(lambda c: c.update(store_home=ino))
+    assert check_not_copied(store) == sid and store_id(store) == sid
+    store.update_config(lambda c: c.update(store_home=ino + 1))
+    with pytest.raises(StoreError) as exc:
+        store_id(store)
+    assert str(exc.value) == COPIED.format(sid[:12])
+    store.close()
+
+
+@pytest.mark.parametrize("home", ["/somewhere/else", ["/somewhere/else", 1]], ids=["text", "list"])
+def test_a_store_home_of_no_known_shape_is_not_taken_for_a_copy(tmp_path, home):
+    """config._copied 5: a store_home that is neither an inode nor a {path, ino} record (a hand-edited
+    config) proves nothing, so the store keeps its id and is not refused."""
+    from artifacts.remotes.config import check_not_copied, store_id
+
+    store, sid = keyed_store(tmp_path / "store")
+    store.update_config(lambda c: c.update(store_home=home))
+    assert check_not_copied(store) == sid and store_id(store) == sid
+    store.close()
+
+
+def test_a_store_put_back_at_its_path_with_a_new_inode_keeps_its_id_while_a_copy_is_refused(tmp_path):
+    """config._copied 7, 8, 9 (the recorded path never read: a new inode alone taken for a copy). A store
+    moved away and back (same inode) and a store restored in place (copied aside, the original removed,
+    the copy renamed back: the path it was keyed in, another inode, as after a remount on some overlay
+    filesystems) keep their id; a copy elsewhere (both changed) is refused."""
+    import shutil
+
+    from artifacts.remotes.config import store_id
+
+    root = tmp_path / "store"
+    store, sid = keyed_store(root)
+    store.close()
+    root.rename(tmp_path / "moved")
+    moved = Store.open(tmp_path / "moved")
+    assert store_id(moved) == sid
+    moved.close()
+    (tmp_path / "moved").rename(root)
+    shutil.copytree(root, tmp_path / "aside", symlinks=True)
+    shutil.rmtree(root)
+    (tmp_path / "aside").rename(root)
+    assert store.read_config()["store_home"]["ino"] != root.stat().st_ino
+    restored = Store.open(root)
+    assert store_id(restored) == sid
+    restored.close()
+    shutil.copytree(root, tmp_path / "copy", symlinks=True)
+    copy = Store.open(tmp_path / "copy")
+    with pytest.raises(StoreError) as exc:
+        store_id(copy)
+    assert str(exc.value) == COPIED.format(sid[:12])
+    copy.close()
+
+
+# ----------------------------------------------------------------------------- remotes.directory listings
+def test_a_directory_remote_lists_sizes_under_any_prefix_like_every_backend(tmp_path):
+    """DirBackend.list_sizes 3 (the objects-only fast path taken for other prefixes), 12 (a traceback):
+    list_sizes(prefix) is the Backend contract (S3Backend honours it for any prefix; probe lists
+    "refs"): the refs' sizes, not the objects'; objects/ still lists every object."""
+    from artifacts.remotes.backends import OBJECTS, object_key
+
+    root = tmp_path / "remote"
+    b = dir_backend(root)
+    b.swap("refs/team/a", b"x" * 65 + b"\n", None)
+    b.swap("refs/team/sub/b", b"yz", None)
+    data = b"an object's bytes"
+    oid = hash_bytes(data)
+    (root / object_key(oid)).parent.mkdir(parents=True)
+    (root / object_key(oid)).write_bytes(data)
+    assert b.list_sizes("refs") == {"refs/team/a": 66, "refs/team/sub/b": 2}
+    assert b.list_sizes(OBJECTS) == {object_key(oid): len(data)}
+    assert b.list_sizes("logs") == {}
+
+
+def test_listing_a_directory_remote_whose_disk_is_not_mounted_is_one_line(tmp_path):
+    """DirBackend.list_sizes 2 (the message None)."""
+    from artifacts.remotes.backends import OBJECTS
+
+    b = DirBackend(parse_url("nas", str(tmp_path / "unmounted")))
+    for prefix in (OBJECTS, "refs"):
+        with pytest.raises(StoreError) as exc:
+            b.list_sizes(prefix)
+        assert (
+            str(exc.value)
+            == f"remote nas ({tmp_path / 'unmounted'}): the directory does not exist (is the disk mounted?)"
+        )
+
+
+def test_a_remote_ref_file_that_is_not_utf8_is_a_damaged_ref_line_not_a_traceback(tmp_path):
+    """DirBackend.list_versions 1 (UnicodeDecodeError), 2, 3 (LookupError: no such error handler): a ref
+    file with bytes that are not UTF-8 is listed with U+FFFD in their place, and a fetch names it as
+    damaged in one line."""
+    from artifacts.remotes.pull import fetch
+
+    store, remote, _ = pushed_store(tmp_path)
+    (remote / "refs" / "team" / "bad").write_bytes(b"\xff\xfe not utf-8\n")
+    shown = "\ufffd\ufffd not utf-8"  # each byte that is not UTF-8 replaced
+    versions = DirBackend(parse_url("nas", str(remote))).list_versions("refs")
+    assert versions["refs/team/bad"] == shown + "\n"
+    with pytest.raises(StoreError) as exc:
+        fetch(store, "nas")
+    assert str(exc.value) == (f"remote nas ({remote}): refs/team/bad is damaged (holds {shown!r}, not an id)")
+    store.close()
+
+
+# ----------------------------------------------------------------------------- remotes.directory.remove
+def test_removing_a_key_that_is_a_directory_names_the_remote_key_and_reason(tmp_path):
+    """DirBackend.remove 2 (the message None), 3 (the OSError's repr instead of its reason); a key that is
+    not there is removed quietly."""
+    root = tmp_path / "remote"
+    b = dir_backend(root)
+    b.swap("refs/team/a", b"one\n", None)
+    b.remove("refs/team/never")
+    with pytest.raises(StoreError) as exc:
+        b.remove("refs/team")
+    assert str(exc.value) == f"remote nas ({root}): cannot remove refs/team: Is a directory"
+    assert b.get_bytes("refs/team/a") == b"one\n"

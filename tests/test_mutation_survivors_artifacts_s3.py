@@ -16,6 +16,8 @@ cannot reach its backend, silence) or needs to read how a request was signed. No
 
 from __future__ import annotations
 
+import errno
+import os
 import re
 import socket
 import sys
@@ -30,6 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from remote_support import S3_ENV, moto_endpoint, s3_client  # noqa: E402,F401
 
 from artifacts.errors import StoreError  # noqa: E402
+from artifacts.hashing import hash_bytes  # noqa: E402
 from artifacts.remotes.backends import RefMoved  # noqa: E402
 from artifacts.remotes.config import parse_url  # noqa: E402
 from artifacts.remotes.s3 import S3Backend, explain_s3_error  # noqa: E402
@@ -459,3 +462,69 @@ def test_a_missing_bucket_is_one_error_line_from_every_call_that_gets_an_answer_
             calls[call]()
     assert str(raised.value) == f"{b.describe()}: the bucket does not exist (create it, or fix the URL)"
     assert b.head(KEY) is None
+
+
+# ============================================================================= round 9 batch Y
+# ----------------------------------------------------------------------------- S3Backend.download_to
+def test_downloading_an_object_the_bucket_lacks_names_the_remote_and_the_key(moto, tmp_path):
+    """S3Backend.download_to 11 (the message None): a pull that meets an object the remote lost stops on
+    this line (MissingOnRemote is a StoreError), the same as a directory remote's."""
+    from artifacts.remotes.backends import MissingOnRemote
+
+    bucket = new_bucket(moto)
+    b = backend(f"s3://{bucket}/team")
+    with (tmp_path / "download").open("wb") as out:
+        with pytest.raises(MissingOnRemote) as raised:
+            b.download_to("objects/blake3/ab/cd", out.fileno())
+    assert str(raised.value) == f"remote origin (s3://{bucket}/team): lacks objects/blake3/ab/cd"
+
+
+def test_an_object_larger_than_a_chunk_downloads_whole_with_its_id_and_full_size(moto, tmp_path):
+    """S3Backend.download_to 25 (the size of the last chunk returned for the whole): an object over two
+    CHUNK_SIZEs arrives as several chunks; the size returned is all of them."""
+    from artifacts.hashing import CHUNK_SIZE
+
+    bucket = new_bucket(moto)
+    data = bytes(range(256)) * ((2 * CHUNK_SIZE + 4096) // 256)
+    s3_client(moto).put_object(Bucket=bucket, Key="team/objects/big", Body=data)
+    with (tmp_path / "download").open("wb") as out:
+        got = backend(f"s3://{bucket}/team").download_to("objects/big", out.fileno())
+    assert got == (hash_bytes(data), len(data))
+    assert (tmp_path / "download").read_bytes() == data
+
+
+class ShortWrites:
+    """The os module, except that a write takes at most `most` bytes (as a pipe, a socket or some network
+    filesystems may), and a disk that fills after `room` bytes."""
+
+    def __init__(self, most: int, room: int) -> None:
+        self.most, self.room, self.calls = most, room, 0
+
+    def __getattr__(self, name: str):
+        return getattr(os, name)
+
+    def write(self, fd: int, data) -> int:
+        self.calls += 1
+        if self.room <= 0:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        n = os.write(fd, bytes(data[: min(self.most, self.room)]))
+        self.room -= n
+        return n
+
+
+def test_a_download_whose_writes_fall_short_still_writes_every_byte_once(moto, tmp_path, monkeypatch):
+    """S3Backend.download_to 19 (the bytes written so far replaced by the last write's count: each short
+    write sends the chunk's tail again, until the disk is full): the file holds the object exactly."""
+    import artifacts.remotes.s3
+
+    bucket = new_bucket(moto)
+    data = bytes(range(256)) * 400  # 102400 bytes: seven writes of at most 16 KiB or more
+    s3_client(moto).put_object(Bucket=bucket, Key="team/objects/one", Body=data)
+    b = backend(f"s3://{bucket}/team")
+    short = ShortWrites(most=16384, room=10 * len(data))
+    monkeypatch.setattr(artifacts.remotes.s3, "os", short)
+    with (tmp_path / "download").open("wb") as out:
+        got = b.download_to("objects/one", out.fileno())
+    assert got == (hash_bytes(data), len(data))
+    assert (tmp_path / "download").read_bytes() == data
+    assert short.calls >= 7  # every write fell short: at least ceil(102400 / 16384), however the body was chunked
