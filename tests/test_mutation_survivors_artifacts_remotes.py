@@ -950,3 +950,155 @@ def test_removing_a_key_that_is_a_directory_names_the_remote_key_and_reason(tmp_
         b.remove("refs/team")
     assert str(exc.value) == f"remote nas ({root}): cannot remove refs/team: Is a directory"
     assert b.get_bytes("refs/team/a") == b"one\n"
+
+
+# ============================================================================= round 9 batch Z
+# ----------------------------------------------------------------------------- remotes.directory.put_bytes
+def test_a_small_write_to_a_directory_remote_is_made_in_tmp_where_unfinished_uploads_finds_it(tmp_path, monkeypatch):
+    """DirBackend._write_new 3, 4 (the temp file written outside tmp/: a killed push's leftover would never be
+    listed by unfinished_uploads, so `remote prune` could not drop it). While the bytes are written the
+    one write in progress is listed under tmp/; once done, the key holds them and tmp/ holds nothing."""
+    import os
+    import re
+
+    import artifacts.remotes.directory as directory
+
+    b = dir_backend(tmp_path / "remote")
+    seen: list[list[str]] = []
+    real = directory.write_new_fsynced
+
+    def write_and_look(path: Path, data: bytes) -> None:
+        real(path, data)
+        seen.append([what for what, _started, _handle in b.unfinished_uploads()])
+
+    monkeypatch.setattr(directory, "write_new_fsynced", write_and_look)
+    b.put_bytes("push-leases/abc", b"a lease\n")
+    assert len(seen) == 1 and len(seen[0]) == 1
+    assert re.fullmatch(rf"tmp/\.tmp-{os.getpid()}-[0-9a-f]{{12}}", seen[0][0])
+    assert b.get_bytes("push-leases/abc") == b"a lease\n"
+    assert b.unfinished_uploads() == []
+
+
+def test_a_small_write_a_directory_remote_refuses_names_the_remote_key_and_reason(tmp_path):
+    """DirBackend.put_bytes 6 (the message None)."""
+    root = tmp_path / "remote"
+    b = dir_backend(root)
+    (root / "push-leases").write_text("a file where the leases' folder should be")
+    with pytest.raises(StoreError) as exc:
+        b.put_bytes("push-leases/abc", b"a lease\n")
+    assert str(exc.value) == f"remote nas ({root}): cannot write push-leases/abc: File exists"
+
+
+# ----------------------------------------------------------------------------- remotes.directory.upload_object
+def local_object(tmp_path: Path, data: bytes) -> tuple[str, Path]:
+    """A file holding data, and its content id."""
+    path = tmp_path / "local-object"
+    path.write_bytes(data)
+    return hash_bytes(data), path
+
+
+def test_an_object_upload_is_made_as_an_obj_temp_file_in_tmp_and_ends_read_only(tmp_path, monkeypatch):
+    """DirBackend.upload_object 7, 8 (the temp file outside tmp/: unfinished_uploads, hence `remote prune`,
+    would never see a killed push's leftover), 19, 21, 22, 23 (its name: prune reports it as tmp/.obj-tmp-…),
+    30, 33 (made executable: rwxr-xr-x, rw-r--r-x), 42 (buffering=1 on a binary file: a RuntimeWarning on
+    the user's terminal at every push), 60 (the object ends r--r--r-x, not read-only for everyone)."""
+    import os
+    import re
+    import warnings
+
+    import artifacts.remotes.directory as directory
+    from artifacts.remotes.backends import object_key
+
+    root = tmp_path / "remote"
+    b = dir_backend(root)
+    data = b"an object's bytes" * 100
+    oid, path = local_object(tmp_path, data)
+    seen: list[list[tuple[str, int]]] = []
+    real = directory.copy_hashing
+
+    def copy_and_look(src, fd: int, *hint) -> tuple[str, int]:
+        got = real(src, fd, *hint)
+        seen.append([(w, (root / w).stat().st_mode & 0o777) for w, _s, _h in b.unfinished_uploads()])
+        return got
+
+    monkeypatch.setattr(directory, "copy_hashing", copy_and_look)
+    old = os.umask(0o022)
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            b.upload_object(oid, path, len(data))
+    finally:
+        os.umask(old)
+    assert [str(w.message) for w in caught] == []
+    assert len(seen) == 1 and len(seen[0]) == 1
+    what, mode = seen[0][0]
+    assert re.fullmatch(rf"tmp/\.obj-tmp-{os.getpid()}-[0-9a-f]{{12}}", what)
+    assert mode == 0o644
+    assert (root / object_key(oid)).read_bytes() == data
+    assert (root / object_key(oid)).stat().st_mode & 0o777 == 0o444
+    assert b.unfinished_uploads() == []
+
+
+def test_an_object_upload_keeps_a_copy_already_there_unless_told_to_replace_it(tmp_path):
+    """DirBackend.upload_object 1 (replace by default: a push would overwrite what the remote holds, which
+    content addressing says is the same bytes, instead of linking beside it). Only repair's replace=True
+    puts the verified bytes in place of a damaged copy."""
+    from artifacts.remotes.backends import object_key
+
+    root = tmp_path / "remote"
+    b = dir_backend(root)
+    data = b"the object's true bytes"
+    oid, path = local_object(tmp_path, data)
+    there = root / object_key(oid)
+    there.parent.mkdir(parents=True)
+    there.write_bytes(b"a damaged copy")
+    b.upload_object(oid, path, len(data))
+    assert there.read_bytes() == b"a damaged copy"
+    b.upload_object(oid, path, len(data), replace=True)
+    assert there.read_bytes() == data
+    assert there.stat().st_mode & 0o777 == 0o444
+    assert b.unfinished_uploads() == []
+
+
+@pytest.mark.parametrize("blocked", ["tmp", "fan-out"])
+def test_an_object_upload_the_remote_refuses_is_one_line_naming_the_object_and_leaves_nothing(tmp_path, blocked):
+    """DirBackend.upload_object 15, 16 (tmp/ cannot be made: the message None, 13 characters of the id), 76,
+    77 (the object's folder cannot be made: the same)."""
+    from artifacts.remotes.backends import object_key
+
+    root = tmp_path / "remote"
+    b = dir_backend(root)
+    data = b"an object's bytes"
+    oid, path = local_object(tmp_path, data)
+    where = root / "tmp" if blocked == "tmp" else (root / object_key(oid)).parent
+    where.parent.mkdir(parents=True, exist_ok=True)
+    where.write_text("a file where a folder should be")
+    with pytest.raises(StoreError) as exc:
+        b.upload_object(oid, path, len(data))
+    assert str(exc.value) == f"remote nas ({root}): cannot write object {oid[:12]}: File exists"
+    assert b.head(object_key(oid)) is None
+    assert b.unfinished_uploads() == []
+
+
+def test_repair_sends_every_object_back_to_a_remote_whose_objects_folder_was_deleted(tmp_path):
+    """DirBackend.upload_object 61, 63, 65 (repair's replace mode makes only the last folder: a lost object's
+    objects/blake3/ folder may be gone too, and repair failed with "No such file or directory"). What the
+    store holds goes back; the pushed audit-log segment, which only the remote held, is reported unhealed."""
+    import shutil
+
+    from artifacts.refs import read_ref
+    from artifacts.remotes.check import verify_remote
+    from artifacts.remotes.config import store_id
+    from artifacts.remotes.repair import repair_remote
+
+    store, remote, contents = pushed_store(tmp_path)
+    manifests = [read_ref(store, f"team/{name}") for name in ("a", "b", "e")]
+    shutil.rmtree(remote / "objects")
+    report = repair_remote(store, "nas")
+    assert sorted(report.resent) == sorted([*contents.values(), *manifests])
+    again = verify_remote(store, "nas")
+    assert again.damaged == report.unhealed and len(report.unhealed) == 1
+    assert again.problems == [
+        f"remote nas lacks object {report.unhealed[0][:12]} (named by log of store {store_id(store)[:12]})"
+    ]
+    store.close()
