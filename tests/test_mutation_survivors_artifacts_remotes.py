@@ -980,13 +980,15 @@ def test_a_small_write_to_a_directory_remote_is_made_in_tmp_where_unfinished_upl
 
 
 def test_a_small_write_a_directory_remote_refuses_names_the_remote_key_and_reason(tmp_path):
-    """DirBackend.put_bytes 6 (the message None)."""
+    """DirBackend.put_bytes 6 (the message None); and the temp file of the refused write is gone, not left
+    in tmp/ for `remote prune` to drop a day later."""
     root = tmp_path / "remote"
     b = dir_backend(root)
     (root / "push-leases").write_text("a file where the leases' folder should be")
     with pytest.raises(StoreError) as exc:
         b.put_bytes("push-leases/abc", b"a lease\n")
     assert str(exc.value) == f"remote nas ({root}): cannot write push-leases/abc: File exists"
+    assert list((root / "tmp").iterdir()) == []  # its temp file went with it
 
 
 # ----------------------------------------------------------------------------- remotes.directory.upload_object

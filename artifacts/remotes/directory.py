@@ -59,9 +59,12 @@ class DirBackend(Backend):
         tmp_dir = self.root / "tmp"
         tmp_dir.mkdir(parents=True, exist_ok=True)
         tmp = temp_name(tmp_dir)
-        write_new_fsynced(tmp, data)
-        final.parent.mkdir(parents=True, exist_ok=True)
-        os.replace(tmp, final)
+        try:
+            write_new_fsynced(tmp, data)
+            final.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(tmp, final)
+        finally:
+            tmp.unlink(missing_ok=True)  # a refused write leaves nothing for prune to find later
         fsync_dir(final.parent)
 
     def put_bytes(self, key: str, data: bytes) -> None:
