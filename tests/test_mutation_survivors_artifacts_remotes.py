@@ -856,10 +856,11 @@ def test_a_store_home_of_no_known_shape_is_not_taken_for_a_copy(tmp_path, home):
 
 
 def test_a_store_put_back_at_its_path_with_a_new_inode_keeps_its_id_while_a_copy_is_refused(tmp_path):
-    """config._copied 7, 8, 9 (the recorded path never read: a new inode alone taken for a copy). A store
-    moved away and back (same inode) and a store restored in place (copied aside, the original removed,
-    the copy renamed back: the path it was keyed in, another inode, as after a remount on some overlay
-    filesystems) keep their id; a copy elsewhere (both changed) is refused."""
+    """config._copied 7, 8, 9 (the recorded path never read: a new inode alone taken for a copy). A copy
+    elsewhere (both changed) is refused; a store moved away and back (same inode) and a store restored in
+    place (copied aside, the original removed, the copy renamed back: the path it was keyed in, another
+    inode, as after a remount on some overlay filesystems) keep their id. Every directory is made while
+    the ones before it still exist, so no inode number is reused."""
     import shutil
 
     from artifacts.remotes.config import store_id
@@ -867,6 +868,12 @@ def test_a_store_put_back_at_its_path_with_a_new_inode_keeps_its_id_while_a_copy
     root = tmp_path / "store"
     store, sid = keyed_store(root)
     store.close()
+    shutil.copytree(root, tmp_path / "copy", symlinks=True)
+    copy = Store.open(tmp_path / "copy")
+    with pytest.raises(StoreError) as exc:
+        store_id(copy)
+    assert str(exc.value) == COPIED.format(sid[:12])
+    copy.close()
     root.rename(tmp_path / "moved")
     moved = Store.open(tmp_path / "moved")
     assert store_id(moved) == sid
@@ -879,12 +886,6 @@ def test_a_store_put_back_at_its_path_with_a_new_inode_keeps_its_id_while_a_copy
     restored = Store.open(root)
     assert store_id(restored) == sid
     restored.close()
-    shutil.copytree(root, tmp_path / "copy", symlinks=True)
-    copy = Store.open(tmp_path / "copy")
-    with pytest.raises(StoreError) as exc:
-        store_id(copy)
-    assert str(exc.value) == COPIED.format(sid[:12])
-    copy.close()
 
 
 # ----------------------------------------------------------------------------- remotes.directory listings
