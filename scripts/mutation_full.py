@@ -22,6 +22,7 @@ The critical, named mutations that CI checks are scripts/mutation_critical.py.
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import shutil
@@ -96,6 +97,29 @@ def refresh(tree: Path, source: str) -> None:
     with tempfile.TemporaryDirectory() as tmp:
         copy_tree(Path(tmp), source)
         subprocess.run(["cp", "-a", f"{tmp}/.", str(tree)], check=True)
+
+
+def code_digest(tree: Path) -> str | None:
+    """One hash over the .py files of `[tool.mutmut] source_paths` in tree (None before the first copy)."""
+    roots = [tree / base for base in mutmut_config(tree).get("source_paths", [])]
+    if not any(root.is_dir() for root in roots):
+        return None
+    digest = hashlib.blake2b()
+    for path in sorted(p for root in roots if root.is_dir() for p in root.rglob("*.py")):
+        digest.update(str(path.relative_to(tree)).encode() + b"\0" + path.read_bytes() + b"\0")
+    return digest.hexdigest()
+
+
+def forget_test_map(tree: Path) -> bool:
+    """Make mutmut collect its map of which tests reach which function again, over the whole selection. Its
+    own update after a code change only runs the tests that are new: a function the change created (or a call
+    it added) is then reached by those alone, and its mutants that only old tests would kill survive. The
+    verdicts (the .meta files) are kept; mutmut still re-tests only the functions whose code changed."""
+    stats = tree / "mutants" / "mutmut-stats.json"
+    if not stats.exists():
+        return False
+    stats.unlink()
+    return True
 
 
 def deselect(tree: Path, nodes: list[str]) -> None:
@@ -368,7 +392,10 @@ def main(argv: list[str] | None = None) -> int:
         if args.workdir.resolve().is_relative_to(ROOT):
             print("error: --workdir must be outside the working tree", file=sys.stderr)
             return 2
+        before = code_digest(tree)
         refresh(tree, args.source)  # mutants/ is left as it was: restoring below only fills a missing one
+        if before is not None and code_digest(tree) != before and forget_test_map(tree):
+            print("the mutated code changed since the last run: mutmut's test map is collected again", flush=True)
         said = restore_records(args.records, tree, mutmut_config(tree))
         if said:
             print(said, flush=True)

@@ -157,3 +157,30 @@ def test_triage_lines_the_kept_verdicts_no_longer_bear_out_are_listed_to_look_at
     )
     (triage / "b.tsv").write_text("pkg.calc.x_add__mutmut_9\tkilled\ttests/t.py::test_add\n")  # gone
     assert script.stale_triage(records, triage) == ["pkg.calc.x_add__mutmut_1", "pkg.calc.x_add__mutmut_9"]
+
+
+def test_after_a_code_change_a_new_function_is_tested_by_the_old_tests_that_reach_it(tmp_path, capsys):
+    """mutmut 3.8's own update of its test map after a code change runs only the tests that are new, so a
+    function the change created is reached by none of the old tests and its mutants are "no tests" (or
+    survive, when new tests exist). The sweep forgets the map when the mutated code changed, and mutmut
+    collects it again from the whole selection, keeping every verdict."""
+    script = load_script()
+    project = make_project(tmp_path / "p")
+    mutmut(project, "run", "--max-children", "1")
+    assert script.code_digest(project) == script.code_digest(project)
+    before = script.code_digest(project)
+    split = CALC.replace(
+        "def add(a, b):\n    return a + b\n",
+        "def plus(a, b):\n    return a + b\n\n\ndef add(a, b):\n    return plus(a, b)\n",
+    )
+    (project / "pkg" / "calc.py").write_text(split)
+    assert script.code_digest(project) != before
+    control = tmp_path / "control"
+    subprocess.run(["cp", "-a", f"{project}/.", str(control)], check=True)
+    mutmut(control, "run", "--max-children", "1")
+    assert verdicts(control)["pkg.calc.x_plus__mutmut_1"] == "no tests"  # mutmut's own update
+
+    assert script.forget_test_map(project) and not script.forget_test_map(project)
+    mutmut(project, "run", "--max-children", "1")
+    assert verdicts(project)["pkg.calc.x_plus__mutmut_1"] == "killed"
+    assert script.code_digest(tmp_path / "nothing") is None
