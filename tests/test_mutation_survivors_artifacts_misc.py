@@ -919,3 +919,42 @@ def test_the_log_on_its_own_does_not_call_a_new_store_without_a_log_damaged(stor
 
     assert not store.log_path.exists()
     assert check_chain(store) == (0, [])
+
+
+def test_a_garbled_line_inside_the_log_is_not_json_and_breaks_the_chain_after_it(store):
+    """auditlog.check_log 21 (every damaged line called cut off), 26-28 (the words), 40, 42 (the broken
+    chain's line), 43-47 (its seq and words)."""
+    lines = three_events(store)
+    store.log_path.write_bytes(lines[0] + b"garbage\n" + lines[2])
+    kept, end = len(lines[0] + b"garbage\n" + lines[2]), len(b"".join(lines))
+    assert log_problems(store) == [
+        ("log line 2: not valid JSON", 2),
+        ("log line 3 (seq 2): hash chain broken — a line before it was changed or removed", 3),
+        (
+            f"the log ends at seq 2 (byte {kept}), but log/head says it ended at seq 2 (byte {end}): its tail was cut",
+            None,
+        ),
+    ]
+
+
+def test_a_whole_last_line_that_is_not_json_was_not_cut_off(store):
+    """auditlog.check_log 24: only a last line without its newline is a cut-off write."""
+    lines = three_events(store)
+    store.log_path.write_bytes(b"".join(lines) + b"garbage\n")
+    assert log_problems(store) == [("log line 4: not valid JSON", 4)]
+
+
+def test_a_removed_line_breaks_the_chain_and_puts_the_next_seq_out_of_order(store):
+    """auditlog.check_log 55, 56, 58-61 (the out-of-order line: its seq, its words, its line)."""
+    lines = three_events(store)
+    store.log_path.write_bytes(lines[0] + lines[2])
+    kept = len(lines[0] + lines[2])
+    assert log_problems(store) == [
+        ("log line 2 (seq 2): hash chain broken — a line before it was changed or removed", 2),
+        ("log line 2: seq 2 out of order", 2),
+        (
+            f"the log ends at seq 2 (byte {kept}), but log/head says it ended at seq 2 "
+            f"(byte {len(b''.join(lines))}): its tail was cut",
+            None,
+        ),
+    ]
