@@ -958,3 +958,42 @@ def test_a_removed_line_breaks_the_chain_and_puts_the_next_seq_out_of_order(stor
             None,
         ),
     ]
+
+
+def test_each_repair_in_the_log_is_summarised_by_its_seq_time_and_first_three_problems(store):
+    """auditlog.check_log 95-99 (the problems it names, "?" when it names none), 101-108 (its seq and time, to
+    the second), 110-115 (three problems at most, joined by "; ", "…" only when there were more)."""
+    from artifacts.auditlog import check_log
+
+    four = append_event(store, "log-repaired", problems=["a", "b", "c", "d"])
+    three = append_event(store, "log-repaired", problems=["a", "b", "c"])
+    none = append_event(store, "log-repaired")
+    assert len(four["ts"]) > 19
+    assert check_log(store).sealed == [
+        f"log-repaired at seq 0 ({four['ts'][:19]}) sealed 4 problem(s): a; b; c…",
+        f"log-repaired at seq 1 ({three['ts'][:19]}) sealed 3 problem(s): a; b; c",
+        f"log-repaired at seq 2 ({none['ts'][:19]}) sealed 1 problem(s): ?",
+    ]
+
+
+def test_every_repair_keeps_the_anchors_it_sealed_when_a_later_one_seals_others(store):
+    """auditlog.check_log 88 (each repair's sealed anchors replaced those of the repairs before it)."""
+    from artifacts.auditlog import check_log
+
+    lost_a, lost_b = ("record a", {"seq": 5, "hash": "a" * 64}), ("record b", {"seq": 6, "hash": "b" * 64})
+    append_event(store, "log-repaired", problems=["record a …"], sealed_anchors=[[5, "a" * 64]])
+    assert [p.anchor for p in check_log(store, [lost_a, lost_b]).problems] == [(6, "b" * 64)]
+    append_event(store, "log-repaired", problems=["record b …"], sealed_anchors=[[6, "b" * 64]])
+    assert check_log(store, [lost_a, lost_b]).problems == []
+
+
+def test_a_line_whose_log_format_is_not_a_number_counts_as_the_first_format(store):
+    """auditlog.check_log 68 (a log_format that is no integer compared with one: a TypeError): a hand-edited
+    format is read as 1, a log from before log/head existed, so a missing head is not a problem."""
+    from artifacts.auditlog import head_path
+
+    append_event(store, "custom", note="event 0")
+    edited = store.log_path.read_bytes().replace(b'"log_format":2', b'"log_format":"2"')
+    store.log_path.write_bytes(edited)
+    head_path(store).unlink()
+    assert log_problems(store) == []
