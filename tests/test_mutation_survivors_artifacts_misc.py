@@ -997,3 +997,35 @@ def test_a_line_whose_log_format_is_not_a_number_counts_as_the_first_format(stor
     store.log_path.write_bytes(edited)
     head_path(store).unlink()
     assert log_problems(store) == []
+
+
+def test_a_damaged_head_is_one_problem_naming_it(store):
+    """auditlog.check_log 123-126 (the head's error lost, or a traceback)."""
+    from artifacts.auditlog import head_path
+
+    three_events(store)
+    head_path(store).write_text("not a head")
+    hint = "`accrue verify` shows the damage, `accrue verify --repair` seals it"
+    assert log_problems(store) == [(f"{head_path(store)} is damaged (not a log head); {hint}", None)]
+
+
+def test_a_lost_head_beside_a_log_that_had_one_is_named(store):
+    """auditlog.check_log 142."""
+    from artifacts.auditlog import head_path
+
+    three_events(store)
+    head_path(store).unlink()
+    assert log_problems(store) == [("log/head is missing (it was deleted; the log's tail cannot be trusted)", None)]
+
+
+def test_an_anchor_just_past_the_log_is_not_held_and_a_malformed_one_anchors_nothing(store):
+    """auditlog.check_log 169, 171-173 (seq == the number of lines is past the end: "does not hold it", not an
+    IndexError), 158 (a seq that is text or negative anchors nothing, and is no TypeError)."""
+    from artifacts.auditlog import check_log
+
+    three_events(store)
+    past = ("record p", {"seq": 3, "hash": "c" * 64})
+    odd = [("record t", {"seq": "1", "hash": "c" * 64}), ("record n", {"seq": -1, "hash": "c" * 64})]
+    assert [p.text for p in check_log(store, [past, *odd]).problems] == [
+        "record p was written after log event seq 3, but the log does not hold it: it was cut or rewritten"
+    ]

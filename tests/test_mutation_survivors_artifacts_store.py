@@ -577,3 +577,24 @@ def test_a_record_whose_log_anchor_has_no_hash_anchors_nothing_and_repair_still_
     repaired = verify_store(store, repair=True)
     assert repaired.problems == []
     assert verify_store(store).problems == []
+
+
+def test_the_gc_roots_are_refs_committed_records_and_what_unfinished_attempts_still_need(store, tmp_path):
+    """reachability.roots 13 (12 characters of the key), 33, 34 (a committed attempt without a record is no
+    root: its checkpoints were for a run that finished), 35 (an unfinished attempt's checkpoints replace the
+    roots before them instead of joining them)."""
+    from artifacts.reachability import roots
+
+    oid = _two_refs(store, tmp_path, "team/demos")
+    key, ids = "ab" * 32, [hash_bytes(bytes([n])) for n in range(5)]
+    write_attempt(store, _attempt(key, 1, "committed", 1) | {"record_id": ids[0]})
+    write_attempt(store, _attempt(key, 2, "committed", 2) | {"checkpoints": [{"id": ids[1]}]})
+    write_attempt(store, _attempt(key, 3, "running", 3) | {"checkpoints": [{"id": ids[2]}], "inputs": {"d": ids[3]}})
+    assert sorted(roots(store)) == sorted(
+        [
+            (oid, "ref team/demos"),
+            (ids[0], "attempt abababababab/0001 (train)"),
+            (ids[2], "attempt abababababab/0003 (train) checkpoint"),
+            (ids[3], "attempt abababababab/0003 (train) input d"),
+        ]
+    )
