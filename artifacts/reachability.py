@@ -10,12 +10,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from artifacts.errors import StoreError
+from artifacts.links import links
 from artifacts.records import list_attempts
 from artifacts.refs import list_refs
 from artifacts.store import Store
-
-# JSON records a ref may name that name no object themselves: kept, walked no further
-LEAF_RECORDS = ("bench-cell",)  # stages/bench/state.py: a bench cell's outcome
 
 
 @dataclass
@@ -65,19 +63,11 @@ def walk(store: Store) -> Reach:
         except StoreError as exc:
             reach.problems.append(f"{exc} (named by {where})")
             continue
-        kind = obj.get("type")
-        here = f"{kind} {oid[:12]}"
-        if kind == "artifact":
-            if obj["layout"] == "dir":
-                stack.append((obj["content"], here, None))
-            else:
-                stack.append((obj["content"], here, obj["size"]))
-            stack += [(i, f"{here} input {r}", None) for r, i in obj.get("inputs", {}).items()]
-        elif kind == "tree":
-            stack += [(e["id"], f"{here}:{e['path']}", e["size"]) for e in obj["entries"]]
-        elif kind == "step-record":
-            stack += [(i, f"{here} input {r}", None) for r, i in obj.get("inputs", {}).items()]
-            stack += [(i, f"{here} output {r}", None) for r, i in obj.get("outputs", {}).items()]
-        elif kind not in LEAF_RECORDS:
+        try:
+            named = links(oid, obj)
+        except StoreError:
             reach.problems.append(f"object {oid[:12]} named by {where} is not a manifest")
+            continue
+        here = f"{obj['type']} {oid[:12]}"
+        stack += [(link.id, here + link.role, link.size) for link in named]
     return reach

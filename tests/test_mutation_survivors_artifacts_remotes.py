@@ -789,7 +789,7 @@ NOT_MANIFESTS = {
 @pytest.mark.parametrize("data", NOT_MANIFESTS.values(), ids=NOT_MANIFESTS.keys())
 def test_a_remote_ref_to_json_of_no_manifests_shape_is_one_problem_for_verify_and_one_error_for_fetch(tmp_path, data):
     """A found bug (round 9): a remote ref naming JSON that hashes right but is shaped like no manifest
-    was a traceback from closure.children (AttributeError, KeyError, TypeError) in `verify --remote`
+    was a traceback from closure.children (now artifacts.links) (AttributeError, KeyError, TypeError) in `verify --remote`
     and in fetch. A remote's objects are anyone's bytes: now one problem line, and fetch refuses in one
     line and keeps what the store had."""
     from artifacts.refs import read_ref

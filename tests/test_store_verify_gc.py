@@ -159,3 +159,59 @@ def test_damaged_attempt_record_is_a_verify_problem_not_a_crash(populated):
     assert not report.ok and any("damaged attempt record" in p for p in report.problems)
     with pytest.raises(StoreError, match="gc refused"):
         collect_garbage(populated, dry_run=False, grace_s=0)
+
+
+FULL = "ab" * 32
+NOT_MANIFESTS = {
+    "a list": [FULL],
+    "an artifact without a layout": {"type": "artifact", "content": FULL, "size": 1},
+    "a tree entry without a size": {"type": "tree", "entries": [{"path": "a", "id": FULL}]},
+    "a tree entry whose size is text": {"type": "tree", "entries": [{"path": "a", "id": FULL, "size": "1"}]},
+    "a step record naming a short id": {"type": "step-record", "inputs": {"seed": FULL[:12]}, "outputs": {}},
+    "a step record whose outputs are a list": {"type": "step-record", "inputs": {}, "outputs": [FULL]},
+    "an unknown type": {"type": "scrapbook", "inputs": {"x": FULL}},
+}
+
+
+@pytest.mark.parametrize("shape", sorted(NOT_MANIFESTS))
+def test_a_ref_to_json_of_no_manifests_shape_is_one_verify_problem_and_gc_refuses(populated, shape):
+    """Quick verify and gc walk by the rule push, pull and verify --remote use (artifacts/links.py):
+    JSON that hashes fine but is shaped like no manifest is one problem naming the ref, never a
+    traceback (KeyError, TypeError) or a walk into an id that is no id; the rest is still walked."""
+    odd = populated.put_json(NOT_MANIFESTS[shape])
+    set_ref(populated, "odd", odd)
+    reach = walk(populated)
+    [problem] = reach.problems
+    assert problem.startswith(f"object {odd[:12]} ") and "ref odd" in problem and "manifest" in problem, problem
+    assert set(reach.sizes) == set(walk_without(populated, "odd").sizes) | {odd}
+    report = verify_store(populated)
+    assert report.problems == reach.problems
+    with pytest.raises(StoreError, match="gc refused"):
+        collect_garbage(populated, dry_run=False, grace_s=0)
+
+
+def walk_without(store: Store, ref: str):
+    (store.refs_dir / ref).rename(store.root / "aside")
+    try:
+        return walk(store)
+    finally:
+        (store.root / "aside").rename(store.refs_dir / ref)
+
+
+def test_walk_names_each_object_by_the_manifest_and_role_that_reach_it(populated):
+    """The `named by` of a missing object says which manifest and in which role: an artifact's content
+    (the manifest alone), a tree's path, a step record's input or output."""
+    reach = walk(populated)
+    data = [o for o, size in reach.sizes.items() if size is not None]
+    for oid in data:
+        populated.object_path(oid).unlink()
+    problems = walk(populated).problems
+    assert len(problems) == len(data)
+    assert any(p.startswith("missing object ") and ("(named by tree " in p and ":seed.txt)" in p) for p in problems)
+    record = next(a["record_id"] for a in list_attempts(populated) if a["state"] == "committed")
+    for oid in [o for o in reach.sizes if o != record and reach.sizes[o] is None]:
+        os.chmod(populated.object_path(oid), 0o644)
+        populated.object_path(oid).unlink()
+    roles = " ".join(walk(populated).problems)
+    assert f"(named by step-record {record[:12]} input seed)" in roles
+    assert f"(named by step-record {record[:12]} output " in roles

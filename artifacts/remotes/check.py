@@ -6,7 +6,7 @@ import json
 from dataclasses import dataclass, field
 
 from artifacts.errors import StoreError
-from artifacts.remotes.closure import children
+from artifacts.links import children
 from artifacts.remotes.config import get_remote
 from artifacts.remotes.connect import open_backend
 from artifacts.remotes.pointers import check_remote_config, read_pointers

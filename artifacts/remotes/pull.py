@@ -12,11 +12,12 @@ from pathlib import Path
 
 from artifacts.auditlog import append_event
 from artifacts.errors import StoreError
+from artifacts.links import children
 from artifacts.manifests import KNOWN_KINDS
 from artifacts.refs import read_ref, set_ref
 from artifacts.remotes import LOG_TRACKING, TRACKING
 from artifacts.remotes.backends import Backend
-from artifacts.remotes.closure import bottom_up, children
+from artifacts.remotes.closure import bottom_up
 from artifacts.remotes.config import get_remote, set_promisor
 from artifacts.remotes.connect import open_backend
 from artifacts.remotes.lazy import add_promised

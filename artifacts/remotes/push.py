@@ -12,10 +12,11 @@ from dataclasses import dataclass, field
 from artifacts.auditlog import append_event
 from artifacts.errors import StoreError
 from artifacts.hashing import canonical_json
+from artifacts.links import children
 from artifacts.refs import set_ref
 from artifacts.remotes import TRACKING
 from artifacts.remotes.backends import RefMoved
-from artifacts.remotes.closure import bottom_up, children
+from artifacts.remotes.closure import bottom_up
 from artifacts.remotes.config import check_not_copied, get_remote, store_id
 from artifacts.remotes.connect import open_backend
 from artifacts.remotes.logsegment import next_segment

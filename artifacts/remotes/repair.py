@@ -6,8 +6,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from artifacts.links import children
 from artifacts.remotes.check import verify_remote
-from artifacts.remotes.closure import bottom_up, children
+from artifacts.remotes.closure import bottom_up
 from artifacts.remotes.config import get_remote
 from artifacts.remotes.connect import open_backend
 from artifacts.remotes.transfer import Meter, default_jobs, parallel
