@@ -63,8 +63,9 @@ class DirBackend(Backend):
             write_new_fsynced(tmp, data)
             final.parent.mkdir(parents=True, exist_ok=True)
             os.replace(tmp, final)
-        finally:
+        except BaseException:
             tmp.unlink(missing_ok=True)  # a refused write leaves nothing for prune to find later
+            raise
         fsync_dir(final.parent)
 
     def put_bytes(self, key: str, data: bytes) -> None:
