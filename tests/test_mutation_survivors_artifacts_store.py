@@ -598,3 +598,18 @@ def test_the_gc_roots_are_refs_committed_records_and_what_unfinished_attempts_st
             (ids[3], "attempt abababababab/0003 (train) input d"),
         ]
     )
+
+
+def test_an_unfinished_attempt_recorded_without_inputs_still_roots_its_checkpoints(store, tmp_path):
+    """reachability.roots 52, 54 (no default for a record without "inputs": gc and verify crash with an
+    AttributeError). The runner always writes inputs, but a record is a file a person can edit: one that
+    lacks them names no input, and its checkpoints stay roots."""
+    from artifacts.reachability import roots
+
+    key, ckpt = "cd" * 32, hash_bytes(b"checkpoint")
+    record = _attempt(key, 1, "running", 1) | {"checkpoints": [{"id": ckpt}]}
+    del record["inputs"]
+    write_attempt(store, record)
+    assert roots(store) == [(ckpt, "attempt cdcdcdcdcdcd/0001 (train) checkpoint")]
+    missing = f"missing object {ckpt[:12]} (named by attempt cdcdcdcdcdcd/0001 (train) checkpoint)"
+    assert missing in verify_store(store).problems
