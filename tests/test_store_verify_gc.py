@@ -14,6 +14,7 @@ from test_runner_support import count_invocation  # noqa: E402
 
 from artifacts.errors import StoreError
 from artifacts.gc import collect_garbage
+from artifacts.hashing import hash_bytes
 from artifacts.ingest import add_path
 from artifacts.locks import store_lock
 from artifacts.reachability import walk
@@ -177,25 +178,23 @@ NOT_MANIFESTS = {
 def test_a_ref_to_json_of_no_manifests_shape_is_one_verify_problem_and_gc_refuses(populated, shape):
     """Quick verify and gc walk by the rule push, pull and verify --remote use (artifacts/links.py):
     JSON that hashes fine but is shaped like no manifest is one problem naming the ref, never a
-    traceback (KeyError, TypeError) or a walk into an id that is no id; the rest is still walked."""
+    traceback (KeyError, TypeError) or a walk into an id that is no id; the walk goes on past it (refs
+    are walked last name first, so ref zzz's object is met before ref aaa's lost content)."""
+    lost = hash_bytes(b"never stored")
+    holder = populated.put_json({"type": "artifact", "layout": "file", "content": lost, "size": 12})
+    set_ref(populated, "aaa", holder)
+    before = walk(populated)
     odd = populated.put_json(NOT_MANIFESTS[shape])
-    set_ref(populated, "odd", odd)
+    set_ref(populated, "zzz", odd)
     reach = walk(populated)
-    [problem] = reach.problems
-    assert problem.startswith(f"object {odd[:12]} ") and "ref odd" in problem and "manifest" in problem, problem
-    assert set(reach.sizes) == set(walk_without(populated, "odd").sizes) | {odd}
+    first, *rest = reach.problems
+    assert first.startswith(f"object {odd[:12]} ") and "ref zzz" in first and "manifest" in first, first
+    assert rest == before.problems == [f"missing object {lost[:12]} (named by artifact {holder[:12]})"]
+    assert set(reach.sizes) == set(before.sizes) | {odd}
     report = verify_store(populated)
     assert report.problems == reach.problems
     with pytest.raises(StoreError, match="gc refused"):
         collect_garbage(populated, dry_run=False, grace_s=0)
-
-
-def walk_without(store: Store, ref: str):
-    (store.refs_dir / ref).rename(store.root / "aside")
-    try:
-        return walk(store)
-    finally:
-        (store.root / "aside").rename(store.refs_dir / ref)
 
 
 def test_walk_names_each_object_by_the_manifest_and_role_that_reach_it(populated):
@@ -203,6 +202,13 @@ def test_walk_names_each_object_by_the_manifest_and_role_that_reach_it(populated
     (the manifest alone), a tree's path, a step record's input or output."""
     reach = walk(populated)
     data = [o for o, size in reach.sizes.items() if size is not None]
+    grown = max(data, key=lambda o: reach.sizes[o])
+    os.chmod(populated.object_path(grown), 0o644)
+    with open(populated.object_path(grown), "ab") as f:
+        f.write(b"!")
+    [problem] = walk(populated).problems
+    size = reach.sizes[grown]
+    assert problem.startswith(f"object {grown[:12]} has size {size + 1}, expected {size} (named by tree "), problem
     for oid in data:
         populated.object_path(oid).unlink()
     problems = walk(populated).problems
