@@ -12,6 +12,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import shutil
 import socket
 import subprocess
 import sys
@@ -613,3 +614,23 @@ def test_an_unfinished_attempt_recorded_without_inputs_still_roots_its_checkpoin
     assert roots(store) == [(ckpt, "attempt cdcdcdcdcdcd/0001 (train) checkpoint")]
     missing = f"missing object {ckpt[:12]} (named by attempt cdcdcdcdcdcd/0001 (train) checkpoint)"
     assert missing in verify_store(store).problems
+
+
+def test_the_store_lists_only_objects_under_two_character_fan_directories(store):
+    """store.Store.iter_object_ids 4 (a two-character file, or a folder of another length, taken for a fan:
+    a NotADirectoryError, or an id made of a stray folder's name), 8 (the first stray entry, e.g. a Finder
+    `.DS_Store` that sorts before every fan, ends the listing: verify --full and gc would see no objects)."""
+    ids = sorted(store.put_bytes(bytes([n]) * 10) for n in range(3))
+    (store.objects_dir / ".DS_Store").write_bytes(b"finder")
+    (store.objects_dir / "zz").write_bytes(b"a file with a fan's name")
+    stray = store.objects_dir / "abc"  # three characters: no fan, though its name + a file's make 64 hex digits
+    stray.mkdir()
+    (stray / ("d" * 61)).write_bytes(b"x")
+    assert list(store.iter_object_ids()) == ids
+
+
+def test_a_store_whose_objects_folder_is_gone_lists_no_objects(store):
+    """store.Store.iter_object_ids 2 (listing a missing objects/ folder: FileNotFoundError)."""
+    store.put_bytes(b"one")
+    shutil.rmtree(store.objects_dir)
+    assert list(store.iter_object_ids()) == []
