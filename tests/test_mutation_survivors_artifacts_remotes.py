@@ -992,6 +992,26 @@ def test_a_small_write_a_directory_remote_refuses_names_the_remote_key_and_reaso
     assert list((root / "tmp").iterdir()) == []  # its temp file went with it
 
 
+def test_a_small_write_refused_before_its_temp_file_exists_names_the_refusal_not_a_missing_file(tmp_path, monkeypatch):
+    """DirBackend._write_new 27, 28 (the cleanup's `missing_ok` None or False: when the write fails before
+    the temp file exists, e.g. a full disk at open, removing the absent temp file raises FileNotFoundError
+    over the real error, and the user reads "No such file or directory" instead of why the write failed)."""
+    import errno
+
+    import artifacts.remotes.directory as directory
+
+    def disk_full(path: Path, data: bytes) -> None:
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    root = tmp_path / "remote"
+    b = dir_backend(root)
+    monkeypatch.setattr(directory, "write_new_fsynced", disk_full)
+    with pytest.raises(StoreError) as exc:
+        b.put_bytes("push-leases/abc", b"a lease\n")
+    assert str(exc.value) == f"remote nas ({root}): cannot write push-leases/abc: No space left on device"
+    assert list((root / "tmp").iterdir()) == []
+
+
 # ----------------------------------------------------------------------------- remotes.directory.upload_object
 def local_object(tmp_path: Path, data: bytes) -> tuple[str, Path]:
     """A file holding data, and its content id."""

@@ -528,3 +528,187 @@ def test_a_download_whose_writes_fall_short_still_writes_every_byte_once(moto, t
     assert got == (hash_bytes(data), len(data))
     assert (tmp_path / "download").read_bytes() == data
     assert short.calls >= 7  # every write fell short: at least ceil(102400 / 16384), however the body was chunked
+
+
+# ============================================================================= round 10 batch S
+# ----------------------------------------------------------------------------- S3Backend.upload_object
+def pending_uploads(endpoint: str, bucket: str) -> list[str]:
+    return sorted(u["Key"] for u in s3_client(endpoint).list_multipart_uploads(Bucket=bucket).get("Uploads", []))
+
+
+def local_corrupt_line(oid: str) -> str:
+    return (
+        f"object {oid[:12]} in this store is corrupt (its bytes no longer match its id); "
+        "nothing corrupt is pushed — run `accrue verify --full`"
+    )
+
+
+def test_an_object_over_single_put_max_arrives_whole_through_a_multipart_upload(moto, tmp_path):
+    """S3Backend.upload_object 18 (no hasher: a traceback), 19 (`max_threads=None`: a TypeError), 21 (one byte
+    counted before the first), 22–27 (the file not opened, or opened as text or with a bad mode), 29 (the hasher
+    fed None), 30, 31 (the bytes sent miscounted), 32 (a part before the last taken for the end), 35, 36 (a
+    whole, sound file refused at its last part), 38 (refused after its last part): a file just over
+    SINGLE_PUT_MAX (three parts of CHUNK_SIZE, the last 4 KiB) lands on the remote byte for byte, as one
+    multipart object, and no upload is left pending."""
+    from artifacts.remotes.backends import SINGLE_PUT_MAX, object_key
+
+    bucket = new_bucket(moto)
+    data = os.urandom(SINGLE_PUT_MAX + 4096)
+    oid = hash_bytes(data)
+    path = tmp_path / "object"
+    path.write_bytes(data)
+    backend(f"s3://{bucket}/team").upload_object(oid, path, len(data))
+    got = s3_client(moto).get_object(Bucket=bucket, Key=f"team/{object_key(oid)}")
+    assert got["Body"].read() == data
+    assert got["ETag"].endswith('-3"')  # parts of CHUNK_SIZE: 8 MiB, 8 MiB, 4 KiB
+    assert pending_uploads(moto, bucket) == []
+
+
+@pytest.mark.parametrize(
+    "damage",
+    ["last-byte-changed", "first-byte-changed", "one-byte-short", "one-byte-long", "small-byte-changed"],
+)
+def test_a_damaged_local_copy_is_refused_in_one_line_and_leaves_nothing_on_the_remote(moto, tmp_path, damage):
+    """S3Backend.upload_object 33, 34 (a file of the right length whose bytes changed is hashed only when it is
+    longer than `size`: the corrupt object is pushed), 37 (the line's id None: a TypeError traceback, and the
+    multipart upload's fate left to the traceback), 8 (the same for an object under SINGLE_PUT_MAX).
+    Whether the bytes changed, or the file is shorter or longer than `size`, the push stops on the one line,
+    no object lands under the id's key and no multipart upload is left pending."""
+    from artifacts.remotes.backends import SINGLE_PUT_MAX, object_key
+
+    bucket = new_bucket(moto)
+    data = os.urandom(4096 if damage.startswith("small") else SINGLE_PUT_MAX + 4096)
+    oid = hash_bytes(data)
+    on_disk = {
+        "last-byte-changed": data[:-1] + bytes([data[-1] ^ 1]),
+        "first-byte-changed": bytes([data[0] ^ 1]) + data[1:],
+        "one-byte-short": data[:-1],
+        "one-byte-long": data + b"\0",
+        "small-byte-changed": data[:-1] + bytes([data[-1] ^ 1]),
+    }[damage]
+    path = tmp_path / "object"
+    path.write_bytes(on_disk)
+    b = backend(f"s3://{bucket}/team")
+    with pytest.raises(StoreError) as raised:
+        b.upload_object(oid, path, len(data))
+    assert str(raised.value) == local_corrupt_line(oid)
+    assert b.head(object_key(oid)) is None
+    assert b.list_sizes("objects") == {}
+    assert pending_uploads(moto, bucket) == []
+
+
+@pytest.mark.parametrize("size", ["6MiB", "SINGLE_PUT_MAX"])
+def test_an_object_up_to_single_put_max_is_one_plain_put_whose_etag_is_its_md5(moto, tmp_path, size):
+    """S3Backend.upload_object 4 (an object of exactly SINGLE_PUT_MAX sent in two parts), 12, 16 (obstore's
+    own choice: multipart above its 5 MiB default chunk), 17 (always multipart); list_versions 3 (every
+    version listed as ""). Up to SINGLE_PUT_MAX an object travels in one request (backends.py), so S3 keeps
+    it as a plain object whose ETag is the MD5 of its bytes (what `aws s3 sync`, rclone and S3's own
+    integrity checks compare against), not a multipart ETag ("…-N") that no client can check; the listing
+    shows that ETag as the object's version."""
+    import hashlib
+
+    from artifacts.remotes.backends import SINGLE_PUT_MAX, object_key
+
+    bucket = new_bucket(moto)
+    data = os.urandom(6 * 1024 * 1024 if size == "6MiB" else SINGLE_PUT_MAX)
+    oid = hash_bytes(data)
+    path = tmp_path / "object"
+    path.write_bytes(data)
+    b = backend(f"s3://{bucket}/team")
+    b.upload_object(oid, path, len(data))
+    etag = f'"{hashlib.md5(data).hexdigest()}"'
+    got = s3_client(moto).get_object(Bucket=bucket, Key=f"team/{object_key(oid)}")
+    assert (got["ETag"], got["Body"].read() == data) == (etag, True)
+    assert b.list_versions("objects") == {object_key(oid): etag}
+    assert pending_uploads(moto, bucket) == []
+
+
+class _MultipartSink(BaseHTTPRequestHandler):
+    """A multipart-upload endpoint that keeps the parts' bytes hashed, in part order, and reads each body in
+    small pieces (so that what the test measures is the uploader's memory, not the server's)."""
+
+    protocol_version = "HTTP/1.1"
+    server: ScriptedS3
+
+    def _answer(self) -> None:
+        left, pieces = int(self.headers.get("Content-Length") or 0), []
+        while left > 0:
+            piece = self.rfile.read(min(left, 65536))
+            left -= len(piece)
+            pieces.append(piece)
+        headers, body = {}, b""
+        if self.command == "POST" and self.path.endswith("?uploads="):
+            body = b"<InitiateMultipartUploadResult><UploadId>u1</UploadId></InitiateMultipartUploadResult>"
+        elif self.command == "POST":
+            body = b'<CompleteMultipartUploadResult><ETag>"done-1"</ETag></CompleteMultipartUploadResult>'
+        else:
+            found = re.search(r"partNumber=(\d+)", self.path)
+            self.server.parts[int(found.group(1)) if found else 0] = hash_bytes(b"".join(pieces))
+            headers["ETag"] = '"part"'
+        self.send_response(200)
+        for k, v in headers.items():
+            self.send_header(k, v)
+        self.send_header("Content-Length", str(len(body)))
+        self.end_headers()
+        self.wfile.write(body)
+
+    do_PUT = do_POST = do_DELETE = _answer
+
+    def log_message(self, *args) -> None:
+        pass
+
+
+def test_a_multipart_upload_holds_parts_in_memory_not_the_whole_object(aws, tmp_path, monkeypatch):
+    """S3Backend.upload_object 28 (`f.read(None)`: the whole object read into memory as one piece before the
+    first part is sent, so pushing a checkpoint larger than the machine's memory fails). The file is read a
+    CHUNK_SIZE at a time: with parts of 64 KiB (obstore in flight at most MULTIPART_CONCURRENCY of them),
+    pushing a 12 MiB object never holds half of it in Python memory. Every part arrives, in order."""
+    import tracemalloc
+
+    import artifacts.remotes.s3
+
+    part, whole = 64 * 1024, 12 * 1024 * 1024
+    monkeypatch.setattr(artifacts.remotes.s3, "CHUNK_SIZE", part)
+    monkeypatch.setattr(artifacts.remotes.s3, "SINGLE_PUT_MAX", part)
+    server = ScriptedS3()
+    server.RequestHandlerClass = _MultipartSink
+    server.parts = {}
+    thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
+    thread.start()
+    aws.setenv("AWS_ENDPOINT_URL", server.url)
+    data = os.urandom(whole)
+    oid = hash_bytes(data)
+    path = tmp_path / "object"
+    path.write_bytes(data)
+    b = backend("s3://bucket/team")
+    tracemalloc.start()
+    try:
+        b.upload_object(oid, path, len(data))
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+        server.shutdown()
+        server.server_close()
+    assert peak < whole // 2, f"{peak} bytes traced at the peak"
+    assert [server.parts[n] for n in sorted(server.parts)] == [
+        hash_bytes(data[i : i + part]) for i in range(0, whole, part)
+    ]
+
+
+# ----------------------------------------------------------------------------- S3Backend.list_versions
+def test_a_listing_without_etags_gives_no_version_and_one_with_them_gives_each_etag(scripted):
+    """S3Backend.list_versions 6 (a key listed without an ETag gets the version "XXXX"; some S3-compatible
+    servers leave it out): no version is "", which read_pointers takes as "unknown, read the ref", never as a
+    version to compare with the cache; an ETag listed is the version."""
+    scripted.reply = (
+        200,
+        b'<?xml version="1.0" encoding="UTF-8"?>'
+        b'<ListBucketResult xmlns="http://s3.amazonaws.com/doc/2006-03-01/"><Name>bucket</Name>'
+        b"<Prefix>team/refs/</Prefix><KeyCount>2</KeyCount><MaxKeys>1000</MaxKeys><IsTruncated>false</IsTruncated>"
+        b"<Contents><Key>team/refs/main</Key><LastModified>2026-12-01T00:00:00.000Z</LastModified>"
+        b"<Size>65</Size><StorageClass>STANDARD</StorageClass></Contents>"
+        b"<Contents><Key>team/refs/dev</Key><LastModified>2026-12-01T00:00:00.000Z</LastModified>"
+        b'<ETag>"abc"</ETag><Size>65</Size><StorageClass>STANDARD</StorageClass></Contents></ListBucketResult>',
+    )
+    assert backend("s3://bucket/team").list_versions("refs") == {"refs/main": "", "refs/dev": '"abc"'}
+    assert [(m, p) for m, p, _ in scripted.requests] == [("GET", "/bucket?list-type=2&prefix=team%2Frefs%2F")]
