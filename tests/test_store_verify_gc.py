@@ -221,3 +221,15 @@ def test_walk_names_each_object_by_the_manifest_and_role_that_reach_it(populated
     roles = " ".join(walk(populated).problems)
     assert f"(named by step-record {record[:12]} input seed)" in roles
     assert f"(named by step-record {record[:12]} output " in roles
+
+
+def test_a_step_record_naming_only_outputs_or_only_inputs_is_a_manifest_of_those():
+    """links._named 66, 68, 77, 79 (a step record with no "inputs", or no "outputs", refused as no manifest):
+    an attempt recorded before its inputs were known names only its outputs (its checkpoints), and one
+    recorded before any output names only its inputs; gc, verify, push and pull follow either."""
+    from artifacts.links import Link, links
+
+    record, ckpt, config = (hash_bytes(b) for b in (b"record", b"checkpoint", b"config"))
+    assert links(record, {"type": "step-record", "outputs": {"ckpt": ckpt}}) == [Link(ckpt, None, " output ckpt")]
+    assert links(record, {"type": "step-record", "inputs": {"config": config}}) == [Link(config, None, " input config")]
+    assert links(record, {"type": "step-record"}) == []
