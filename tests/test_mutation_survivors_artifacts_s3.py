@@ -712,3 +712,20 @@ def test_a_listing_without_etags_gives_no_version_and_one_with_them_gives_each_e
     )
     assert backend("s3://bucket/team").list_versions("refs") == {"refs/main": "", "refs/dev": '"abc"'}
     assert [(m, p) for m, p, _ in scripted.requests] == [("GET", "/bucket?list-type=2&prefix=team%2Frefs%2F")]
+
+
+# ----------------------------------------------------------------------------- S3Backend.put_bytes
+@pytest.mark.parametrize("size", [65, 6 * 1024 * 1024])
+def test_bytes_put_to_s3_are_one_plain_put_whose_etag_is_their_md5(moto, size):
+    """S3Backend.put_bytes 9 (always multipart), 4, 8 (obstore's own choice: multipart above its 5 MiB
+    chunk, e.g. the manifest of a tree of many files, pushed by put_bytes). A ref, a lease or a manifest is
+    one request, so S3 keeps a plain object whose ETag is the MD5 of its bytes (what a ref's compare-and-swap
+    and other S3 clients check), not a multipart ETag ("…-N")."""
+    import hashlib
+
+    bucket = new_bucket(moto)
+    data = os.urandom(size)
+    backend(f"s3://{bucket}/team").put_bytes("objects/ab/cdef", data)
+    got = s3_client(moto).get_object(Bucket=bucket, Key="team/objects/ab/cdef")
+    assert (got["ETag"], got["Body"].read() == data) == (f'"{hashlib.md5(data).hexdigest()}"', True)
+    assert pending_uploads(moto, bucket) == []
