@@ -80,6 +80,7 @@ class ScriptedS3(ThreadingHTTPServer):
     def __init__(self) -> None:
         super().__init__(("127.0.0.1", 0), _Handler)
         self.reply: tuple[int, bytes] = (204, b"")
+        self.headers: dict[str, str] = {}  # sent with every reply
         self.silent = False
         self.released = threading.Event()
         self.requests: list[tuple[str, str, dict[str, str]]] = []
@@ -101,6 +102,8 @@ class _Handler(BaseHTTPRequestHandler):
         status, body = self.server.reply
         self.send_response(status)
         self.send_header("Content-Type", "application/xml")
+        for name, value in self.server.headers.items():
+            self.send_header(name, value)
         self.send_header("Content-Length", str(len(body)))
         self.end_headers()
         self.wfile.write(body)
@@ -695,6 +698,58 @@ def test_a_multipart_upload_holds_parts_in_memory_not_the_whole_object(aws, tmp_
     ]
 
 
+class _PartsInFlight(_MultipartSink):
+    """A multipart sink that holds each part until `target` parts are in flight at once (or 5 s pass), and
+    keeps the most it saw."""
+
+    def _answer(self) -> None:
+        server = self.server
+        if self.command == "PUT":
+            with server.lock:
+                server.in_flight += 1
+                server.peak = max(server.peak, server.in_flight)
+                if server.in_flight >= server.target:
+                    server.enough.set()
+            server.enough.wait(5)
+        try:
+            super()._answer()
+        finally:
+            if self.command == "PUT":
+                with server.lock:
+                    server.in_flight -= 1
+
+    do_PUT = do_POST = do_DELETE = _answer
+
+
+def test_a_multipart_upload_keeps_multipart_concurrency_parts_in_flight(aws, tmp_path, monkeypatch):
+    """S3Backend.upload_object 49 (obstore's default of 12 parts in flight instead of MULTIPART_CONCURRENCY,
+    the figure measured for a big checkpoint's push, backends.py): the setting reaches the wire. The sink
+    holds every part until MULTIPART_CONCURRENCY are in flight together; no more ever are."""
+    import artifacts.remotes.s3
+
+    part = 64 * 1024
+    concurrency = artifacts.remotes.s3.MULTIPART_CONCURRENCY
+    monkeypatch.setattr(artifacts.remotes.s3, "CHUNK_SIZE", part)
+    monkeypatch.setattr(artifacts.remotes.s3, "SINGLE_PUT_MAX", part)
+    server = ScriptedS3()
+    server.RequestHandlerClass = _PartsInFlight
+    server.parts, server.lock, server.enough = {}, threading.Lock(), threading.Event()
+    server.in_flight, server.peak, server.target = 0, 0, concurrency
+    thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
+    thread.start()
+    aws.setenv("AWS_ENDPOINT_URL", server.url)
+    data = os.urandom(part * (concurrency + 2))
+    path = tmp_path / "object"
+    path.write_bytes(data)
+    try:
+        backend("s3://bucket/team").upload_object(hash_bytes(data), path, len(data))
+    finally:
+        server.shutdown()
+        server.server_close()
+    assert server.peak == concurrency
+    assert len(server.parts) == concurrency + 2
+
+
 # ----------------------------------------------------------------------------- S3Backend.list_versions
 def test_a_listing_without_etags_gives_no_version_and_one_with_them_gives_each_etag(scripted):
     """S3Backend.list_versions 6 (a key listed without an ETag gets the version "XXXX"; some S3-compatible
@@ -729,3 +784,44 @@ def test_bytes_put_to_s3_are_one_plain_put_whose_etag_is_their_md5(moto, size):
     got = s3_client(moto).get_object(Bucket=bucket, Key="team/objects/ab/cdef")
     assert (got["ETag"], got["Body"].read() == data) == (f'"{hashlib.md5(data).hexdigest()}"', True)
     assert pending_uploads(moto, bucket) == []
+
+
+# ----------------------------------------------------------------------------- S3Backend.read_versioned, swap
+def test_an_answer_with_an_empty_etag_gives_the_version_unknown_not_a_made_up_one(scripted):
+    """S3Backend.read_versioned 12, swap 23 (a GET or PUT answered with an empty ETag gives the version
+    "XXXX"; obstore refuses an answer with no ETag at all). An empty ETag is the version "": unknown, so the
+    next compare-and-swap reads the ref again rather than sending an If-Match no server could match."""
+    b = backend("s3://bucket/team")
+    scripted.headers = {"ETag": ""}
+    scripted.reply = (200, b"ref bytes\n")
+    assert b.read_versioned("refs/main") == (b"ref bytes\n", "")
+    scripted.reply = (200, b"")
+    assert b.swap("refs/main", b"new\n", None) == ""
+    assert [m for m, _p, _h in scripted.requests] == ["GET", "PUT"]
+
+
+# ----------------------------------------------------------------------------- _seconds
+@pytest.mark.parametrize("raw", ["soon", "0", "-3", "1e6", "nan"])
+def test_a_timeout_setting_that_is_no_positive_number_of_seconds_is_refused_in_one_line(aws, raw):
+    """s3._seconds 8 (a setting that is no number: a TypeError traceback), 9 (taken as 1 second), 13 (0
+    accepted: every request would time out at once). The remote is not opened; the line names the setting
+    and the value as the user wrote it."""
+    aws.setenv("ACCRUE_REMOTE_CONNECT_TIMEOUT", raw)
+    with pytest.raises(StoreError) as raised:
+        backend("s3://bucket/team").list_sizes("refs")
+    assert (
+        str(raised.value)
+        == f"remote origin (s3://bucket/team): $ACCRUE_REMOTE_CONNECT_TIMEOUT={raw!r}: not a number of seconds"
+    )
+
+
+# ----------------------------------------------------------------------------- S3Backend._list
+def test_a_prefix_lists_the_keys_under_it_written_with_or_without_its_slash(moto):
+    """S3Backend._list 8, 9 (a prefix written with its trailing slash listed as "refs//": nothing). A
+    prefix names a folder, as on a directory remote: "refs" and "refs/" list the keys under refs/, and
+    not those of a sibling whose name merely starts the same."""
+    bucket = new_bucket(moto)
+    b = backend(f"s3://{bucket}/team")
+    b.put_bytes("refs/main", b"a\n")
+    b.put_bytes("refs-old/main", b"bb\n")
+    assert b.list_sizes("refs/") == b.list_sizes("refs") == {"refs/main": 2}
