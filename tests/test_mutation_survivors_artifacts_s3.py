@@ -825,3 +825,24 @@ def test_a_prefix_lists_the_keys_under_it_written_with_or_without_its_slash(moto
     b.put_bytes("refs/main", b"a\n")
     b.put_bytes("refs-old/main", b"bb\n")
     assert b.list_sizes("refs/") == b.list_sizes("refs") == {"refs/main": 2}
+
+
+# ----------------------------------------------------------------------------- endpoint_of
+def test_the_s3_specific_endpoint_variable_wins_over_the_general_one(aws, moto_endpoint):
+    """endpoint_of 9, 10 (AWS_ENDPOINT_URL_S3 not read: the remote is sought at AWS_ENDPOINT_URL). As in
+    the AWS tools, the service-specific AWS_ENDPOINT_URL_S3 is used before AWS_ENDPOINT_URL, which here
+    points at a port where nothing listens: by every request, including the conditional DELETE that boto3
+    sends (obstore reads AWS_ENDPOINT_URL_S3 itself; boto3 is given the endpoint), and by the line that
+    says the endpoint cannot be reached."""
+    aws.setenv("ACCRUE_REMOTE_RETRIES", "0")
+    aws.setenv("AWS_ENDPOINT_URL", "http://127.0.0.1:9")
+    aws.setenv("AWS_ENDPOINT_URL_S3", moto_endpoint)
+    bucket = new_bucket(moto_endpoint)
+    b = backend(f"s3://{bucket}/team")
+    b.put_bytes("refs/main", b"a\n")
+    b.delete("refs/main", b.list_versions("refs")["refs/main"])
+    assert b.list_sizes("refs") == {}
+    aws.setenv("AWS_ENDPOINT_URL_S3", "http://127.0.0.1:7")
+    with pytest.raises(StoreError) as raised:
+        backend(f"s3://{bucket}/team").list_sizes("refs")
+    assert "cannot reach http://127.0.0.1:7 " in str(raised.value)
