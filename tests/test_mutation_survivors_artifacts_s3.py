@@ -846,3 +846,15 @@ def test_the_s3_specific_endpoint_variable_wins_over_the_general_one(aws, moto_e
     with pytest.raises(StoreError) as raised:
         backend(f"s3://{bucket}/team").list_sizes("refs")
     assert "cannot reach http://127.0.0.1:7 " in str(raised.value)
+
+
+def test_a_remotes_own_endpoint_setting_wins_over_aws_endpoint_url_s3(aws, moto_endpoint):
+    """A remote given its endpoint (`accrue remote set NAME endpoint URL`) is reached there even when
+    AWS_ENDPOINT_URL_S3 names another S3 service (obstore alone lets the variable win: the push went to the
+    other service, and its failure named the remote's endpoint)."""
+    aws.setenv("ACCRUE_REMOTE_RETRIES", "0")
+    aws.setenv("AWS_ENDPOINT_URL_S3", "http://127.0.0.1:7")
+    bucket = new_bucket(moto_endpoint)
+    b = backend(f"s3://{bucket}/team", endpoint=moto_endpoint)
+    b.put_bytes("refs/main", b"a\n")
+    assert b.list_sizes("refs") == {"refs/main": 2}

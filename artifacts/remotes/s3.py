@@ -62,7 +62,9 @@ def _s3_store(spec: RemoteSpec):
     }
     kwargs: dict = {}
     if endpoint:
-        kwargs["endpoint"] = endpoint
+        # obstore lets AWS_ENDPOINT_URL_S3 win over `endpoint`: give it endpoint_of's choice too, so a
+        # remote's own endpoint setting is where requests go (and what the error lines name)
+        kwargs["endpoint"] = kwargs["aws_endpoint_url_s3"] = endpoint
     region = spec.settings.get("region")
     if region:
         kwargs["region"] = region
