@@ -1125,3 +1125,92 @@ def test_repair_sends_every_object_back_to_a_remote_whose_objects_folder_was_del
         f"remote nas lacks object {report.unhealed[0][:12]} (named by log of store {store_id(store)[:12]})"
     ]
     store.close()
+
+
+# ----------------------------------------------------------------------------- remotes.stepindex.index_step_records
+def committed_record(store: Store, n: int) -> tuple[str, dict]:
+    """A committed step record, as a remote's ref names one, stored in `store`: (its id, its fields)."""
+    record = {
+        "type": "step-record",
+        "state": "committed",
+        "cache_key": hash_bytes(f"key {n}".encode()),
+        "step": f"step-{n}",
+        "inputs": {"data": hash_bytes(b"input")},
+        "outputs": {"model": hash_bytes(f"output {n}".encode())},
+        "config": {"lr": n},
+        "code_version": "v1",
+        "started": "2026-12-01T00:00:00Z",
+        "finished": "2026-12-01T01:00:00Z",
+        "host": "robot-pc",
+        "workflow": "wf",
+        "stage": n,
+    }
+    return store.put_json(record), record
+
+
+def test_pulled_step_records_are_indexed_once_each_as_committed_attempts_and_logged(bare_store):
+    """index_step_records 31 (stop at the first record already indexed), 33, 36, 38, 39, 41, 46–49, 51, 60,
+    61 (an attempt with fields missing, None or misspelt), 66 (None returned for an id), 68, 69, 70 (the log
+    event without its name, source or records). Each committed record the index lacks becomes one committed
+    attempt of its key, with the record's own fields and where it came from; an id twice, a record already
+    indexed, or data that is no record is passed over, and one event lists what was entered."""
+    from artifacts.auditlog import iter_events
+    from artifacts.records import list_attempts
+    from artifacts.remotes.stepindex import index_step_records
+
+    (one, rec1), (two, _), (three, rec3) = (committed_record(bare_store, n) for n in (1, 2, 3))
+    data = bare_store.put_bytes(b"not a record")
+    assert index_step_records(bare_store, [two], "origin") == [two]
+    assert index_step_records(bare_store, [one, one, data, two, three], "origin") == [one, three]
+    for oid, rec in ((one, rec1), (three, rec3)):
+        [attempt] = list_attempts(bare_store, rec["cache_key"])
+        attempt.pop("log_anchor")
+        assert attempt == {
+            **{f: rec[f] for f in ("inputs", "config", "code_version", "outputs", "started", "finished", "host")},
+            **{"workflow": rec["workflow"], "stage": rec["stage"], "cache_key": rec["cache_key"]},
+            **{"attempt": 1, "step": rec["step"], "state": "committed", "mode": "normal", "pid": None},
+            **{"checkpoints": [], "resumed_from": None, "record_id": oid, "imported_from": "origin"},
+        }
+    events = [e for e in iter_events(bare_store) if e["event"] == "step-records-indexed"]
+    assert [(e["source"], e["records"]) for e in events] == [("origin", [two]), ("origin", [one, three])]
+    assert index_step_records(bare_store, [one, two, three], "origin") == []
+
+
+def test_a_record_whose_step_runs_here_is_skipped_after_the_lock_wait_and_the_rest_indexed(bare_store, monkeypatch):
+    """index_step_records 15 (a lock of another name: a record entered while its step runs here), 19 (stop at
+    the first busy key), 18 (wait for the step forever). A step of that key running here (holding the
+    runner's step lock) will commit its own attempt: the record is skipped after LOCK_WAIT_S, and the
+    others are entered."""
+    import threading
+
+    import artifacts.remotes.stepindex as stepindex
+    from artifacts.locks import store_lock
+
+    monkeypatch.setattr(stepindex, "LOCK_WAIT_S", 0.2)
+    (one, rec1), (three, _) = (committed_record(bare_store, n) for n in (1, 3))
+    got: list[list[str]] = []
+    with store_lock(bare_store.locks_dir, f"step-{rec1['cache_key']}"):
+        worker = threading.Thread(
+            target=lambda: got.append(stepindex.index_step_records(bare_store, [one, three], "origin")), daemon=True
+        )
+        worker.start()
+        worker.join(10)
+        assert not worker.is_alive(), "still waiting for the running step"
+    assert got == [[three]]
+
+
+def test_a_damaged_attempt_file_of_the_key_does_not_stop_a_record_being_indexed(bare_store):
+    """index_step_records 27, 30 (list_attempts without a problems list: a damaged attempt file of the key
+    makes the whole pull fail). The damaged file is passed over (verify reports it); the record is entered
+    as the next attempt."""
+    from artifacts.records import list_attempts
+    from artifacts.remotes.stepindex import index_step_records
+
+    one, rec1 = committed_record(bare_store, 1)
+    key_dir = bare_store.records_dir / rec1["cache_key"]
+    key_dir.mkdir(parents=True)
+    (key_dir / "0001.json").write_text("{ torn")
+    assert index_step_records(bare_store, [one], "origin") == [one]
+    problems: list[str] = []
+    [attempt] = list_attempts(bare_store, rec1["cache_key"], problems=problems)
+    assert (attempt["attempt"], attempt["record_id"], len(problems)) == (2, one, 1)
