@@ -1214,3 +1214,28 @@ def test_a_damaged_attempt_file_of_the_key_does_not_stop_a_record_being_indexed(
     problems: list[str] = []
     [attempt] = list_attempts(bare_store, rec1["cache_key"], problems=problems)
     assert (attempt["attempt"], attempt["record_id"], len(problems)) == (2, one, 1)
+
+
+def test_indexing_reads_only_records_the_store_holds_and_never_fetches_one(tmp_path, monkeypatch):
+    """stepindex._step_record 1 (`and` for `or`: an id the store lacks is read anyway, and a partial clone
+    fetches it from the remote just to index it). Only records already here are indexed; a record left on
+    the remote (pull --only) stays there and out of the index until it is pulled."""
+    from artifacts.remotes.stepindex import index_step_records
+
+    monkeypatch.setattr(artifacts.store, "_MISSING_FETCHERS", [])
+    store, _ = Store.init(tmp_path / "store")
+    store.update_config(lambda c: c.setdefault("remotes", {}).update({"origin": {"url": "x", "promisor": True}}))
+    elsewhere, _ = Store.init(tmp_path / "remote-side")
+    oid, _ = committed_record(elsewhere, 1)
+    asked: list[list[str]] = []
+
+    def fetch(s: Store, missing: list[str]) -> bool:
+        asked.append(list(missing))
+        s.put_bytes(elsewhere.read_bytes(oid))
+        return True
+
+    add_missing_fetcher(fetch)
+    assert index_step_records(store, [oid], "origin") == []
+    assert (asked, store.has_object(oid)) == ([], False)
+    store.close()
+    elsewhere.close()
