@@ -1239,3 +1239,16 @@ def test_indexing_reads_only_records_the_store_holds_and_never_fetches_one(tmp_p
     assert (asked, store.has_object(oid)) == ([], False)
     store.close()
     elsewhere.close()
+
+
+def test_an_object_over_manifest_max_is_never_read_as_a_step_record(bare_store, monkeypatch):
+    """stepindex._step_record 4 (`and` for `or`: the size check never refuses, so every big object, a
+    checkpoint of gigabytes, is read whole to see whether it is a record). An object over MANIFEST_MAX is
+    data: not read, not indexed, even when its bytes would parse as a committed record."""
+    import artifacts.remotes.stepindex as stepindex
+
+    oid, _ = committed_record(bare_store, 1)
+    monkeypatch.setattr(stepindex, "MANIFEST_MAX", bare_store.object_size(oid) - 1)
+    assert stepindex.index_step_records(bare_store, [oid], "origin") == []
+    monkeypatch.setattr(stepindex, "MANIFEST_MAX", bare_store.object_size(oid))
+    assert stepindex.index_step_records(bare_store, [oid], "origin") == [oid]
