@@ -1252,3 +1252,26 @@ def test_an_object_over_manifest_max_is_never_read_as_a_step_record(bare_store, 
     assert stepindex.index_step_records(bare_store, [oid], "origin") == []
     monkeypatch.setattr(stepindex, "MANIFEST_MAX", bare_store.object_size(oid))
     assert stepindex.index_step_records(bare_store, [oid], "origin") == [oid]
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        {"state": "running"},
+        {"type": "artifact"},
+        {"cache_key": "abc123"},
+        {"outputs": ["model"]},
+        "a JSON list",
+    ],
+)
+def test_an_object_that_is_no_committed_step_record_is_passed_over(bare_store, change):
+    """stepindex._step_record 10 (an uncommitted step record entered as a committed attempt), 11 (JSON that
+    is no object: a traceback; a committed object of another type entered), 25 (a record with a short key,
+    or outputs that are no mapping, entered: an attempt file under a key that is no key). Only a committed
+    step record with a full cache key and a mapping of outputs becomes an attempt."""
+    from artifacts.remotes.stepindex import index_step_records
+
+    _, record = committed_record(bare_store, 1)
+    oid = bare_store.put_json([record]) if change == "a JSON list" else bare_store.put_json({**record, **change})
+    assert index_step_records(bare_store, [oid], "origin") == []
+    assert not bare_store.records_dir.is_dir() or list(bare_store.records_dir.iterdir()) == []
