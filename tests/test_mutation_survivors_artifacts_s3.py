@@ -877,3 +877,41 @@ def test_the_older_aws_endpoint_variable_is_the_last_one_read(aws, moto_endpoint
     b.put_bytes("refs/main", b"a\n")
     b.delete("refs/main", b.list_versions("refs")["refs/main"])
     assert b.list_sizes("refs") == {}
+
+
+# ----------------------------------------------------------------------------- _s3_store
+def test_a_remote_with_no_endpoint_anywhere_is_opened_for_aws_itself(aws):
+    """_s3_store 36 (`or` for `and`: with no endpoint set, None.startswith is a traceback). A bucket on AWS
+    itself needs no endpoint: the remote opens (no request is sent) with obstore's own AWS endpoint."""
+    b = backend("s3://bucket/team", region="eu-west-3")
+    assert "endpoint" not in b.store.config
+
+
+def test_a_silent_server_ends_a_listing_after_accrue_remote_read_timeout(scripted, monkeypatch):
+    """_s3_store 9, 10 (obstore's read timeout at the 10 s default whatever the variable says). A server that
+    accepts and never answers ends the command in one line once ACCRUE_REMOTE_READ_TIMEOUT passes."""
+    monkeypatch.setenv("ACCRUE_REMOTE_READ_TIMEOUT", "0.5")
+    scripted.silent = True
+    raised = raised_within(5, lambda: backend("s3://bucket/team").list_sizes("refs"))
+    assert isinstance(raised, StoreError), raised
+
+
+def test_a_request_is_cut_at_accrue_remote_timeout_however_long_reads_may_wait(scripted, monkeypatch):
+    """_s3_store 33, 34 (the whole request's limit at the 3600 s default whatever the variable says). With
+    reads allowed 30 s, a silent server still ends the request at ACCRUE_REMOTE_TIMEOUT."""
+    monkeypatch.setenv("ACCRUE_REMOTE_READ_TIMEOUT", "30")
+    monkeypatch.setenv("ACCRUE_REMOTE_TIMEOUT", "0.5")
+    scripted.silent = True
+    raised = raised_within(5, lambda: backend("s3://bucket/team").list_sizes("refs"))
+    assert isinstance(raised, StoreError), raised
+
+
+@pytest.mark.parametrize("retries", [0, 2])
+def test_a_server_error_is_tried_accrue_remote_retries_more_times(scripted, monkeypatch, retries):
+    """_s3_store 50, 51 (obstore's retries at the default 3 whatever the variable says): a listing answered
+    503 each time is sent 1 + ACCRUE_REMOTE_RETRIES times, then fails in one line."""
+    monkeypatch.setenv("ACCRUE_REMOTE_RETRIES", str(retries))
+    scripted.reply = (503, s3_error_body("SlowDown", "Please reduce your request rate."))
+    with pytest.raises(StoreError):
+        backend("s3://bucket/team").list_sizes("refs")
+    assert len(scripted.requests) == 1 + retries
