@@ -915,3 +915,32 @@ def test_a_server_error_is_tried_accrue_remote_retries_more_times(scripted, monk
     with pytest.raises(StoreError):
         backend("s3://bucket/team").list_sizes("refs")
     assert len(scripted.requests) == 1 + retries
+
+
+def test_a_silent_server_is_tried_again_only_within_the_retry_window(scripted, monkeypatch):
+    """_s3_store 53, 56, 57 (obstore's own retry window, 180 s: every retry spent on a server that never
+    answers). A read that timed out is retried only while the first try began less than 1.5 read timeouts
+    ago: with reads of 0.5 s and 3 retries allowed, a silent server gets at most 2 requests."""
+    monkeypatch.setenv("ACCRUE_REMOTE_READ_TIMEOUT", "0.5")
+    monkeypatch.setenv("ACCRUE_REMOTE_RETRIES", "3")
+    scripted.silent = True
+    raised = raised_within(8, lambda: backend("s3://bucket/team").list_sizes("refs"))
+    assert isinstance(raised, StoreError), raised
+    assert 1 <= len(scripted.requests) <= 2
+
+
+@pytest.mark.parametrize("read_s, window_s", [("0.5", 0.75), ("4", 6.0), ("20", 15.0)])
+def test_the_retry_window_is_one_and_a_half_read_timeouts_and_at_most_15_s(aws, read_s, window_s):
+    """_s3_store 53–57, 65–67, 69, 70 (obstore's defaults, 10 retries in a 180 s window backing off up to
+    15 s, or another window): what obstore is given, so that a server that accepts and never answers ends
+    the command within ~30 s (s3.py). obstore ignores a retry setting it does not know by that exact name."""
+    from datetime import timedelta
+
+    aws.setenv("ACCRUE_REMOTE_READ_TIMEOUT", read_s)
+    aws.setenv("ACCRUE_REMOTE_RETRIES", "3")
+    given = backend("s3://bucket/team").store.retry_config
+    assert given == {
+        "max_retries": 3,
+        "retry_timeout": timedelta(seconds=window_s),
+        "backoff": {"init_backoff": timedelta(milliseconds=100), "max_backoff": timedelta(seconds=2), "base": 2.0},
+    }
