@@ -956,3 +956,32 @@ def test_a_remotes_region_setting_signs_its_requests(scripted):
     )
     backend("s3://bucket/team", region="eu-west-3").list_sizes("refs")
     assert signed_as(scripted.requests[0][2]) == ("testing", "eu-west-3")
+
+
+@pytest.mark.parametrize(
+    "keys, signer",
+    [
+        ({}, ("TEAMKEY", "eu-west-3")),
+        ({"AWS_ACCESS_KEY_ID": "testing", "AWS_SECRET_ACCESS_KEY": "testing"}, ("testing", "us-east-1")),
+        ({"AWS_ACCESS_KEY_ID": "half"}, ("TEAMKEY", "eu-west-3")),
+    ],
+)
+def test_aws_profile_signs_requests_unless_the_environment_holds_a_whole_key_pair(
+    aws, scripted, tmp_path, keys, signer
+):
+    """_s3_store 101, 102 (AWS_PROFILE not read: no credentials), 104 (the profile over the environment's
+    keys), 105 (an access key id without its secret taken for keys: the profile ignored). As in the AWS
+    tools, keys in the environment come before AWS_PROFILE, but only a whole pair of them."""
+    (tmp_path / "aws-config").write_text(
+        "[profile team]\nregion = eu-west-3\naws_access_key_id = TEAMKEY\naws_secret_access_key = teamsecret\n"
+    )
+    for k in ("AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY"):
+        aws.delenv(k)
+    for k, v in {**keys, "AWS_PROFILE": "team"}.items():
+        aws.setenv(k, v)
+    scripted.reply = (
+        200,
+        b'<?xml version="1.0" encoding="UTF-8"?><ListBucketResult><KeyCount>0</KeyCount></ListBucketResult>',
+    )
+    backend("s3://bucket/team").list_sizes("refs")
+    assert signed_as(scripted.requests[0][2]) == signer
