@@ -985,3 +985,23 @@ def test_aws_profile_signs_requests_unless_the_environment_holds_a_whole_key_pai
     )
     backend("s3://bucket/team").list_sizes("refs")
     assert signed_as(scripted.requests[0][2]) == signer
+
+
+@pytest.mark.parametrize("aws_file", ["credentials", "config"])
+def test_keys_in_the_home_aws_files_sign_requests_when_the_environment_has_none(aws, scripted, tmp_path, aws_file):
+    """_s3_store 112, 116, 117, 118 (~/.aws/credentials or ~/.aws/config not noticed: obstore, which reads
+    no AWS files, sends the request without keys). With no keys and no profile in the environment, the
+    default profile of ~/.aws signs the requests, whichever of the two files holds it."""
+    home = tmp_path / "home"
+    (home / ".aws").mkdir(parents=True)
+    section = "[default]" if aws_file == "credentials" else "[default]\nregion = eu-west-3"
+    (home / ".aws" / aws_file).write_text(f"{section}\naws_access_key_id = HOMEKEY\naws_secret_access_key = s\n")
+    aws.setenv("HOME", str(home))
+    for k in ("AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY", "AWS_CONFIG_FILE", "AWS_SHARED_CREDENTIALS_FILE"):
+        aws.delenv(k)
+    scripted.reply = (
+        200,
+        b'<?xml version="1.0" encoding="UTF-8"?><ListBucketResult><KeyCount>0</KeyCount></ListBucketResult>',
+    )
+    backend("s3://bucket/team").list_sizes("refs")
+    assert signed_as(scripted.requests[0][2])[0] == "HOMEKEY"
