@@ -16,6 +16,7 @@ cannot reach its backend, silence) or needs to read how a request was signed. No
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import re
@@ -84,8 +85,8 @@ class ScriptedS3(ThreadingHTTPServer):
 
     daemon_threads = True
 
-    def __init__(self) -> None:
-        super().__init__(("127.0.0.1", 0), _Handler)
+    def __init__(self, handler: type[BaseHTTPRequestHandler] | None = None) -> None:
+        super().__init__(("127.0.0.1", 0), handler or _Handler)
         self.reply: tuple[int, bytes] = (204, b"")
         self.headers: dict[str, str] = {}  # sent with every reply
         self.silent = False
@@ -121,18 +122,28 @@ class _Handler(BaseHTTPRequestHandler):
         pass
 
 
+@contextlib.contextmanager
+def serving(server: ScriptedS3, aws):
+    """`server` answering on a thread, reached through AWS_ENDPOINT_URL; stopped (its silence released) after."""
+    threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True).start()
+    aws.setenv("AWS_ENDPOINT_URL", server.url)
+    try:
+        yield server
+    finally:
+        server.released.set()
+        server.shutdown()
+        server.server_close()
+
+
 @pytest.fixture
 def scripted(aws):
     """A scripted S3 reached through AWS_ENDPOINT_URL, tried once (ACCRUE_REMOTE_RETRIES=0)."""
-    server = ScriptedS3()
-    thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
-    thread.start()
-    aws.setenv("AWS_ENDPOINT_URL", server.url)
-    aws.setenv("ACCRUE_REMOTE_RETRIES", "0")
-    yield server
-    server.released.set()
-    server.shutdown()
-    server.server_close()
+    with serving(ScriptedS3(), aws) as server:
+        aws.setenv("ACCRUE_REMOTE_RETRIES", "0")
+        yield server
+
+
+EMPTY_LISTING = b'<?xml version="1.0" encoding="UTF-8"?><ListBucketResult><KeyCount>0</KeyCount></ListBucketResult>'
 
 
 def s3_error_body(code: str, message: str) -> bytes:
@@ -681,25 +692,20 @@ def test_a_multipart_upload_holds_parts_in_memory_not_the_whole_object(aws, tmp_
     part, whole = 64 * 1024, 12 * 1024 * 1024
     monkeypatch.setattr(artifacts.remotes.s3, "CHUNK_SIZE", part)
     monkeypatch.setattr(artifacts.remotes.s3, "SINGLE_PUT_MAX", part)
-    server = ScriptedS3()
-    server.RequestHandlerClass = _MultipartSink
+    server = ScriptedS3(_MultipartSink)
     server.parts = {}
-    thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
-    thread.start()
-    aws.setenv("AWS_ENDPOINT_URL", server.url)
     data = os.urandom(whole)
     oid = hash_bytes(data)
     path = tmp_path / "object"
     path.write_bytes(data)
-    b = backend("s3://bucket/team")
-    tracemalloc.start()
-    try:
-        b.upload_object(oid, path, len(data))
-        peak = tracemalloc.get_traced_memory()[1]
-    finally:
-        tracemalloc.stop()
-        server.shutdown()
-        server.server_close()
+    with serving(server, aws):
+        b = backend("s3://bucket/team")
+        tracemalloc.start()
+        try:
+            b.upload_object(oid, path, len(data))
+            peak = tracemalloc.get_traced_memory()[1]
+        finally:
+            tracemalloc.stop()
     assert peak < whole // 2, f"{peak} bytes traced at the peak"
     assert [server.parts[n] for n in sorted(server.parts)] == [
         hash_bytes(data[i : i + part]) for i in range(0, whole, part)
@@ -739,21 +745,14 @@ def test_a_multipart_upload_keeps_multipart_concurrency_parts_in_flight(aws, tmp
     concurrency = artifacts.remotes.s3.MULTIPART_CONCURRENCY
     monkeypatch.setattr(artifacts.remotes.s3, "CHUNK_SIZE", part)
     monkeypatch.setattr(artifacts.remotes.s3, "SINGLE_PUT_MAX", part)
-    server = ScriptedS3()
-    server.RequestHandlerClass = _PartsInFlight
+    server = ScriptedS3(_PartsInFlight)
     server.parts, server.lock, server.enough = {}, threading.Lock(), threading.Event()
     server.in_flight, server.peak, server.target = 0, 0, concurrency
-    thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.05}, daemon=True)
-    thread.start()
-    aws.setenv("AWS_ENDPOINT_URL", server.url)
     data = os.urandom(part * (concurrency + 2))
     path = tmp_path / "object"
     path.write_bytes(data)
-    try:
+    with serving(server, aws):
         backend("s3://bucket/team").upload_object(hash_bytes(data), path, len(data))
-    finally:
-        server.shutdown()
-        server.server_close()
     assert server.peak == concurrency
     assert len(server.parts) == concurrency + 2
 
@@ -836,6 +835,13 @@ def test_a_prefix_lists_the_keys_under_it_written_with_or_without_its_slash(moto
 
 
 # ----------------------------------------------------------------------------- endpoint_of
+def a_ref_goes_round(b: S3Backend) -> None:
+    """Write a ref (obstore), delete it at its version (boto3's conditional DELETE), list it gone (obstore)."""
+    b.put_bytes("refs/main", b"a\n")
+    b.delete("refs/main", b.list_versions("refs")["refs/main"])
+    assert b.list_sizes("refs") == {}
+
+
 def test_the_s3_specific_endpoint_variable_wins_over_the_general_one(aws, moto_endpoint):
     """endpoint_of 9, 10 (AWS_ENDPOINT_URL_S3 not read: the remote is sought at AWS_ENDPOINT_URL). As in
     the AWS tools, the service-specific AWS_ENDPOINT_URL_S3 is used before AWS_ENDPOINT_URL, which here
@@ -846,10 +852,7 @@ def test_the_s3_specific_endpoint_variable_wins_over_the_general_one(aws, moto_e
     aws.setenv("AWS_ENDPOINT_URL", "http://127.0.0.1:9")
     aws.setenv("AWS_ENDPOINT_URL_S3", moto_endpoint)
     bucket = new_bucket(moto_endpoint)
-    b = backend(f"s3://{bucket}/team")
-    b.put_bytes("refs/main", b"a\n")
-    b.delete("refs/main", b.list_versions("refs")["refs/main"])
-    assert b.list_sizes("refs") == {}
+    a_ref_goes_round(backend(f"s3://{bucket}/team"))
     aws.setenv("AWS_ENDPOINT_URL_S3", "http://127.0.0.1:7")
     with pytest.raises(StoreError) as raised:
         backend(f"s3://{bucket}/team").list_sizes("refs")
@@ -874,10 +877,7 @@ def test_the_older_aws_endpoint_variable_is_the_last_one_read(aws, moto_endpoint
     the conditional DELETE included, goes there."""
     aws.setenv("AWS_ENDPOINT", moto_endpoint)
     bucket = new_bucket(moto_endpoint)
-    b = backend(f"s3://{bucket}/team")
-    b.put_bytes("refs/main", b"a\n")
-    b.delete("refs/main", b.list_versions("refs")["refs/main"])
-    assert b.list_sizes("refs") == {}
+    a_ref_goes_round(backend(f"s3://{bucket}/team"))
 
 
 # ----------------------------------------------------------------------------- _s3_store
@@ -950,10 +950,7 @@ def test_the_retry_window_is_one_and_a_half_read_timeouts_and_at_most_15_s(aws, 
 def test_a_remotes_region_setting_signs_its_requests(scripted):
     """_s3_store 88, 89, 90 (the remote's `region` setting ignored: requests signed for the environment's
     AWS_REGION, which a bucket in another region refuses)."""
-    scripted.reply = (
-        200,
-        b'<?xml version="1.0" encoding="UTF-8"?><ListBucketResult><KeyCount>0</KeyCount></ListBucketResult>',
-    )
+    scripted.reply = (200, EMPTY_LISTING)
     backend("s3://bucket/team", region="eu-west-3").list_sizes("refs")
     assert signed_as(scripted.requests[0][2]) == ("testing", "eu-west-3")
 
@@ -979,10 +976,7 @@ def test_aws_profile_signs_requests_unless_the_environment_holds_a_whole_key_pai
         aws.delenv(k)
     for k, v in {**keys, "AWS_PROFILE": "team"}.items():
         aws.setenv(k, v)
-    scripted.reply = (
-        200,
-        b'<?xml version="1.0" encoding="UTF-8"?><ListBucketResult><KeyCount>0</KeyCount></ListBucketResult>',
-    )
+    scripted.reply = (200, EMPTY_LISTING)
     backend("s3://bucket/team").list_sizes("refs")
     assert signed_as(scripted.requests[0][2]) == signer
 
@@ -999,9 +993,6 @@ def test_keys_in_the_home_aws_files_sign_requests_when_the_environment_has_none(
     aws.setenv("HOME", str(home))
     for k in ("AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY", "AWS_CONFIG_FILE", "AWS_SHARED_CREDENTIALS_FILE"):
         aws.delenv(k)
-    scripted.reply = (
-        200,
-        b'<?xml version="1.0" encoding="UTF-8"?><ListBucketResult><KeyCount>0</KeyCount></ListBucketResult>',
-    )
+    scripted.reply = (200, EMPTY_LISTING)
     backend("s3://bucket/team").list_sizes("refs")
     assert signed_as(scripted.requests[0][2])[0] == "HOMEKEY"
