@@ -36,7 +36,7 @@ from artifacts.errors import StoreError  # noqa: E402
 from artifacts.hashing import hash_bytes  # noqa: E402
 from artifacts.remotes.backends import RefMoved  # noqa: E402
 from artifacts.remotes.config import parse_url  # noqa: E402
-from artifacts.remotes.s3 import S3Backend, explain_s3_error  # noqa: E402
+from artifacts.remotes.s3 import S3Backend, aws_files, explain_s3_error  # noqa: E402
 
 KEY = "refs/team/handoff"
 WHERE = "remote origin (s3://b/p)"
@@ -996,3 +996,37 @@ def test_keys_in_the_home_aws_files_sign_requests_when_the_environment_has_none(
     scripted.reply = (200, EMPTY_LISTING)
     backend("s3://bucket/team").list_sizes("refs")
     assert signed_as(scripted.requests[0][2])[0] == "HOMEKEY"
+
+
+@pytest.mark.parametrize("variable", ["AWS_SHARED_CREDENTIALS_FILE", "AWS_CONFIG_FILE"])
+def test_keys_in_the_aws_file_a_variable_names_sign_requests_when_home_has_none(aws, scripted, tmp_path, variable):
+    """Keys kept only where AWS_SHARED_CREDENTIALS_FILE or AWS_CONFIG_FILE point (a container, a CI job, a
+    second account) sign obstore's requests, as they do boto3's: before round 11 only ~/.aws was looked at,
+    so such a remote's objects went unsigned."""
+    aws.setenv("HOME", str(tmp_path / "empty-home"))
+    for k in ("AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY", "AWS_CONFIG_FILE", "AWS_SHARED_CREDENTIALS_FILE"):
+        aws.delenv(k)
+    elsewhere = tmp_path / "team" / "aws-file"
+    elsewhere.parent.mkdir()
+    elsewhere.write_text("[default]\naws_access_key_id = ELSEWHEREKEY\naws_secret_access_key = s\n")
+    aws.setenv(variable, str(elsewhere))
+    scripted.reply = (200, EMPTY_LISTING)
+    backend("s3://bucket/team").list_sizes("refs")
+    assert signed_as(scripted.requests[0][2])[0] == "ELSEWHEREKEY"
+
+
+def test_aws_files_are_where_their_variables_point_else_in_home(monkeypatch, tmp_path):
+    monkeypatch.setenv("HOME", str(tmp_path))
+    assert aws_files({}) == (tmp_path / ".aws" / "config", tmp_path / ".aws" / "credentials")
+    named = {"AWS_CONFIG_FILE": "~/team/config", "AWS_SHARED_CREDENTIALS_FILE": "/etc/team/keys"}
+    assert aws_files(named) == (tmp_path / "team" / "config", Path("/etc/team/keys"))
+
+
+def test_an_unknown_profile_is_one_line_naming_the_files_it_was_looked_for_in(aws, tmp_path):
+    """The files named are the ones boto3 read (AWS_CONFIG_FILE here), not a fixed ~/.aws/config, and the
+    remote is named once."""
+    with pytest.raises(StoreError) as err:
+        backend("s3://bucket/team", profile="nope")
+    message = str(err.value)
+    files = f"{tmp_path / 'aws-config'} or {tmp_path / 'aws-credentials'}"
+    assert message == f"{WHERE.replace('b/p', 'bucket/team')}: no AWS profile 'nope' in {files}"

@@ -39,6 +39,15 @@ def endpoint_of(spec: RemoteSpec) -> str | None:
     )
 
 
+def aws_files(env) -> tuple[Path, Path]:
+    """The config and credentials files boto3 reads: where AWS_CONFIG_FILE and AWS_SHARED_CREDENTIALS_FILE
+    point, else ~/.aws/config and ~/.aws/credentials."""
+    home = Path.home() / ".aws"
+    config = env.get("AWS_CONFIG_FILE") or home / "config"
+    credentials = env.get("AWS_SHARED_CREDENTIALS_FILE") or home / "credentials"
+    return Path(config).expanduser(), Path(credentials).expanduser()
+
+
 def _s3_store(spec: RemoteSpec):
     from obstore.store import S3Store
 
@@ -71,8 +80,10 @@ def _s3_store(spec: RemoteSpec):
     profile = spec.settings.get("profile") or env.get("AWS_PROFILE")
     provider = None
     has_keys = env.get("AWS_ACCESS_KEY_ID") and env.get("AWS_SECRET_ACCESS_KEY")
-    aws_files = any((Path.home() / ".aws" / f).is_file() for f in ("credentials", "config"))
-    if spec.settings.get("profile") or (not has_keys and (profile or aws_files)):
+    config_file, credentials_file = aws_files(env)
+    if spec.settings.get("profile") or (
+        not has_keys and (profile or config_file.is_file() or credentials_file.is_file())
+    ):
         # profiles (~/.aws/config, SSO, assume-role) are boto3's job; obstore takes it as a provider
         import boto3
         from botocore.exceptions import ProfileNotFound
@@ -81,7 +92,8 @@ def _s3_store(spec: RemoteSpec):
         try:
             session = boto3.Session(profile_name=profile)
         except ProfileNotFound:
-            raise StoreError(f"remote {spec.name}: no AWS profile {profile!r} in ~/.aws/config") from None
+            # S3Backend names the remote in front of this
+            raise StoreError(f"no AWS profile {profile!r} in {config_file} or {credentials_file}") from None
         if session.get_credentials() is not None:
             provider = Boto3CredentialProvider(session)
             if not region and session.region_name:
