@@ -1275,3 +1275,51 @@ def test_an_object_that_is_no_committed_step_record_is_passed_over(bare_store, c
     oid = bare_store.put_json([record]) if change == "a JSON list" else bare_store.put_json({**record, **change})
     assert index_step_records(bare_store, [oid], "origin") == []
     assert not bare_store.records_dir.is_dir() or list(bare_store.records_dir.iterdir()) == []
+
+
+# ----------------------------------------------------------------------------- remotes.pull (round 11)
+def second_store(tmp_path: Path, remote: Path) -> Store:
+    from artifacts.remotes.config import add_remote
+
+    store, _ = Store.init(tmp_path / "second")
+    add_remote(store, "nas", str(remote))
+    return store
+
+
+def test_pull_takes_only_the_refs_named_on_the_callers_jobs_and_meter(tmp_path):
+    """pull 15 (the refs named not passed on: every ref pulled), 17 (jobs=1 not passed on: downloads on
+    worker threads), 18, 24 (the caller's meter not passed on: a pull the CLI shows no progress of)."""
+    from artifacts.refs import read_ref
+    from artifacts.remotes.pull import pull
+
+    first, remote, contents = pushed_store(tmp_path)
+    second = second_store(tmp_path, remote)
+    meter = RecordingMeter()
+    report = pull(second, "nas", refs=["team/a", "team/b"], jobs=1, meter=meter)
+    assert sorted(report.moved) == ["team/a", "team/b"]
+    assert read_ref(second, "team/e") is None and not second.has_object(contents["e"])
+    assert [s[0] for s in meter.starts] == ["pull ← nas"] and meter.starts[0][2] > 700
+    assert meter.threads == {threading.main_thread().name} and 500 in meter.advanced and 200 in meter.advanced
+    first.close()
+    second.close()
+
+
+def test_pull_without_force_leaves_a_ref_both_stores_moved_as_a_conflict(tmp_path):
+    """pull 1 (force on by default: the remote's id taken and this store's put under displaced/)."""
+    from artifacts.refs import read_ref, set_ref
+    from artifacts.remotes.pull import pull
+    from artifacts.remotes.push import push
+
+    first, remote, _ = pushed_store(tmp_path)
+    second = second_store(tmp_path, remote)
+    pull(second, "nas")
+    set_ref(first, "team/a", read_ref(first, "team/b"))
+    push(first, "nas")
+    mine = read_ref(second, "team/e")
+    set_ref(second, "team/a", mine)
+    report = pull(second, "nas")
+    assert [c.split(":")[0] for c in report.conflicts] == ["ref team/a"]
+    assert report.displaced == {} and report.moved == {}
+    assert read_ref(second, "team/a") == mine
+    first.close()
+    second.close()
