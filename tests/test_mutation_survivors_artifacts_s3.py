@@ -807,6 +807,17 @@ def test_an_answer_with_an_empty_etag_gives_the_version_unknown_not_a_made_up_on
     assert [m for m, _p, _h in scripted.requests] == ["GET", "PUT"]
 
 
+def test_a_remote_that_cannot_be_opened_is_one_line_with_the_cause_cut_at_200_characters(aws):
+    """S3Backend.__init__ 7 (the cause cut at 201): a setting pasted wrong (here a whole paragraph) does not
+    fill the screen; the line keeps the remote's name and the first 200 characters of why."""
+    raw = "x" * 300
+    aws.setenv("ACCRUE_REMOTE_READ_TIMEOUT", raw)
+    with pytest.raises(StoreError) as raised:
+        backend("s3://bucket/team")
+    cause = f"$ACCRUE_REMOTE_READ_TIMEOUT={raw!r}: not a number of seconds"
+    assert str(raised.value) == f"remote origin (s3://bucket/team): {cause[:200]}"
+
+
 # ----------------------------------------------------------------------------- _seconds
 @pytest.mark.parametrize("raw", ["soon", "0", "-3", "1e6", "nan"])
 def test_a_timeout_setting_that_is_no_positive_number_of_seconds_is_refused_in_one_line(aws, raw):
@@ -953,6 +964,23 @@ def test_a_remotes_region_setting_signs_its_requests(scripted):
     scripted.reply = (200, EMPTY_LISTING)
     backend("s3://bucket/team", region="eu-west-3").list_sizes("refs")
     assert signed_as(scripted.requests[0][2]) == ("testing", "eu-west-3")
+
+
+def test_a_remotes_region_setting_wins_over_its_profiles_region(aws, scripted, tmp_path):
+    """_s3_store 129 (the profile's region taken when the remote has its own: requests signed for a region
+    the bucket is not in). Without the setting the profile's region signs them."""
+    (tmp_path / "aws-config").write_text(
+        "[profile team]\nregion = eu-west-3\naws_access_key_id = TEAMKEY\naws_secret_access_key = teamsecret\n"
+    )
+    for k in ("AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY", "AWS_REGION"):
+        aws.delenv(k)
+    scripted.reply = (200, EMPTY_LISTING)
+    backend("s3://bucket/team", profile="team", region="ap-south-1").list_sizes("refs")
+    backend("s3://bucket/team", profile="team").list_sizes("refs")
+    assert [signed_as(headers) for _m, _p, headers in scripted.requests] == [
+        ("TEAMKEY", "ap-south-1"),
+        ("TEAMKEY", "eu-west-3"),
+    ]
 
 
 @pytest.mark.parametrize(
