@@ -6,6 +6,8 @@ working tree, so other work in the checkout is never touched.
     .venv/bin/python scripts/mutation_full.py --time-limit 1800     # stop after 30 min; resume later
     .venv/bin/python scripts/mutation_full.py --mutant-limit 120    # a worker waiting 120 s counts as timeout
     .venv/bin/python scripts/mutation_full.py --only 'accrue.learner.losses*'   # some mutants only
+        # (mutmut re-runs every mutant --only or --names gives, checked or not: to check only the unchecked
+        #  ones, pass their names with --names)
     .venv/bin/python scripts/mutation_full.py --report              # counts and survivors so far
     .venv/bin/python scripts/mutation_full.py --counts              # the kept verdicts, a table per file
     .venv/bin/python scripts/mutation_full.py --counts --untriaged LEFT.txt   # survivors no triage file names
