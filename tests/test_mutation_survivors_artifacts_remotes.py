@@ -1304,8 +1304,9 @@ def test_pull_takes_only_the_refs_named_on_the_callers_jobs_and_meter(tmp_path):
     second.close()
 
 
-def test_pull_without_force_leaves_a_ref_both_stores_moved_as_a_conflict(tmp_path):
-    """pull 1 (force on by default: the remote's id taken and this store's put under displaced/)."""
+def both_stores_move_team_a(tmp_path: Path) -> tuple[Store, Store, dict[str, str]]:
+    """Two stores that agreed on the remote's team/a, then each moved it: the first pushed its move.
+    Returns both stores and the ids: `last` (agreed), `theirs` (the remote's now), `mine` (the second's)."""
     from artifacts.refs import read_ref, set_ref
     from artifacts.remotes.pull import pull
     from artifacts.remotes.push import push
@@ -1313,13 +1314,88 @@ def test_pull_without_force_leaves_a_ref_both_stores_moved_as_a_conflict(tmp_pat
     first, remote, _ = pushed_store(tmp_path)
     second = second_store(tmp_path, remote)
     pull(second, "nas")
-    set_ref(first, "team/a", read_ref(first, "team/b"))
+    ids = {"last": read_ref(first, "team/a"), "theirs": read_ref(first, "team/b"), "mine": read_ref(first, "team/e")}
+    set_ref(first, "team/a", ids["theirs"])
     push(first, "nas")
-    mine = read_ref(second, "team/e")
-    set_ref(second, "team/a", mine)
+    set_ref(second, "team/a", ids["mine"])
+    return first, second, ids
+
+
+def test_pull_without_force_leaves_a_ref_both_stores_moved_as_a_conflict_since_they_last_agreed(tmp_path):
+    """pull 1 (force on by default: the remote's id taken and this store's put under displaced/), 69 (the
+    conflict line says this store never saw the ref on the remote, not the id both last agreed on)."""
+    from artifacts.refs import read_ref
+    from artifacts.remotes.pull import pull
+
+    first, second, ids = both_stores_move_team_a(tmp_path)
     report = pull(second, "nas")
     assert [c.split(":")[0] for c in report.conflicts] == ["ref team/a"]
-    assert report.displaced == {} and report.moved == {}
-    assert read_ref(second, "team/a") == mine
+    assert f"moved on both sides since {ids['last'][:12]}: this store has {ids['mine'][:12]}" in report.conflicts[0]
+    assert report.displaced == {} and report.moved == {} and read_ref(second, "team/a") == ids["mine"]
     first.close()
     second.close()
+
+
+def test_pull_with_force_reports_where_it_kept_this_stores_id(tmp_path):
+    """pull 63 (the report's displaced ref None: `accrue pull --force` could not say where this store's id
+    went)."""
+    from artifacts.refs import read_ref
+    from artifacts.remotes.pull import pull
+
+    first, second, ids = both_stores_move_team_a(tmp_path)
+    report = pull(second, "nas", force=True)
+    kept = f"displaced/team/a/{ids['mine'][:12]}"
+    assert report.displaced == {"team/a": kept} and report.moved == {"team/a": [ids["mine"], ids["theirs"]]}
+    assert read_ref(second, kept) == ids["mine"] and read_ref(second, "team/a") == ids["theirs"]
+    first.close()
+    second.close()
+
+
+# ----------------------------------------------------------------------------- remotes.transfer (round 11)
+def test_pulled_objects_are_read_only_like_the_stores_own(tmp_path):
+    """transfer._link_unsynced 7 (a pulled object left 0o445: executable by others, unlike what the store
+    writes itself)."""
+    from artifacts.remotes.pull import pull
+
+    first, remote, contents = pushed_store(tmp_path)
+    second = second_store(tmp_path, remote)
+    pull(second, "nas")
+    modes = {oid: second.object_path(oid).stat().st_mode & 0o777 for oid in contents.values()}
+    assert modes == {oid: 0o444 for oid in contents.values()}
+    assert {first.object_path(oid).stat().st_mode & 0o777 for oid in contents.values()} == {0o444}
+    first.close()
+    second.close()
+
+
+def test_a_store_whose_objects_directory_was_deleted_pulls_its_objects_back(tmp_path):
+    """transfer._link_unsynced 8, 10, 12 (the fan-out directory made without its parents: a store whose
+    objects/ was deleted by hand to free space cannot take its objects back from the remote). As the
+    store's own writes do, a pull makes the directories it needs."""
+    import shutil
+
+    from artifacts.remotes.pull import pull
+
+    first, remote, contents = pushed_store(tmp_path)
+    second = second_store(tmp_path, remote)
+    pull(second, "nas")
+    shutil.rmtree(second.objects_dir)
+    assert not second.objects_dir.exists()
+    pull(second, "nas")
+    assert all(second.has_object(oid) for oid in contents.values())
+    first.close()
+    second.close()
+
+
+def test_flush_dirs_syncs_each_new_directory_and_the_one_above_them(tmp_path, monkeypatch):
+    """transfer.flush_dirs 9 (the objects directory above the new fan-out directories never synced: after a
+    crash a new fan-out directory, with every object in it, can be gone). Nothing is synced for no
+    directories."""
+    import artifacts.remotes.transfer as transfer
+
+    synced: list[Path] = []
+    monkeypatch.setattr(transfer, "fsync_dir", synced.append)
+    objects = tmp_path / "objects" / "blake3"
+    transfer.flush_dirs({objects / "cd", objects / "ab"}, 1)
+    assert synced == [objects / "ab", objects / "cd", objects]
+    transfer.flush_dirs(set(), 1)
+    assert synced == [objects / "ab", objects / "cd", objects]
