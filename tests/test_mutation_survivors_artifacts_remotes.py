@@ -8,6 +8,7 @@ remotes register. Everything runs in a temporary directory, without a network.
 from __future__ import annotations
 
 import json
+import os
 import threading
 from pathlib import Path
 
@@ -1399,3 +1400,30 @@ def test_flush_dirs_syncs_each_new_directory_and_the_one_above_them(tmp_path, mo
     assert synced == [objects / "ab", objects / "cd", objects]
     transfer.flush_dirs(set(), 1)
     assert synced == [objects / "ab", objects / "cd", objects]
+
+
+def test_a_download_in_flight_is_a_dl_temp_file_of_this_process_and_none_is_left(tmp_path):
+    """transfer.download_object 7 (the temp file unlabelled: `.Nonetmp-…`). A person looking into a busy
+    store's tmp/ tells downloads from other writes by their `.dl-tmp-PID-` names; a corrupt attempt's file
+    is removed like a good one's."""
+    from artifacts.remotes.transfer import download_object
+
+    first, remote, contents = pushed_store(tmp_path)
+    second = second_store(tmp_path, remote)
+    seen: list[list[str]] = []
+
+    class Peeking(DirBackend):
+        def download_to(self, key: str, fd: int) -> tuple[str, int]:
+            seen.append(sorted(p.name for p in second.tmp_dir.iterdir()))
+            return super().download_to(key, fd)
+
+    backend = Peeking(parse_url("nas", str(remote)))
+    assert download_object(second, backend, contents["a"], 500) == 500
+    assert len(seen) == 1 and len(seen[0]) == 1 and seen[0][0].startswith(f".dl-tmp-{os.getpid()}-")
+    lose_on_remote(remote, [contents["b"]])
+    (remote / "objects" / "blake3" / contents["b"][:2] / contents["b"][2:]).write_bytes(b"damaged")
+    with pytest.raises(StoreError):
+        download_object(second, backend, contents["b"], 200)
+    assert list(second.tmp_dir.iterdir()) == [] and second.has_object(contents["a"])
+    first.close()
+    second.close()
