@@ -1427,3 +1427,41 @@ def test_a_download_in_flight_is_a_dl_temp_file_of_this_process_and_none_is_left
     assert list(second.tmp_dir.iterdir()) == [] and second.has_object(contents["a"])
     first.close()
     second.close()
+
+
+@pytest.mark.parametrize(
+    "case, synced",
+    [("good", 1), ("good, size unknown", 1), ("corrupt", 0), ("shorter than told", 0)],
+)
+def test_a_download_is_fsynced_before_it_is_linked_in_and_only_when_it_is_good(tmp_path, monkeypatch, case, synced):
+    """transfer.download_object 29, 30, 31 (a good download, with or without a known size, linked in without
+    its bytes on disk: a crash can leave an object file of zeros under a valid id), 28, 31 (a corrupt or short
+    download synced on each attempt, for nothing)."""
+    import stat
+
+    from artifacts.remotes.transfer import download_object
+
+    first, remote, contents = pushed_store(tmp_path)
+    second = second_store(tmp_path, remote)
+    oid, size = contents["a"], 500
+    if case == "corrupt":
+        (remote / "objects" / "blake3" / oid[:2] / oid[2:]).chmod(0o644)
+        (remote / "objects" / "blake3" / oid[:2] / oid[2:]).write_bytes(b"x" * 500)
+    files_synced: list[int] = []
+    real_fsync = os.fsync
+
+    def fsync(fd: int) -> None:
+        if stat.S_ISREG(os.fstat(fd).st_mode):
+            files_synced.append(fd)
+        real_fsync(fd)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    told = {"good": size, "good, size unknown": None, "corrupt": size, "shorter than told": size + 1}[case]
+    if synced:
+        assert download_object(second, DirBackend(parse_url("nas", str(remote))), oid, told) == size
+    else:
+        with pytest.raises(StoreError):
+            download_object(second, DirBackend(parse_url("nas", str(remote))), oid, told)
+    assert len(files_synced) == synced and second.has_object(oid) == bool(synced)
+    first.close()
+    second.close()
