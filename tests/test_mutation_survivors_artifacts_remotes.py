@@ -1436,7 +1436,7 @@ def test_a_download_in_flight_is_a_dl_temp_file_of_this_process_and_none_is_left
 def test_a_download_is_fsynced_before_it_is_linked_in_and_only_when_it_is_good(tmp_path, monkeypatch, case, synced):
     """transfer.download_object 29, 30, 31 (a good download, with or without a known size, linked in without
     its bytes on disk: a crash can leave an object file of zeros under a valid id), 28, 31 (a corrupt or short
-    download synced on each attempt, for nothing)."""
+    download synced on each attempt, for nothing), 55 (a short download called corrupt, not truncated)."""
     import stat
 
     from artifacts.remotes.transfer import download_object
@@ -1460,8 +1460,68 @@ def test_a_download_is_fsynced_before_it_is_linked_in_and_only_when_it_is_good(t
     if synced:
         assert download_object(second, DirBackend(parse_url("nas", str(remote))), oid, told) == size
     else:
-        with pytest.raises(StoreError):
+        with pytest.raises(StoreError) as refused:
             download_object(second, DirBackend(parse_url("nas", str(remote))), oid, told)
+        why = "corrupt" if case == "corrupt" else "truncated (500 of 501 bytes)"
+        assert f"object {oid[:12]} arrived {why} 3 times; refused" in str(refused.value)
     assert len(files_synced) == synced and second.has_object(oid) == bool(synced)
+    first.close()
+    second.close()
+
+
+# ----------------------------------------------------------------------------- remotes.pull._remote_closure
+def pushed_tree(tmp_path: Path) -> tuple[Store, Path, dict]:
+    """A store with a directory artifact (ref team/dir) and a ref straight to its tree (team/tree), pushed
+    to directory remote nas; returns the store, the remote's root and the tree manifest with its id."""
+    from artifacts.ingest import add_path
+    from artifacts.refs import read_ref, set_ref
+    from artifacts.remotes.config import add_remote
+    from artifacts.remotes.push import push
+
+    store, _ = Store.init(tmp_path / "store")
+    folder = tmp_path / "episodes"
+    folder.mkdir()
+    (folder / "x.bin").write_bytes(b"x" * 100)
+    (folder / "y.bin").write_bytes(b"y" * 50)
+    add_path(store, folder, "replay", ref="team/dir")
+    tree_id = store.read_json(read_ref(store, "team/dir"))["content"]
+    set_ref(store, "team/tree", tree_id)
+    add_remote(store, "nas", str(tmp_path / "remote"))
+    push(store, "nas")
+    return store, tmp_path / "remote", {"id": tree_id, **store.read_json(tree_id)}
+
+
+def test_a_ref_straight_to_a_tree_is_pulled_whole_without_only(tmp_path):
+    """pull._remote_closure 4 (the refs' own manifests marked "leave behind": the files of a tree a ref
+    names directly stay on the remote as promised objects, though no --only was given)."""
+    from artifacts.remotes.pull import pull
+
+    first, remote, tree = pushed_tree(tmp_path)
+    second = second_store(tmp_path, remote)
+    report = pull(second, "nas", refs=["team/tree"])
+    assert report.promised == 0 and [second.has_object(e["id"]) for e in tree["entries"]] == [True, True]
+    first.close()
+    second.close()
+
+
+def test_a_manifest_reached_on_two_paths_is_walked_once(tmp_path, monkeypatch):
+    """pull._remote_closure 7 (what was walked is looked up by size instead of id: a manifest reached again
+    one level down is walked again, and in a store of stages that each name the ones before, the walk
+    grows with the number of paths, not of objects). The tree is a ref's target and its artifact's
+    content."""
+    import artifacts.remotes.pull as pull_module
+
+    walked: list[str] = []
+    real_children = pull_module.children
+
+    def children(oid, obj):
+        walked.append(oid)
+        return real_children(oid, obj)
+
+    first, remote, tree = pushed_tree(tmp_path)
+    second = second_store(tmp_path, remote)
+    monkeypatch.setattr(pull_module, "children", children)
+    pull_module.pull(second, "nas", refs=["team/dir", "team/tree"])
+    assert walked.count(tree["id"]) == 1 and len(walked) == len(set(walked))  # with the log segment: 3
     first.close()
     second.close()
