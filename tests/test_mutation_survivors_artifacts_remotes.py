@@ -1525,3 +1525,31 @@ def test_a_manifest_reached_on_two_paths_is_walked_once(tmp_path, monkeypatch):
     assert walked.count(tree["id"]) == 1 and len(walked) == len(set(walked))  # with the log segment: 3
     first.close()
     second.close()
+
+
+def test_bytes_left_behind_for_one_artifact_but_wanted_by_another_are_pulled_not_promised(tmp_path):
+    """pull._remote_closure 43 (an object first met as "leave behind", then wanted by a kind --only takes,
+    kept in the promised list though it was downloaded: the report counts it as left on the remote)."""
+    from artifacts.ingest import add_path
+    from artifacts.refs import read_ref
+    from artifacts.remotes.config import add_remote
+    from artifacts.remotes.lazy import promised_path
+    from artifacts.remotes.pull import pull
+    from artifacts.remotes.push import push
+
+    first, _ = Store.init(tmp_path / "first")
+    (tmp_path / "a.bin").write_bytes(b"same bytes" * 10)
+    add_path(first, tmp_path / "a.bin", "replay", ref="team/a")  # its content is met one level down, left
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / "weights.bin").write_bytes(b"same bytes" * 10)
+    add_path(first, tmp_path / "b", "checkpoint", ref="team/b")  # met again two levels down, wanted
+    content = first.read_json(read_ref(first, "team/a"))["content"]
+    tree = first.read_json(first.read_json(read_ref(first, "team/b"))["content"])
+    assert [e["id"] for e in tree["entries"]] == [content]
+    add_remote(first, "nas", str(tmp_path / "remote"))
+    push(first, "nas")
+    second = second_store(tmp_path, tmp_path / "remote")
+    report = pull(second, "nas", only={"checkpoint"})
+    assert second.has_object(content) and report.promised == 0 and not promised_path(second, "nas").exists()
+    first.close()
+    second.close()
