@@ -1288,7 +1288,7 @@ def second_store(tmp_path: Path, remote: Path) -> Store:
 
 
 def test_pull_takes_only_the_refs_named_on_the_callers_jobs_and_meter(tmp_path):
-    """pull 15 (the refs named not passed on: every ref pulled), 17 (jobs=1 not passed on: downloads on
+    """fetch 12 (the report names no remote), pull 15 (the refs named not passed on: every ref pulled), 17 (jobs=1 not passed on: downloads on
     worker threads), 18, 24 (the caller's meter not passed on: a pull the CLI shows no progress of)."""
     from artifacts.refs import read_ref
     from artifacts.remotes.pull import pull
@@ -1297,7 +1297,7 @@ def test_pull_takes_only_the_refs_named_on_the_callers_jobs_and_meter(tmp_path):
     second = second_store(tmp_path, remote)
     meter = RecordingMeter()
     report = pull(second, "nas", refs=["team/a", "team/b"], jobs=1, meter=meter)
-    assert sorted(report.moved) == ["team/a", "team/b"]
+    assert report.remote == "nas" and sorted(report.moved) == ["team/a", "team/b"]
     assert read_ref(second, "team/e") is None and not second.has_object(contents["e"])
     assert [s[0] for s in meter.starts] == ["pull ← nas"] and meter.starts[0][2] > 700
     assert meter.threads == {threading.main_thread().name} and 500 in meter.advanced and 200 in meter.advanced
@@ -1551,5 +1551,32 @@ def test_bytes_left_behind_for_one_artifact_but_wanted_by_another_are_pulled_not
     second = second_store(tmp_path, tmp_path / "remote")
     report = pull(second, "nas", only={"checkpoint"})
     assert second.has_object(content) and report.promised == 0 and not promised_path(second, "nas").exists()
+    first.close()
+    second.close()
+
+
+def test_an_input_that_names_a_bare_tree_is_pulled_whole_under_only(tmp_path):
+    """pull._remote_closure 89 (an artifact's inputs inherit "leave behind"): an input has its own say, and
+    a tree named as an input has no kind for --only to judge, so its files come with the artifact."""
+    from artifacts.manifests import store_content, write_manifest
+    from artifacts.refs import set_ref
+    from artifacts.remotes.config import add_remote
+    from artifacts.remotes.pull import pull
+    from artifacts.remotes.push import push
+
+    first, _ = Store.init(tmp_path / "first")
+    (tmp_path / "episodes").mkdir()
+    (tmp_path / "episodes" / "0.bin").write_bytes(b"episode" * 20)
+    tree_id = store_content(first, tmp_path / "episodes")["content"]
+    (tmp_path / "weights.bin").write_bytes(b"weights" * 30)
+    content = store_content(first, tmp_path / "weights.bin")
+    checkpoint = write_manifest(first, content, "checkpoint", producer={}, inputs={"episodes": tree_id})
+    set_ref(first, "team/ckpt", checkpoint)
+    add_remote(first, "nas", str(tmp_path / "remote"))
+    push(first, "nas")
+    second = second_store(tmp_path, tmp_path / "remote")
+    report = pull(second, "nas", only={"checkpoint"})
+    episode = first.read_json(tree_id)["entries"][0]["id"]
+    assert second.has_object(episode) and second.has_object(content["content"]) and report.promised == 0
     first.close()
     second.close()
