@@ -1580,3 +1580,29 @@ def test_an_input_that_names_a_bare_tree_is_pulled_whole_under_only(tmp_path):
     assert second.has_object(episode) and second.has_object(content["content"]) and report.promised == 0
     first.close()
     second.close()
+
+
+def test_pulling_a_ref_the_remote_lacks_is_one_line_naming_the_remote(tmp_path):
+    """fetch 33 (the line ends "no ref 'team/z' None")."""
+    from artifacts.remotes.pull import pull
+
+    first, remote, _ = pushed_store(tmp_path)
+    second = second_store(tmp_path, remote)
+    with pytest.raises(StoreError) as refused:
+        pull(second, "nas", refs=["team/z"])
+    assert str(refused.value) == "no ref 'team/z' on remote nas"
+    first.close()
+    second.close()
+
+
+def test_a_store_does_not_fetch_back_its_own_pushed_log(tmp_path):
+    """fetch 38, 39 (this store's id not known: its own log, which its push left on the remote, comes back
+    as another store's, with a tracking ref and a "fetched" event). Another store's log is fetched."""
+    from artifacts.remotes.pull import pull
+
+    first, remote, _ = pushed_store(tmp_path)
+    assert pull(first, "nas").logs == {}
+    second = second_store(tmp_path, remote)
+    assert list(pull(second, "nas").logs) == [first.read_config()["store_id"]]
+    first.close()
+    second.close()
