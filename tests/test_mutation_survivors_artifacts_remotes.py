@@ -1597,12 +1597,13 @@ def test_pulling_a_ref_the_remote_lacks_is_one_line_naming_the_remote(tmp_path):
 
 def test_a_store_does_not_fetch_back_its_own_pushed_log(tmp_path):
     """fetch 38, 39 (this store's id not known: its own log, which its push left on the remote, comes back
-    as another store's, with a tracking ref and a "fetched" event). Another store's log is fetched."""
+    as another store's, with a tracking ref and a "fetched" event). Another store's log is fetched, once."""
     from artifacts.remotes.pull import pull
 
     first, remote, _ = pushed_store(tmp_path)
     assert pull(first, "nas").logs == {}
     second = second_store(tmp_path, remote)
     assert list(pull(second, "nas").logs) == [first.read_config()["store_id"]]
+    assert pull(second, "nas").logs == {}  # seen already: not fetched again
     first.close()
     second.close()
