@@ -1607,3 +1607,52 @@ def test_a_store_does_not_fetch_back_its_own_pushed_log(tmp_path):
     assert pull(second, "nas").logs == {}  # seen already: not fetched again
     first.close()
     second.close()
+
+
+def test_a_pulls_meter_and_report_count_every_object_it_brought_once(tmp_path):
+    """fetch's meter and report: the total the meter starts with is what its advances add up to, one advance
+    an object (0 for a manifest), and the report counts what the empty store now holds."""
+    from artifacts.remotes.pull import pull
+
+    first, remote, _ = pushed_store(tmp_path)
+    second = second_store(tmp_path, remote)
+    meter = RecordingMeter()
+    report = pull(second, "nas", jobs=1, meter=meter)
+    held = list(second.iter_object_ids())
+    sizes = [second.object_size(oid) for oid in held]
+    [(what, objects, nbytes)] = meter.starts
+    assert what == "pull ← nas" and objects == len(meter.advanced) == report.objects_received == len(held)
+    assert nbytes == sum(meter.advanced) and 700 <= nbytes < report.bytes_received == sum(sizes)
+    manifests = [oid for oid in held if second.read_bytes(oid).startswith(b"{")]
+    assert meter.advanced.count(0) >= len(manifests) >= 4  # three artifacts, and the first store's log
+    first.close()
+    second.close()
+
+
+@pytest.mark.parametrize("artifacts", [True, False])
+def test_an_only_kind_no_artifact_has_is_one_line_naming_the_kinds_there_unless_accrue_knows_it(tmp_path, artifacts):
+    """fetch 80-95: a kind nobody wrote, given to --only, would leave every artifact's data behind; it is
+    refused in one line naming the kinds the remote has ("none" for a remote of logs only). A kind accrue
+    knows is never refused, and two kinds are taken as well as one."""
+    from artifacts.remotes.pull import pull
+
+    if artifacts:
+        first, remote, _ = pushed_store(tmp_path)
+    else:
+        from artifacts.remotes.config import add_remote
+        from artifacts.remotes.push import push
+
+        first, _ = Store.init(tmp_path / "store")
+        remote = tmp_path / "remote"
+        add_remote(first, "nas", str(remote))
+        push(first, "nas")
+    second = second_store(tmp_path, remote)
+    with pytest.raises(StoreError) as refused:
+        pull(second, "nas", only={"replya"})
+    there = "replay" if artifacts else "none"
+    assert str(refused.value) == f"--only replya: no artifact of that kind on remote nas (kinds there: {there})"
+    report = pull(second, "nas", only={"checkpoint", "replay"})
+    teams = sorted(r for r in report.refs if r.startswith("team/"))
+    assert report.promised == 0 and teams == (["team/a", "team/b", "team/e"] if artifacts else [])
+    first.close()
+    second.close()
