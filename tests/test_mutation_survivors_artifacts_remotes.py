@@ -1656,3 +1656,33 @@ def test_an_only_kind_no_artifact_has_is_one_line_naming_the_kinds_there_unless_
     assert report.promised == 0 and teams == (["team/a", "team/b", "team/e"] if artifacts else [])
     first.close()
     second.close()
+
+
+def test_a_fetch_logs_one_event_naming_what_moved_on_the_remote_and_none_when_nothing_did(tmp_path):
+    """fetch's audit trail: one "fetched" event naming the remote, the remote refs that moved since this
+    store last looked and the other stores' log segments that came; tracking refs move without events of
+    their own; a fetch that finds nothing new writes nothing, and one that finds only a new log says so."""
+    from artifacts.auditlog import append_event, iter_events
+    from artifacts.remotes.pull import fetch
+    from artifacts.remotes.push import push
+
+    def events(store: Store) -> list[dict]:
+        return [e for e in iter_events(store) if e["event"] in ("fetched", "ref-moved")]
+
+    first, remote, _ = pushed_store(tmp_path)
+    second = second_store(tmp_path, remote)
+    sid = first.read_config()["store_id"]
+    report = fetch(second, "nas")
+    assert [(e["event"], e["remote"], e["refs"], e["logs"]) for e in events(second)] == [
+        ("fetched", "nas", report.refs, report.logs)
+    ]
+    assert len(report.refs) == 6 and list(report.logs) == [sid]  # team/a, b, e and their ingested/ refs
+    fetch(second, "nas")
+    assert len(events(second)) == 1
+    append_event(first, "note", text="a log line, no ref moved")
+    push(first, "nas")
+    report = fetch(second, "nas")
+    last = events(second)[-1]
+    assert len(events(second)) == 2 and (last["refs"], last["logs"]) == ({}, report.logs) and list(report.logs) == [sid]
+    first.close()
+    second.close()
