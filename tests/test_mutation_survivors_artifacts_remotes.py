@@ -1637,7 +1637,13 @@ def test_an_only_kind_no_artifact_has_is_one_line_naming_the_kinds_there_unless_
     from artifacts.remotes.pull import pull
 
     if artifacts:
+        from artifacts.ingest import add_path
+        from artifacts.remotes.push import push
+
         first, remote, _ = pushed_store(tmp_path)
+        (tmp_path / "c.bin").write_bytes(b"weights")
+        add_path(first, tmp_path / "c.bin", "checkpoint", ref="team/c")
+        push(first, "nas")
     else:
         from artifacts.remotes.config import add_remote
         from artifacts.remotes.push import push
@@ -1649,11 +1655,11 @@ def test_an_only_kind_no_artifact_has_is_one_line_naming_the_kinds_there_unless_
     second = second_store(tmp_path, remote)
     with pytest.raises(StoreError) as refused:
         pull(second, "nas", only={"replya"})
-    there = "replay" if artifacts else "none"
+    there = "checkpoint, replay" if artifacts else "none"
     assert str(refused.value) == f"--only replya: no artifact of that kind on remote nas (kinds there: {there})"
     report = pull(second, "nas", only={"checkpoint", "replay"})
     teams = sorted(r for r in report.refs if r.startswith("team/"))
-    assert report.promised == 0 and teams == (["team/a", "team/b", "team/e"] if artifacts else [])
+    assert report.promised == 0 and teams == (["team/a", "team/b", "team/c", "team/e"] if artifacts else [])
     first.close()
     second.close()
 
