@@ -1623,6 +1623,7 @@ def test_a_pulls_meter_and_report_count_every_object_it_brought_once(tmp_path):
     [(what, objects, nbytes)] = meter.starts
     assert what == "pull ← nas" and objects == len(meter.advanced) == report.objects_received == len(held)
     assert nbytes == sum(meter.advanced) and 700 <= nbytes < report.bytes_received == sum(sizes)
+    assert report.steps_indexed == 0  # no step records there
     manifests = [oid for oid in held if second.read_bytes(oid).startswith(b"{")]
     assert meter.advanced.count(0) >= len(manifests) >= 4  # three artifacts, and the first store's log
     first.close()
@@ -1690,5 +1691,30 @@ def test_a_fetch_logs_one_event_naming_what_moved_on_the_remote_and_none_when_no
     report = fetch(second, "nas")
     last = events(second)[-1]
     assert len(events(second)) == 2 and (last["refs"], last["logs"]) == ({}, report.logs) and list(report.logs) == [sid]
+    first.close()
+    second.close()
+
+
+def test_a_pull_refuses_an_object_shorter_than_its_manifest_says(tmp_path):
+    """fetch 108 (the size the manifest gives not passed to the download: an object that does not match its
+    manifest is taken, and `verify` of the pulling store then fails on it). The bytes hash to their id, so
+    only the size can tell."""
+    from artifacts.manifests import store_content, write_manifest
+    from artifacts.refs import set_ref
+    from artifacts.remotes.config import add_remote
+    from artifacts.remotes.pull import pull
+    from artifacts.remotes.push import push
+
+    first, _ = Store.init(tmp_path / "first")
+    (tmp_path / "w.bin").write_bytes(b"w" * 100)
+    content = store_content(first, tmp_path / "w.bin")
+    set_ref(first, "team/w", write_manifest(first, {**content, "size": 101}, "replay", producer={}))
+    add_remote(first, "nas", str(tmp_path / "remote"))
+    push(first, "nas")
+    second = second_store(tmp_path, tmp_path / "remote")
+    with pytest.raises(StoreError) as refused:
+        pull(second, "nas")
+    assert f"object {content['content'][:12]} arrived truncated (100 of 101 bytes) 3 times" in str(refused.value)
+    assert not second.has_object(content["content"])
     first.close()
     second.close()
