@@ -15,6 +15,18 @@ def fsync_dir(path: Path) -> None:
         os.close(fd)
 
 
+def make_dirs_durable(path: Path) -> None:
+    """mkdir -p path, each directory it makes synced into its parent: a new directory's name is data of
+    its parent, and a crash before that is on disk can lose the directory with every file in it."""
+    missing: list[Path] = []
+    while not path.is_dir():
+        missing.append(path)
+        path = path.parent
+    for directory in reversed(missing):
+        directory.mkdir(exist_ok=True)
+        fsync_dir(directory.parent)
+
+
 def temp_name(directory: Path, prefix: str = "") -> Path:
     return directory / f".{prefix}tmp-{os.getpid()}-{secrets.token_hex(6)}"
 
@@ -40,7 +52,7 @@ def write_replace(path: Path, data: bytes, tmp_dir: Path | None = None) -> None:
     The temp file lives in the target's own directory (or tmp_dir on the same filesystem), so the
     rename never crosses filesystems.
     """
-    path.parent.mkdir(parents=True, exist_ok=True)
+    make_dirs_durable(path.parent)
     tmp = temp_name(tmp_dir or path.parent)
     write_new_fsynced(tmp, data)
     try:
@@ -57,7 +69,7 @@ def link_into_place(tmp: Path, final: Path) -> bool:
     os.link fails with EEXIST when the object is already there; content addressing means the
     existing copy holds the same bytes, so the temp file is simply dropped.
     """
-    final.parent.mkdir(parents=True, exist_ok=True)
+    make_dirs_durable(final.parent)
     try:
         os.link(tmp, final)
         created = True

@@ -1718,3 +1718,22 @@ def test_a_pull_refuses_an_object_shorter_than_its_manifest_says(tmp_path):
     assert not second.has_object(content["content"])
     first.close()
     second.close()
+
+
+def test_a_pull_syncs_the_objects_directory_above_the_fan_out_directories_it_made(tmp_path, monkeypatch):
+    """fetch 109, 114 (downloads not told to collect their new directories: each object is synced in its
+    fan-out directory, but the objects directory that gained those fan-out directories never is, so after
+    a crash they, and every object in them, can be gone)."""
+    import artifacts.atomic
+    import artifacts.remotes.transfer
+    from artifacts.remotes.pull import pull
+
+    first, remote, _ = pushed_store(tmp_path)
+    second = second_store(tmp_path, remote)
+    synced: list[Path] = []
+    for module in (artifacts.atomic, artifacts.remotes.transfer):
+        monkeypatch.setattr(module, "fsync_dir", synced.append)
+    pull(second, "nas")
+    assert second.objects_dir in synced
+    first.close()
+    second.close()

@@ -634,3 +634,40 @@ def test_a_store_whose_objects_folder_is_gone_lists_no_objects(store):
     store.put_bytes(b"one")
     shutil.rmtree(store.objects_dir)
     assert list(store.iter_object_ids()) == []
+
+
+# ----------------------------------------------------------------------------- atomic: new directories (round 11)
+def test_a_new_directory_is_synced_into_its_parent_and_an_old_one_is_not_synced_again(tmp_path, monkeypatch):
+    """make_dirs_durable: each directory it makes is synced into its parent, top first; one that exists is
+    left alone. Without this a crash after an object or ref was written into a new directory can lose the
+    directory's name, and the object or ref with it."""
+    import artifacts.atomic as atomic
+
+    synced: list[Path] = []
+    monkeypatch.setattr(atomic, "fsync_dir", synced.append)
+    atomic.make_dirs_durable(tmp_path / "refs" / "team" / "x")
+    assert synced == [tmp_path, tmp_path / "refs", tmp_path / "refs" / "team"]
+    assert (tmp_path / "refs" / "team" / "x").is_dir()
+    atomic.make_dirs_durable(tmp_path / "refs" / "team" / "x")
+    atomic.make_dirs_durable(tmp_path / "refs" / "team" / "y")
+    assert synced[3:] == [tmp_path / "refs" / "team"]
+
+
+def test_an_object_in_a_new_fan_out_directory_and_a_ref_in_a_new_folder_reach_disk_with_their_names(
+    tmp_path, monkeypatch
+):
+    """The store's own writes (link_into_place for objects, write_replace for refs) sync the directory above
+    any fan-out directory or ref folder they make, as a pull does."""
+    import artifacts.atomic as atomic
+    from artifacts.refs import set_ref
+
+    store, _ = Store.init(tmp_path / "store")
+    synced: list[Path] = []
+    monkeypatch.setattr(atomic, "fsync_dir", synced.append)
+    oid = store.put_bytes(b"an object")
+    assert synced[:2] == [store.objects_dir, store.objects_dir / oid[:2]]
+    synced.clear()
+    set_ref(store, "team/deep/handoff", oid, log=False)
+    refs = store.root / "refs"
+    assert synced[:2] == [refs, refs / "team"] and synced[-1] == refs / "team" / "deep"
+    store.close()
