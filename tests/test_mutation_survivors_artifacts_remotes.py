@@ -1737,3 +1737,21 @@ def test_a_pull_syncs_the_objects_directory_above_the_fan_out_directories_it_mad
     assert second.objects_dir in synced
     first.close()
     second.close()
+
+
+def test_data_left_behind_by_only_is_noted_as_promised_by_that_remote_which_becomes_a_promisor(tmp_path):
+    """fetch 141-153: what --only leaves on the remote is noted, object by object, as promised by that remote,
+    and the remote is marked a promisor (so a step that needs the data fetches it); the report counts it."""
+    from artifacts.remotes.config import get_remote
+    from artifacts.remotes.lazy import promised_path
+    from artifacts.remotes.pull import pull
+
+    first, remote, contents = pushed_store(tmp_path)
+    second = second_store(tmp_path, remote)
+    assert not get_remote(second, "nas").promisor
+    report = pull(second, "nas", only={"checkpoint"})
+    assert report.promised == 3 and get_remote(second, "nas").promisor
+    assert sorted(promised_path(second, "nas").read_text().split()) == sorted(contents.values())
+    assert not any(second.has_object(oid) for oid in contents.values())
+    first.close()
+    second.close()
