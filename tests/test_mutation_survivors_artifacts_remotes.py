@@ -1755,3 +1755,20 @@ def test_data_left_behind_by_only_is_noted_as_promised_by_that_remote_which_beco
     assert not any(second.has_object(oid) for oid in contents.values())
     first.close()
     second.close()
+
+
+def test_the_progress_bar_counts_each_object_once_whichever_thread_advances_it():
+    """progress.RichMeter.advance 2, 3 (the objects done shown as 1, or counting down)."""
+    from artifacts.remotes.progress import RichMeter
+
+    meter = RichMeter()
+    meter.start("pull ← nas", 40, 4000)
+    workers = [threading.Thread(target=lambda: [meter.advance(10) for _ in range(10)]) for _ in range(4)]
+    for worker in workers:
+        worker.start()
+    for worker in workers:
+        worker.join()
+    [task] = meter.bar.tasks
+    assert task.fields["objects"] == "40/40" and task.completed == 400
+    meter.stop()
+    assert meter.bar is None
