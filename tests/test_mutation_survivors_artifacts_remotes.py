@@ -1758,7 +1758,13 @@ def test_data_left_behind_by_only_is_noted_as_promised_by_that_remote_which_beco
 
 
 def test_the_progress_bar_counts_each_object_once_whichever_thread_advances_it():
-    """progress.RichMeter.advance 2, 3 (the objects done shown as 1, or counting down)."""
+    """progress.RichMeter.advance 2, 3 (the objects done shown as 1, or counting down), start 11, 13, 19 (no
+    bar, no speed, or the objects column garbled): what, bar, bytes, speed, then "done/all objects"."""
+    import io
+    import re
+
+    from rich.console import Console
+
     from artifacts.remotes.progress import RichMeter
 
     meter = RichMeter()
@@ -1770,5 +1776,10 @@ def test_the_progress_bar_counts_each_object_once_whichever_thread_advances_it()
         worker.join()
     [task] = meter.bar.tasks
     assert task.fields["objects"] == "40/40" and task.completed == 400
+    shown = [type(column).__name__ for column in meter.bar.columns]
+    assert shown == ["TextColumn", "BarColumn", "DownloadColumn", "TransferSpeedColumn", "TextColumn"]
+    screen = Console(file=io.StringIO(), width=120)
+    screen.print(meter.bar.make_tasks_table([task]))
+    assert "pull ← nas" in screen.file.getvalue() and re.search(r"\b40/40 objects\b", screen.file.getvalue())
     meter.stop()
     assert meter.bar is None
