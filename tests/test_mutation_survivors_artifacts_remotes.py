@@ -1759,7 +1759,7 @@ def test_data_left_behind_by_only_is_noted_as_promised_by_that_remote_which_beco
 
 def test_the_progress_bar_counts_each_object_once_whichever_thread_advances_it():
     """progress.RichMeter.advance 2, 3 (the objects done shown as 1, or counting down), start 11, 13, 19 (no
-    bar, no speed, or the objects column garbled): what, bar, bytes, speed, then "done/all objects"."""
+    bar, no speed, or the objects column garbled), 26, 27 (no total bytes; "None" objects at first): what, bar, bytes, speed, then "done/all objects"."""
     import io
     import re
 
@@ -1769,6 +1769,7 @@ def test_the_progress_bar_counts_each_object_once_whichever_thread_advances_it()
 
     meter = RichMeter()
     meter.start("pull ← nas", 40, 4000)
+    assert (meter.bar.tasks[0].fields["objects"], meter.bar.tasks[0].total) == ("0/40", 4000)
     workers = [threading.Thread(target=lambda: [meter.advance(10) for _ in range(10)]) for _ in range(4)]
     for worker in workers:
         worker.start()
