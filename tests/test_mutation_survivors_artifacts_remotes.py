@@ -1784,3 +1784,29 @@ def test_the_progress_bar_counts_each_object_once_whichever_thread_advances_it()
     assert "pull ← nas" in screen.file.getvalue() and re.search(r"\b40/40 objects\b", screen.file.getvalue())
     meter.stop()
     assert meter.bar is None
+
+
+def test_a_manifest_the_remote_lacks_or_holds_damaged_is_refused_in_one_exact_line(tmp_path):
+    """transfer.download_manifest 6, 7 (the missing manifest's line lost, or its id cut at 13), 12, 16 (a damaged
+    one not called corrupt)."""
+    from artifacts.refs import read_ref
+    from artifacts.remotes.transfer import download_manifest
+
+    first, remote, _ = pushed_store(tmp_path)
+    oid = read_ref(first, "team/a")
+    backend = DirBackend(parse_url("nas", str(remote)))
+    assert hash_bytes(download_manifest(backend, oid)) == oid
+    path = remote / "objects" / "blake3" / oid[:2] / oid[2:]
+    path.chmod(0o644)
+    path.write_bytes(b"{}")
+    with pytest.raises(StoreError) as damaged:
+        download_manifest(backend, oid)
+    assert f": object {oid[:12]} arrived corrupt 3 times; refused" in str(damaged.value)
+    path.unlink()
+    with pytest.raises(StoreError) as missing:
+        download_manifest(backend, oid)
+    assert str(missing.value) == (
+        f"{backend.describe()}: lacks object {oid[:12]} that its refs reach; "
+        "run `accrue remote repair nas` from a store that has it"
+    )
+    first.close()
