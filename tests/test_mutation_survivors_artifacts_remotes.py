@@ -1810,3 +1810,32 @@ def test_a_manifest_the_remote_lacks_or_holds_damaged_is_refused_in_one_exact_li
         "run `accrue remote repair nas` from a store that has it"
     )
     first.close()
+
+
+# ----------------------------------------------------------------------------- remotes.config.pick_remote (round 12)
+def test_with_several_remotes_origin_is_meant_unless_a_word_names_another(tmp_path):
+    """config.pick_remote 12, 13, 15, 16: the remote named origin is the default among several."""
+    from artifacts.remotes.config import add_remote, pick_remote
+
+    store, _ = Store.init(tmp_path / "store")
+    add_remote(store, "nas", str(tmp_path / "nas"))
+    add_remote(store, "origin", str(tmp_path / "origin"))
+    spec, words = pick_remote(store, ["runs/a"])
+    assert (spec.name, words) == ("origin", ["runs/a"])
+    spec, words = pick_remote(store, ["nas", "runs/a"])
+    assert (spec.name, words) == ("nas", ["runs/a"])
+
+
+def test_with_no_remote_or_several_and_no_origin_the_error_says_what_to_do(tmp_path):
+    """config.pick_remote 19, 24: the two messages, word for word."""
+    from artifacts.remotes.config import add_remote, pick_remote
+
+    store, _ = Store.init(tmp_path / "store")
+    with pytest.raises(StoreError) as exc:
+        pick_remote(store, [])
+    assert str(exc.value) == "this store has no remotes; add one with `accrue remote add NAME URL`"
+    add_remote(store, "nas", str(tmp_path / "nas"))
+    add_remote(store, "backup", str(tmp_path / "backup"))
+    with pytest.raises(StoreError) as exc:
+        pick_remote(store, ["runs/a"])
+    assert str(exc.value) == "which remote? this store has backup, nas; name one first"

@@ -671,3 +671,39 @@ def test_an_object_in_a_new_fan_out_directory_and_a_ref_in_a_new_folder_reach_di
     refs = store.root / "refs"
     assert synced[:2] == [refs, refs / "team"] and synced[-1] == refs / "team" / "deep"
     store.close()
+
+
+# ----------------------------------------------------------------------------- manifests.materialize (round 12)
+def _damaged_file_artifact(store: Store, tmp_path: Path) -> tuple[str, str]:
+    """A file artifact whose object now holds other bytes of the same size (only a re-hash sees it)."""
+    src = tmp_path / "policy.bin"
+    src.write_bytes(b"x" * 100)
+    aid, _ = add_path(store, src, "demos")
+    oid = read_artifact(store, aid)["content"]
+    path = store.object_path(oid)
+    os.chmod(path, 0o644)
+    path.write_bytes(b"y" * 100)
+    return aid, oid
+
+
+def test_a_file_artifact_is_rehashed_when_used_and_left_in_place_unless_asked_to_quarantine(store, tmp_path):
+    """manifests.materialize 1 (quarantine off by default), 14 (a file artifact is re-hashed, not only
+    sized)."""
+    from artifacts.manifests import materialize
+
+    aid, oid = _damaged_file_artifact(store, tmp_path)
+    with pytest.raises(StoreError, match=f"object {oid[:12]} .* is corrupt"):
+        materialize(store, aid, tmp_path / "view")
+    assert store.object_path(oid).exists()  # not moved aside: the caller did not ask
+    assert not store.quarantine_dir.exists() or not any(store.quarantine_dir.iterdir())
+
+
+def test_a_damaged_file_artifact_materialized_with_quarantine_is_moved_aside(store, tmp_path):
+    """manifests.materialize 15, 19: quarantine=True reaches the check of a file artifact."""
+    from artifacts.manifests import materialize
+
+    aid, oid = _damaged_file_artifact(store, tmp_path)
+    with pytest.raises(StoreError, match="is corrupt"):
+        materialize(store, aid, tmp_path / "view", quarantine=True)
+    assert not store.object_path(oid).exists()
+    assert [p.name.split(".")[0] for p in store.quarantine_dir.iterdir()] == [oid]
