@@ -707,3 +707,21 @@ def test_a_damaged_file_artifact_materialized_with_quarantine_is_moved_aside(sto
         materialize(store, aid, tmp_path / "view", quarantine=True)
     assert not store.object_path(oid).exists()
     assert [p.name.split(".")[0] for p in store.quarantine_dir.iterdir()] == [oid]
+
+
+def test_a_directory_artifact_is_copied_with_its_nested_folders_and_never_into_an_existing_folder(store, tmp_path):
+    """manifests.materialize 37, 39, 41 (a file two folders deep, whose upper folder holds no file, gets
+    both folders), 29 (a folder already there is refused, so no stale file is mixed into the view)."""
+    from artifacts.manifests import materialize
+
+    src = tmp_path / "demos"
+    (src / "episodes" / "0001").mkdir(parents=True)
+    (src / "episodes" / "0001" / "frames.bin").write_bytes(b"f" * 64)
+    aid, _ = add_path(store, src, "demos")
+    view = materialize(store, aid, tmp_path / "view")
+    assert (view / "episodes" / "0001" / "frames.bin").read_bytes() == b"f" * 64
+    stale = tmp_path / "stale"
+    stale.mkdir()
+    with pytest.raises(FileExistsError):
+        materialize(store, aid, stale)
+    assert list(stale.iterdir()) == []
