@@ -725,3 +725,45 @@ def test_a_directory_artifact_is_copied_with_its_nested_folders_and_never_into_a
     with pytest.raises(FileExistsError):
         materialize(store, aid, stale)
     assert list(stale.iterdir()) == []
+
+
+def _two_file_demos(store: Store, tmp_path: Path) -> tuple[str, dict[str, str]]:
+    """A directory artifact of a.bin and b.bin; returns its id and each file's object id."""
+    src = tmp_path / "two"
+    src.mkdir()
+    (src / "a.bin").write_bytes(b"a" * 50)
+    (src / "b.bin").write_bytes(b"b" * 50)
+    aid, _ = add_path(store, src, "demos")
+    return aid, {rel: oid for oid, _, rel in content_objects(store, read_artifact(store, aid))}
+
+
+def test_a_missing_object_of_a_directory_artifact_is_named_in_one_line(store, tmp_path):
+    """manifests.materialize 54, 55, 56: the artifact's and the object's 12-digit ids, and the file."""
+    from artifacts.manifests import materialize
+
+    aid, oids = _two_file_demos(store, tmp_path)
+    os.unlink(store.object_path(oids["b.bin"]))
+    with pytest.raises(StoreError) as exc:
+        materialize(store, aid, tmp_path / "view")
+    assert str(exc.value) == f"artifact {aid[:12]}: object {oids['b.bin'][:12]} (b.bin) is missing"
+
+
+def test_a_same_size_damaged_object_stops_the_copy_is_moved_aside_and_leaves_plain_files(store, tmp_path):
+    """manifests.materialize 75 (a hash mismatch alone is corruption), 78–81 (quarantine=True moves
+    that object aside), 63, 66 (files copied before it are rw-r--r--, never executable)."""
+    from artifacts.manifests import materialize
+
+    aid, oids = _two_file_demos(store, tmp_path)
+    damaged = store.object_path(oids["b.bin"])
+    os.chmod(damaged, 0o644)
+    damaged.write_bytes(b"x" * 50)
+    old_umask = os.umask(0o022)
+    try:
+        with pytest.raises(StoreError) as exc:
+            materialize(store, aid, tmp_path / "view", quarantine=True)
+    finally:
+        os.umask(old_umask)
+    assert str(exc.value) == f"artifact {aid[:12]}: object {oids['b.bin'][:12]} (b.bin) is corrupt"
+    assert not damaged.exists()
+    assert [p.name.split(".")[0] for p in store.quarantine_dir.iterdir()] == [oids["b.bin"]]
+    assert (tmp_path / "view" / "a.bin").stat().st_mode & 0o777 == 0o644
