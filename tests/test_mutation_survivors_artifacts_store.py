@@ -711,7 +711,8 @@ def test_a_damaged_file_artifact_materialized_with_quarantine_is_moved_aside(sto
 
 def test_a_directory_artifact_is_copied_with_its_nested_folders_and_never_into_an_existing_folder(store, tmp_path):
     """manifests.materialize 37, 39, 41 (a file two folders deep, whose upper folder holds no file, gets
-    both folders), 29 (a folder already there is refused, so no stale file is mixed into the view)."""
+    both folders), 29 (a folder already there is refused, so no stale file is mixed into the view);
+    _make_read_only 14, 19 (files r--r--r--, folders r-xr-xr-x)."""
     from artifacts.manifests import materialize
 
     src = tmp_path / "demos"
@@ -720,6 +721,8 @@ def test_a_directory_artifact_is_copied_with_its_nested_folders_and_never_into_a
     aid, _ = add_path(store, src, "demos")
     view = materialize(store, aid, tmp_path / "view")
     assert (view / "episodes" / "0001" / "frames.bin").read_bytes() == b"f" * 64
+    modes = {str(p.relative_to(view)): p.stat().st_mode & 0o777 for p in [view, *view.rglob("*")]}
+    assert modes == {".": 0o555, "episodes": 0o555, "episodes/0001": 0o555, "episodes/0001/frames.bin": 0o444}
     stale = tmp_path / "stale"
     stale.mkdir()
     with pytest.raises(FileExistsError):
@@ -750,7 +753,8 @@ def test_a_missing_object_of_a_directory_artifact_is_named_in_one_line(store, tm
 
 def test_a_same_size_damaged_object_stops_the_copy_is_moved_aside_and_leaves_plain_files(store, tmp_path):
     """manifests.materialize 75 (a hash mismatch alone is corruption), 78–81 (quarantine=True moves
-    that object aside), 63, 66 (files copied before it are rw-r--r--, never executable)."""
+    that object aside), 82–84 (the line names it), 63, 66 (files copied before it are rw-r--r--, never
+    executable)."""
     from artifacts.manifests import materialize
 
     aid, oids = _two_file_demos(store, tmp_path)
