@@ -771,3 +771,13 @@ def test_a_same_size_damaged_object_stops_the_copy_is_moved_aside_and_leaves_pla
     assert not damaged.exists()
     assert [p.name.split(".")[0] for p in store.quarantine_dir.iterdir()] == [oids["b.bin"]]
     assert (tmp_path / "view" / "a.bin").stat().st_mode & 0o777 == 0o644
+
+
+def test_a_file_artifact_names_its_file_when_its_object_is_missing(store, tmp_path):
+    """manifests.content_objects 10, 12, 14, 15: a file artifact's one object is known by the file's name."""
+    aid, oid = _damaged_file_artifact(store, tmp_path)
+    os.unlink(store.object_path(oid))
+    assert content_objects(store, read_artifact(store, aid)) == [(oid, 100, "policy.bin")]
+    with pytest.raises(StoreError) as exc:
+        verify_artifact(store, aid)
+    assert str(exc.value) == f"artifact {aid[:12]}: object {oid[:12]} (policy.bin) is missing"
