@@ -781,3 +781,30 @@ def test_a_file_artifact_names_its_file_when_its_object_is_missing(store, tmp_pa
     with pytest.raises(StoreError) as exc:
         verify_artifact(store, aid)
     assert str(exc.value) == f"artifact {aid[:12]}: object {oid[:12]} (policy.bin) is missing"
+
+
+def test_an_object_of_another_type_is_refused_as_an_artifact_or_a_tree_in_one_exact_line(store, tmp_path):
+    """manifests.read_artifact, read_tree, check_kind: the lines name the object's 12-digit id and what it is,
+    or the kinds a name should look like (ids in the triage files of round 12)."""
+    from artifacts.manifests import check_kind, read_tree
+
+    aid, oids = _two_file_demos(store, tmp_path)
+    tree = read_artifact(store, aid)["content"]
+    untyped = store.put_json({"entries": []})
+    with pytest.raises(StoreError) as exc:
+        read_artifact(store, tree)
+    assert str(exc.value) == f"{tree[:12]} is a tree object, not an artifact"
+    with pytest.raises(StoreError) as exc:
+        read_artifact(store, untyped)
+    assert str(exc.value) == f"{untyped[:12]} is a raw object, not an artifact"
+    with pytest.raises(StoreError) as exc:
+        read_tree(store, aid)
+    assert str(exc.value) == f"object {aid[:12]} is not a tree"
+    assert [e["path"] for e in read_tree(store, tree)] == ["a.bin", "b.bin"]
+    with pytest.raises(StoreError) as exc:
+        check_kind("Demos")
+    assert str(exc.value) == (
+        "bad artifact kind 'Demos': use lowercase letters, digits and '-' (e.g. base-policy, replay, "
+        "teacher-targets, checkpoint, eval, handoff, demos, episodes)"
+    )
+    assert check_kind("d" + "x" * 39) == "d" + "x" * 39
