@@ -808,3 +808,45 @@ def test_an_object_of_another_type_is_refused_as_an_artifact_or_a_tree_in_one_ex
         "teacher-targets, checkpoint, eval, handoff, demos, episodes)"
     )
     assert check_kind("d" + "x" * 39) == "d" + "x" * 39
+
+
+def test_a_published_artifact_s_manifest_holds_exactly_its_identity(store, tmp_path):
+    """manifests.write_manifest and publish_artifact: every field, with the defaults and with each argument
+    given, and only the producer's step (ids in the triage files of round 12)."""
+    from artifacts.manifests import ARTIFACT_FORMAT, publish_artifact, write_manifest
+
+    src = tmp_path / "policy.bin"
+    src.write_bytes(b"p" * 10)
+    content = {"layout": "file", "content": hash_bytes(b"p" * 10), "size": 10, "files": 1, "name": "policy.bin"}
+    base = {"type": "artifact", "format": ARTIFACT_FORMAT, "kind": "base-policy", "producer": {"step": "finetune-base"}}
+    bare = publish_artifact(store, src, "base-policy", producer={"step": "finetune-base", "attempt": 3})
+    assert read_artifact(store, bare) == {**base, "inputs": {}, "config": {}, "code_version": "", "meta": {}, **content}
+    assert write_manifest(store, content, "base-policy", producer={"step": "finetune-base"}) == bare
+    given = {"inputs": {"demos": "d" * 64}, "config": {"lr": 0.1}, "code_version": "abc123", "meta": {"epochs": 2}}
+    full = publish_artifact(store, src, "base-policy", producer={"step": "finetune-base", "cache_key": "k"}, **given)
+    assert read_artifact(store, full) == {**base, **given, **content}
+    assert write_manifest(store, content, "base-policy", producer={"step": "finetune-base"}, **given) == full
+    assert read_artifact(store, publish_artifact(store, src, "base-policy", producer={}))["producer"] == {}
+
+
+def test_a_file_name_that_is_not_utf8_is_refused_in_one_exact_line():
+    """manifests.utf8_name 4, 5."""
+    from artifacts.errors import path_text
+    from artifacts.manifests import utf8_name
+
+    odd = Path("/data") / "caf\udce9.bin"
+    with pytest.raises(StoreError) as exc:
+        utf8_name(odd.name, odd)
+    assert str(exc.value) == f"{path_text(odd)}: file name is not valid UTF-8; rename it to store it"
+    assert utf8_name("café.bin", Path("café.bin")) == "café.bin"
+
+
+def test_publishing_with_adopt_links_the_staged_file_in_instead_of_copying_it(store):
+    """manifests.publish_artifact 11: `how` reaches store_content."""
+    from artifacts.manifests import publish_artifact
+
+    staged = store.new_tmp_dir("stage") / "replay.bin"
+    staged.write_bytes(b"r" * 40)
+    aid = publish_artifact(store, staged, "replay", producer={"step": "warmup"}, how="adopt")
+    oid = read_artifact(store, aid)["content"]
+    assert os.stat(store.object_path(oid)).st_ino == os.stat(staged).st_ino
