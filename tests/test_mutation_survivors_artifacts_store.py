@@ -850,3 +850,25 @@ def test_publishing_with_adopt_links_the_staged_file_in_instead_of_copying_it(st
     aid = publish_artifact(store, staged, "replay", producer={"step": "warmup"}, how="adopt")
     oid = read_artifact(store, aid)["content"]
     assert os.stat(store.object_path(oid)).st_ino == os.stat(staged).st_ino
+
+
+def test_an_adopted_file_replaces_a_damaged_object_of_its_id_and_becomes_read_only(store):
+    """Store.adopt_file 6 (the damaged copy is moved aside by id), 18 (the new object is r--r--r--)."""
+    oid = store.put_bytes(b"r" * 40)
+    path = store.object_path(oid)
+    os.chmod(path, 0o644)
+    path.write_bytes(b"r" * 39)  # damaged: another size
+    staged = store.new_tmp_dir("stage") / "replay.bin"
+    staged.write_bytes(b"r" * 40)
+    assert store.adopt_file(staged) == (oid, 40)
+    assert path.read_bytes() == b"r" * 40
+    assert path.stat().st_mode & 0o777 == 0o444
+    assert [p.name.split(".")[0] for p in store.quarantine_dir.iterdir()] == [oid]
+
+
+def test_a_scratch_folder_is_made_even_when_the_tmp_area_was_removed(store):
+    """Store.new_tmp_dir 5: the tmp area itself is made again."""
+    shutil.rmtree(store.tmp_dir)
+    scratch = store.new_tmp_dir("stage")
+    assert scratch.is_dir() and scratch.parent == store.tmp_dir
+    assert scratch.name.startswith(f"stage-{os.getpid()}-")
