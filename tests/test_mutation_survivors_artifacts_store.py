@@ -872,3 +872,47 @@ def test_a_scratch_folder_is_made_even_when_the_tmp_area_was_removed(store):
     scratch = store.new_tmp_dir("stage")
     assert scratch.is_dir() and scratch.parent == store.tmp_dir
     assert scratch.name.startswith(f"stage-{os.getpid()}-")
+
+
+def _blobs_sharing_a_prefix(count: int) -> list[bytes]:
+    """`count` small blobs whose ids share their first four hex digits (found by hashing, not stored)."""
+    by_prefix: dict[str, list[bytes]] = {}
+    i = 0
+    while True:
+        blob = f"blob {i}".encode()
+        group = by_prefix.setdefault(hash_bytes(blob)[:4], [])
+        group.append(blob)
+        if len(group) == count:
+            return group
+        i += 1
+
+
+def test_an_id_prefix_resolves_when_unambiguous_and_each_refusal_is_one_exact_line(store, tmp_path):
+    """Store.resolve_prefix: case, the 4-digit minimum, hex only, no match, and an ambiguous prefix listing
+    four of its matches (ids in the triage files of round 12)."""
+    blobs = _blobs_sharing_a_prefix(5)
+    oids = sorted(store.put_bytes(b) for b in blobs)
+    prefix = oids[0][:4]
+    lone = store.put_bytes(b"lone")
+    assert store.resolve_prefix(lone.upper()) == lone
+    assert store.resolve_prefix(lone[:8].upper()) == lone
+    for bad in ("abc", "ab-d", "wxyz"):
+        with pytest.raises(StoreError) as exc:
+            store.resolve_prefix(bad)
+        assert str(exc.value) == f"{bad!r} is neither a ref nor an id (ids are hex, at least 4 digits)"
+    absent = next(p for p in (f"{n:02x}00" for n in range(256)) if not (store.objects_dir / p[:2]).is_dir())
+    stored = list(store.iter_object_ids())
+    near = next(f"{prefix[:2]}{n:02x}" for n in range(256) if not any(o.startswith(f"{prefix[:2]}{n:02x}") for o in stored))
+    for unknown in (absent, near.upper()):
+        with pytest.raises(StoreError) as exc:
+            store.resolve_prefix(unknown)
+        assert str(exc.value) == f"no object or ref matches {unknown!r}"
+    with pytest.raises(StoreError) as exc:
+        store.resolve_prefix(prefix.upper())
+    shown = ", ".join(o[:12] for o in oids[:4])
+    assert str(exc.value) == f"id prefix {prefix.upper()!r} is ambiguous (5 objects: {shown}…); give more digits"
+    pair, _ = Store.init(tmp_path / "pair")
+    two = sorted(pair.put_bytes(b) for b in _blobs_sharing_a_prefix(2))
+    with pytest.raises(StoreError, match=r"is ambiguous \(2 objects"):
+        pair.resolve_prefix(two[0][:4])
+    pair.close()
