@@ -916,3 +916,12 @@ def test_an_id_prefix_resolves_when_unambiguous_and_each_refusal_is_one_exact_li
     with pytest.raises(StoreError, match=r"is ambiguous \(2 objects"):
         pair.resolve_prefix(two[0][:4])
     pair.close()
+
+
+def test_fetch_missing_says_whether_every_object_is_here(store):
+    """Store.fetch_missing 5: objects already here need no remote (read_bytes then reads an object another
+    writer put in place after its first read missed it)."""
+    here = store.put_bytes(b"here")
+    assert store.fetch_missing(here) is True
+    assert store.fetch_missing() is True
+    assert store.fetch_missing(here, hash_bytes(b"elsewhere")) is False  # no promisor remote to ask
