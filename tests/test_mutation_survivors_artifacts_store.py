@@ -925,3 +925,151 @@ def test_fetch_missing_says_whether_every_object_is_here(store):
     assert store.fetch_missing(here) is True
     assert store.fetch_missing() is True
     assert store.fetch_missing(here, hash_bytes(b"elsewhere")) is False  # no promisor remote to ask
+
+
+# ----------------------------------------------------------------------------- store.Store.init / open (round 12)
+def test_a_new_store_has_its_layout_and_config_and_a_second_init_opens_it(tmp_path, monkeypatch):
+    """Store.__init__, init: every folder of the layout, the config's bytes, created or not; the default
+    place is $ACCRUE_STORE (ids in the triage files of round 12)."""
+    root = tmp_path / "deep" / "store"
+    store, created = Store.init(root)
+    assert created is True and store.root == root
+    assert sorted(p.name for p in root.iterdir()) == sorted(
+        ["config", "objects", "refs", "records", "log", "locks", "tmp", "quarantine"]
+    )
+    assert (root / "config").read_bytes() == b'{"format":1,"hash":"blake3"}\n'
+    assert [p.name for p in (root / "objects").iterdir()] == ["blake3"]
+    paths = (store.objects_dir, store.refs_dir, store.records_dir, store.log_path, store.locks_dir)
+    assert paths == (root / "objects/blake3", root / "refs", root / "records", root / "log/events.jsonl", root / "locks")
+    assert (store.tmp_dir, store.quarantine_dir) == (root / "tmp", root / "quarantine")
+    assert all(p.is_dir() for p in (store.objects_dir, store.refs_dir, store.records_dir, store.locks_dir))
+    again, created = Store.init(root)
+    assert created is False and again.root == root
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("ACCRUE_STORE", "deep/store")
+    assert Store.open().root == root and Store.init()[1] is False
+    monkeypatch.delenv("ACCRUE_STORE")
+    fresh, created = Store.init()
+    assert created is True and fresh.root == tmp_path / ".accrue"
+    for handle in (store, again, fresh):
+        handle.close()
+
+
+def test_a_store_cannot_be_made_on_a_file_or_where_a_folder_cannot_be_made(tmp_path):
+    """Store.init: both refusals, word for word."""
+    (tmp_path / "plain").write_text("x")
+    with pytest.raises(StoreError) as exc:
+        Store.init(tmp_path / "plain")
+    assert str(exc.value) == f"{tmp_path / 'plain'}: exists and is not a directory"
+    (tmp_path / "st").mkdir()
+    (tmp_path / "st" / "refs").write_text("not a folder")
+    with pytest.raises(StoreError) as exc:
+        Store.init(tmp_path / "st")
+    assert str(exc.value) == f"cannot create a store at {tmp_path / 'st'}: {tmp_path / 'st' / 'refs'}: File exists"
+
+
+def test_opening_a_store_refuses_each_kind_of_bad_config_in_one_exact_line(tmp_path):
+    """Store.open: no store, config not JSON, not an object, another format or hash, unreadable."""
+    root = tmp_path / "store"
+    with pytest.raises(StoreError) as exc:
+        Store.open(root)
+    assert str(exc.value) == f"no accrue store at {root} (run `accrue init` or pass --store PATH)"
+    Store.init(root)[0].close()
+    config = root / "config"
+    os.chmod(config, 0o644)
+    for text, line in [
+        (b"{not json", f"{config}: not valid JSON"),
+        (b"\xff\xfe", f"{config}: not valid JSON"),
+        (b"[1, 2]", f"{config}: not a store config (expected a JSON object, got list)"),
+        (
+            b'{"format": 2, "hash": "blake3"}',
+            f"{config}: unsupported store format 2 / hash 'blake3' (this accrue reads format 1, blake3)",
+        ),
+        (
+            b'{"format": 1, "hash": "sha256"}',
+            f"{config}: unsupported store format 1 / hash 'sha256' (this accrue reads format 1, blake3)",
+        ),
+        (b"{}", f"{config}: unsupported store format None / hash None (this accrue reads format 1, blake3)"),
+    ]:
+        config.write_bytes(text)
+        with pytest.raises(StoreError) as exc:
+            Store.open(root)
+        assert str(exc.value) == line
+    config.unlink()
+    config.mkdir()
+    with pytest.raises(StoreError, match="no accrue store"):
+        Store.open(root)
+
+
+def test_opening_a_store_whose_empty_folders_were_lost_makes_them_again(tmp_path, monkeypatch):
+    """Store.open: a store copied without its empty folders opens whole; one that cannot be written
+    still opens for reading."""
+    root = tmp_path / "store"
+    Store.init(root)[0].close()
+    for sub in ("refs", "records", "log", "locks", "tmp", "quarantine"):
+        os.rmdir(root / sub)
+    shutil.rmtree(root / "objects")
+    store = Store.open(root)
+    assert all((root / sub).is_dir() for sub in ("objects", "refs", "records", "log", "locks", "tmp", "quarantine"))
+    assert store.objects_dir.is_dir()
+    store.close()
+    shutil.rmtree(root / "tmp")
+
+    def read_only(self, *args, **kwargs):
+        raise PermissionError(13, "Permission denied", str(self))
+
+    monkeypatch.setattr(Path, "mkdir", read_only)
+    assert Store.open(root).root == root
+
+
+def test_an_interrupted_init_is_finished_by_the_next_and_open_remakes_each_lost_folder(tmp_path):
+    """Store.init 16, 18, 21, 22, 27: folders an interrupted init left (no config yet) are kept; Store.open
+    38, 40: open makes every lost folder, whichever others are still there."""
+    root = tmp_path / "store"
+    for sub in ("objects/blake3", "refs", "tmp"):
+        (root / sub).mkdir(parents=True)
+    store, created = Store.init(root)
+    assert created is True and (root / "config").is_file()
+    store.close()
+    os.rmdir(root / "quarantine")
+    os.rmdir(root / "objects" / "blake3")
+    Store.open(root).close()
+    assert (root / "quarantine").is_dir() and (root / "objects" / "blake3").is_dir()
+
+
+def test_an_unreadable_config_is_one_line_naming_why(tmp_path, monkeypatch):
+    """Store.open 15, 16."""
+    root = tmp_path / "store"
+    Store.init(root)[0].close()
+    real = Path.read_bytes
+
+    def read_bytes(self):
+        if self.name == "config":
+            raise PermissionError(errno.EACCES, "Permission denied", str(self))
+        return real(self)
+
+    monkeypatch.setattr(Path, "read_bytes", read_bytes)
+    with pytest.raises(StoreError) as exc:
+        Store.open(root)
+    assert str(exc.value) == f"cannot read the store's config: {root / 'config'}: Permission denied"
+
+
+def test_a_failed_write_names_the_store(store, monkeypatch):
+    """_WriteErrors.__init__ 1: the line says which store could not be written."""
+
+    def full(tmp, data):
+        raise OSError(errno.ENOSPC, "No space left on device", str(tmp))
+
+    monkeypatch.setattr(artifacts.store, "write_new_fsynced", full)
+    with pytest.raises(StoreError) as exc:
+        store.put_bytes(b"new bytes")
+    assert str(exc.value).startswith(f"cannot write to the store at {store.root}: {store.tmp_dir}/.obj-tmp-")
+    assert str(exc.value).endswith(": No space left on device")
+
+
+def test_objects_a_partial_pull_left_on_a_remote_are_known_as_promised(store):
+    """Store.__init__ 35: the promised list is read on first use."""
+    (store.root / "remotes" / "nas").mkdir(parents=True)
+    (store.root / "remotes" / "nas" / "promised").write_text(f"{'a' * 64}\n")
+    assert store.is_promised("a" * 64) is True
+    assert store.is_promised("b" * 64) is False
