@@ -1073,3 +1073,27 @@ def test_objects_a_partial_pull_left_on_a_remote_are_known_as_promised(store):
     (store.root / "remotes" / "nas" / "promised").write_text(f"{'a' * 64}\n")
     assert store.is_promised("a" * 64) is True
     assert store.is_promised("b" * 64) is False
+
+
+def test_removing_a_work_folder_is_best_effort_and_never_raises(tmp_path, monkeypatch):
+    """store.remove_tree 3, 5, 6: a file that cannot be removed (a step's leftover on a read-only mount) is
+    left behind without an error, so the cleanup in a step's `finally` cannot turn a committed step into a
+    failed one; a read-only view is made removable first."""
+    from artifacts.store import remove_tree
+
+    work = tmp_path / "work"
+    (work / "inputs" / "view").mkdir(parents=True)
+    (work / "inputs" / "view" / "a.bin").write_bytes(b"a")
+    (work / "stuck.bin").write_bytes(b"s")
+    os.chmod(work / "inputs" / "view", 0o555)
+    real_unlink = os.unlink
+
+    def unlink(path, *args, **kwargs):
+        if os.fspath(path).endswith("stuck.bin"):
+            raise PermissionError(errno.EPERM, "Operation not permitted", os.fspath(path))
+        return real_unlink(path, *args, **kwargs)
+
+    monkeypatch.setattr(os, "unlink", unlink)
+    remove_tree(work)
+    assert sorted(p.name for p in work.rglob("*")) == ["stuck.bin"]
+    remove_tree(tmp_path / "never-made")  # nothing there: nothing to do
