@@ -1097,3 +1097,64 @@ def test_removing_a_work_folder_is_best_effort_and_never_raises(tmp_path, monkey
     remove_tree(work)
     assert sorted(p.name for p in work.rglob("*")) == ["stuck.bin"]
     remove_tree(tmp_path / "never-made")  # nothing there: nothing to do
+
+
+# ----------------------------------------------------------------------------- records (round 12)
+def test_an_attempt_record_is_its_fields_and_the_log_s_head_in_canonical_bytes(store):
+    """records.write_attempt and attempt_path: records/<key>/NNNN.json, canonical JSON and a newline, the
+    log anchor taken at the write; a state outside the four is refused; a write that fails is one line
+    (ids in the triage files of round 12)."""
+    from artifacts.auditlog import current_anchor
+    from artifacts.hashing import canonical_json
+    from artifacts.records import attempt_path
+
+    key = "ab" * 32
+    assert attempt_path(store, key, 7) == store.records_dir / key / "0007.json"
+    append_event(store, "custom", note="anchor")
+    attempt = _attempt(key, 7, "running", 4242)
+    write_attempt(store, attempt)
+    anchor = current_anchor(store)
+    assert anchor is not None and anchor["seq"] == 0
+    path = store.records_dir / key / "0007.json"
+    assert path.read_bytes() == canonical_json({**attempt, "log_anchor": anchor}) + b"\n"
+    for state in ("committed", "failed", "abandoned"):
+        write_attempt(store, {**attempt, "state": state})
+        assert json.loads(path.read_bytes())["state"] == state
+    with pytest.raises(ValueError) as exc:
+        write_attempt(store, {**attempt, "state": "paused"})
+    assert str(exc.value) == "bad attempt state paused"
+    os.chmod(path, 0o644)
+    shutil.rmtree(store.records_dir / key)
+    (store.records_dir / key).write_text("a file where the key's folder goes")
+    with pytest.raises(StoreError) as exc:
+        write_attempt(store, attempt)
+    assert str(exc.value).startswith(f"cannot write attempt record {path}: ")
+
+
+def test_attempts_are_listed_per_key_oldest_first_and_damaged_ones_reported_or_raised(store):
+    """records.list_attempts: one key or every key (only folders named by a full id, sorted), only
+    NNNN.json files; a damaged file raises, or goes to `problems` and is skipped."""
+    from artifacts.records import list_attempts
+
+    one, two = "ab" * 32, "cd" * 32
+    for key, number in [(two, 2), (one, 1), (two, 1), (two, 10)]:
+        write_attempt(store, _attempt(key, number, "committed", number))
+    (store.records_dir / two / "notes.json").write_text("{}")
+    (store.records_dir / "not-a-key").mkdir()
+    (store.records_dir / "not-a-key" / "0001.json").write_text(json.dumps(_attempt("not-a-key", 1, "failed", 1)))
+    (store.records_dir / ("ef" * 32)).write_text("a file, not a key folder")
+    listed = [(a["cache_key"], a["attempt"]) for a in list_attempts(store)]
+    assert listed == [(one, 1), (two, 1), (two, 2), (two, 10)]
+    assert [a["attempt"] for a in list_attempts(store, two)] == [1, 2, 10]
+    assert list_attempts(store, "12" * 32) == []
+    damaged = store.records_dir / two / "0002.json"
+    os.chmod(damaged, 0o644)
+    damaged.write_text("{half")
+    with pytest.raises(StoreError) as exc:
+        list_attempts(store, two)
+    assert str(exc.value) == f"{damaged}: damaged attempt record (JSONDecodeError)"
+    problems: list[str] = []
+    assert [a["attempt"] for a in list_attempts(store, problems=problems)] == [1, 1, 10]
+    assert problems == [f"{damaged}: damaged attempt record (JSONDecodeError)"]
+    shutil.rmtree(store.records_dir)
+    assert list_attempts(store) == []
