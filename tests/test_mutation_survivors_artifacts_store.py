@@ -1158,3 +1158,86 @@ def test_attempts_are_listed_per_key_oldest_first_and_damaged_ones_reported_or_r
     assert problems == [f"{damaged}: damaged attempt record (JSONDecodeError)"]
     shutil.rmtree(store.records_dir)
     assert list_attempts(store) == []
+
+
+# ----------------------------------------------------------------------------- store objects (round 12)
+def test_a_stored_object_is_read_back_verified_and_a_damaged_or_missing_one_is_one_line(store):
+    """Store.put_bytes, put_json, read_bytes, read_json, object_path, has_object, object_size, _publish_tmp:
+    the fan-out path, read-only objects, the temp file gone, each refusal word for word (ids in the triage
+    files of round 12)."""
+    oid = store.put_json({"b": 1, "a": [1, 2]})
+    assert oid == hash_bytes(b'{"a":[1,2],"b":1}')
+    path = store.object_path(oid)
+    assert path == store.objects_dir / oid[:2] / oid[2:]
+    assert store.has_object(oid) and store.object_size(oid) == 17 and path.stat().st_mode & 0o777 == 0o444
+    assert list(store.tmp_dir.iterdir()) == []
+    assert store.put_bytes(b'{"a":[1,2],"b":1}') == oid and list(store.tmp_dir.iterdir()) == []
+    assert store.read_bytes(oid) == b'{"a":[1,2],"b":1}' and store.read_json(oid) == {"a": [1, 2], "b": 1}
+    listed, text = store.put_json([1, 2]), store.put_bytes(b"not json")
+    for bad in (listed, text):
+        with pytest.raises(StoreError) as exc:
+            store.read_json(bad)
+        assert str(exc.value) == f"object {bad[:12]} is not a JSON manifest"
+    os.chmod(path, 0o644)
+    path.write_bytes(b'{"a":[1,2],"b":2}')
+    with pytest.raises(StoreError) as exc:
+        store.read_bytes(oid)
+    assert str(exc.value) == (
+        f"object {oid[:12]} is corrupt (its bytes no longer match its id); run `accrue verify --full`"
+    )
+    assert store.read_bytes(oid, verify=False) == b'{"a":[1,2],"b":2}'
+    path.unlink()
+    assert not store.has_object(oid) and store.object_size(oid) is None
+    with pytest.raises(StoreError) as exc:
+        store.read_bytes(oid)
+    assert str(exc.value) == f"object {oid[:12]} is missing from the store"
+    path.mkdir()
+    assert not store.has_object(oid)  # a folder in an object's place is not the object
+
+
+def test_the_config_is_changed_under_its_lock_and_keeps_keys_it_does_not_know(store, monkeypatch):
+    """Store.read_config, update_config."""
+    import artifacts.locks
+
+    held = []
+    real_lock = artifacts.locks.store_lock
+
+    def store_lock(where, name, *args, **kwargs):
+        held.append((where, name))
+        return real_lock(where, name, *args, **kwargs)
+
+    monkeypatch.setattr(artifacts.locks, "store_lock", store_lock)
+    config = store.root / "config"
+    os.chmod(config, 0o644)
+    config.write_bytes(b'{"format":1,"hash":"blake3","future":{"x":1}}\n')
+    assert store.read_config() == {"format": 1, "hash": "blake3", "future": {"x": 1}}
+
+    def change(cfg):
+        cfg["remotes"] = {"nas": {"url": "/nas"}}
+
+    after = store.update_config(change)
+    assert after == {"format": 1, "hash": "blake3", "future": {"x": 1}, "remotes": {"nas": {"url": "/nas"}}}
+    assert config.read_bytes() == b'{"format":1,"future":{"x":1},"hash":"blake3","remotes":{"nas":{"url":"/nas"}}}\n'
+    assert held == [(store.locks_dir, "config")]
+
+
+def test_an_object_a_partial_pull_left_on_a_promisor_is_fetched_when_read(store, monkeypatch):
+    """Store.read_bytes 9: after a fetcher brings the object in, its bytes are read and verified."""
+    blob = b"left on the remote"
+    oid = hash_bytes(blob)
+    asked = []
+
+    def fetch(into, missing):
+        asked.append(list(missing))
+        tmp = into.tmp_dir / "fetched"
+        tmp.write_bytes(blob)
+        into._publish_tmp(tmp, oid)
+        return True
+
+    monkeypatch.setattr(artifacts.store, "_MISSING_FETCHERS", [fetch])
+    with pytest.raises(StoreError, match="is missing from the store"):
+        store.read_bytes(oid)  # no promisor remote: nobody is asked
+    assert asked == []
+    store.update_config(lambda cfg: cfg.setdefault("remotes", {}).update({"nas": {"url": "/nas", "promisor": True}}))
+    assert store.read_bytes(oid) == blob
+    assert asked == [[oid]]
