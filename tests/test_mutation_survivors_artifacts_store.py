@@ -1241,3 +1241,37 @@ def test_an_object_a_partial_pull_left_on_a_promisor_is_fetched_when_read(store,
     store.update_config(lambda cfg: cfg.setdefault("remotes", {}).update({"nas": {"url": "/nas", "promisor": True}}))
     assert store.read_bytes(oid) == blob
     assert asked == [[oid]]
+
+
+def test_ingesting_a_file_copies_it_in_once_and_refuses_an_unreadable_or_changing_one(store, tmp_path, monkeypatch):
+    """Store.ingest_file: the object read-only with the file's bytes, fsynced, no temp file left; an
+    unreadable source and one that changes size are one line each and store nothing (ids in the triage
+    files of round 12)."""
+    src = tmp_path / "demo.bin"
+    src.write_bytes(b"d" * 1000)
+    synced = []
+    real_fsync = os.fsync
+    monkeypatch.setattr(os, "fsync", lambda fd: synced.append(os.readlink(f"/proc/self/fd/{fd}")) or real_fsync(fd))
+    oid, size = store.ingest_file(src)
+    assert (oid, size) == (hash_bytes(b"d" * 1000), 1000)
+    path = store.object_path(oid)
+    assert path.read_bytes() == b"d" * 1000 and path.stat().st_mode & 0o777 == 0o444
+    assert any(os.path.basename(p).startswith(".obj-tmp-") for p in synced)  # the copy reached disk first
+    assert list(store.tmp_dir.iterdir()) == []
+    with pytest.raises(StoreError) as exc:
+        store.ingest_file(tmp_path / "absent.bin")
+    assert str(exc.value) == f"cannot read {tmp_path / 'absent.bin'}: No such file or directory"
+    real_copy = artifacts.store.copy_hashing
+
+    def growing(f, fd, size_hint):
+        got = real_copy(f, fd, size_hint)
+        with open(src, "ab") as more:
+            more.write(b"+" * 24)
+        return got
+
+    monkeypatch.setattr(artifacts.store, "copy_hashing", growing)
+    src.write_bytes(b"e" * 1000)
+    with pytest.raises(StoreError) as exc:
+        store.ingest_file(src)
+    assert str(exc.value) == f"{src}: changed size while it was being stored (1000 -> 1024 bytes); nothing was stored"
+    assert list(store.tmp_dir.iterdir()) == [] and not store.has_object(hash_bytes(b"e" * 1000))
