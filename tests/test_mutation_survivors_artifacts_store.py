@@ -1275,3 +1275,83 @@ def test_ingesting_a_file_copies_it_in_once_and_refuses_an_unreadable_or_changin
         store.ingest_file(src)
     assert str(exc.value) == f"{src}: changed size while it was being stored (1000 -> 1024 bytes); nothing was stored"
     assert list(store.tmp_dir.iterdir()) == [] and not store.has_object(hash_bytes(b"e" * 1000))
+
+
+# ----------------------------------------------------------------------------- writers.hold / _open (round 12)
+def _other_process_can_lock(path: Path, exclusive_lock: bool) -> bool:
+    """Whether another process gets the lock on path now (without waiting)."""
+    how = "LOCK_EX" if exclusive_lock else "LOCK_SH"
+    mode = "O_RDWR" if exclusive_lock else "O_RDONLY"
+    code = (
+        "import fcntl, os, sys\n"
+        f"fd = os.open({str(path)!r}, os.{mode})\n"
+        f"try:\n    fcntl.lockf(fd, fcntl.{how} | fcntl.LOCK_NB)\nexcept OSError:\n    sys.exit(1)\n"
+    )
+    return subprocess.run([sys.executable, "-c", code]).returncode == 0
+
+
+def test_a_writer_holds_a_shared_lock_on_a_file_it_makes_and_gives_it_back(store):
+    """writers.hold and _open: locks/writers.lock made (rw-r--r--, its folder too), shared with other
+    writers, exclusive to nobody until the handle is closed (ids in the triage files of round 12)."""
+    import artifacts.writers as writers
+
+    shutil.rmtree(store.locks_dir)
+    old_umask = os.umask(0o022)
+    try:
+        writers.hold(store)
+    finally:
+        os.umask(old_umask)
+    lock = store.locks_dir / "writers.lock"
+    assert lock.stat().st_mode & 0o777 == 0o644
+    assert writers._held[str(lock)].users == 1
+    writers.hold(store)
+    assert writers._held[str(lock)].users == 1  # a handle holds once
+    assert _other_process_can_lock(lock, exclusive_lock=False)
+    assert not _other_process_can_lock(lock, exclusive_lock=True)
+    other = Store.open(store.root)
+    writers.hold(other)
+    assert writers._held[str(lock)].users == 2  # one descriptor, counted per handle
+    store.close()
+    assert writers._held[str(lock)].users == 1
+    assert not _other_process_can_lock(lock, exclusive_lock=True)
+    other.close()
+    assert str(lock) not in writers._held
+    assert _other_process_can_lock(lock, exclusive_lock=True)
+
+
+def test_a_store_whose_lock_cannot_be_made_or_taken_is_still_written_without_one(store, monkeypatch):
+    """writers._open: a lock file that cannot be opened for writing is opened read-only (a shared lock
+    needs no more); neither: no lock. writers.hold: a filesystem without POSIX locks holds nothing."""
+    import artifacts.writers as writers
+
+    lock = str(store.locks_dir / "writers.lock")
+    real_open = os.open
+    opened = []
+
+    def open_(path, flags, *mode):
+        if os.fspath(path) == lock:
+            opened.append(flags)
+            if flags & os.O_CREAT:
+                raise PermissionError(errno.EACCES, "Permission denied", path)
+        return real_open(path, flags, *mode)
+
+    Path(lock).touch()
+    monkeypatch.setattr(os, "open", open_)
+    fd = writers._open(lock)
+    assert fd is not None and opened == [os.O_RDWR | os.O_CREAT, os.O_RDONLY]
+    assert os.stat(lock).st_ino == os.fstat(fd).st_ino
+    with pytest.raises(OSError):
+        os.write(fd, b"x")  # read-only
+    os.close(fd)
+    os.unlink(lock)
+    assert writers._open(lock) is None
+    store.put_bytes(b"written without a lock")
+    assert lock not in writers._held and not getattr(store, "_writer_held", False)
+    monkeypatch.setattr(os, "open", real_open)
+
+    def no_posix_locks(fd, how):
+        raise OSError(errno.ENOLCK, "No locks available")
+
+    monkeypatch.setattr(writers.fcntl, "lockf", no_posix_locks)
+    store.put_bytes(b"also without")
+    assert lock not in writers._held and not getattr(store, "_writer_held", False)
