@@ -1839,3 +1839,29 @@ def test_with_no_remote_or_several_and_no_origin_the_error_says_what_to_do(tmp_p
     with pytest.raises(StoreError) as exc:
         pick_remote(store, ["runs/a"])
     assert str(exc.value) == "which remote? this store has backup, nas; name one first"
+
+
+# ----------------------------------------------------------------------------- remotes.pointers (round 12)
+def test_a_pushed_ref_s_version_is_remembered_under_the_remote_s_lock_so_reading_it_back_fetches_nothing(
+    tmp_path, monkeypatch
+):
+    """pointers.remember_version 8 (the remote's own lock), 13 (the version and id are what is cached)."""
+    import artifacts.remotes.pointers as pointers
+    from artifacts.refs import read_ref
+    from artifacts.remotes.config import get_remote
+
+    locks = []
+    real_lock = pointers.store_lock
+    monkeypatch.setattr(pointers, "store_lock", lambda where, name: locks.append(name) or real_lock(where, name))
+    store, remote, _ = pushed_store(tmp_path)
+    assert "remote-nas" in locks and set(locks) <= {"remote-nas"}
+    cache = json.loads((store.root / "remotes" / "nas" / "refs.json").read_bytes())
+    assert cache["team/a"] == [(remote / "refs" / "team" / "a").read_text(), read_ref(store, "team/a")]
+    spec = get_remote(store, "nas")
+    backend = DirBackend(spec)
+    fetched = []
+    real_read = backend.read_versioned
+    monkeypatch.setattr(backend, "read_versioned", lambda key: fetched.append(key) or real_read(key))
+    pointed = pointers.read_pointers(store, spec, backend, "refs")
+    assert {n: i for n, (i, _) in pointed.items()} == pointers.local_refs(store) and len(pointed) == 6
+    assert fetched == []
