@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import threading
 from pathlib import Path
 
@@ -1865,3 +1866,37 @@ def test_a_pushed_ref_s_version_is_remembered_under_the_remote_s_lock_so_reading
     pointed = pointers.read_pointers(store, spec, backend, "refs")
     assert {n: i for n, (i, _) in pointed.items()} == pointers.local_refs(store) and len(pointed) == 6
     assert fetched == []
+
+
+def test_reading_the_remote_s_refs_skips_files_that_are_not_refs_and_tracking_refs_and_refuses_a_damaged_one(
+    tmp_path,
+):
+    """pointers.read_pointers: a name that is not a ref (an editor's `a~`, sorted first) and another store's
+    remote-tracking refs are passed over, not the end of the listing; a ref file that holds no id is one
+    line; the version cache is rewritten with what was read (ids in the triage files of round 12)."""
+    import artifacts.remotes.pointers as pointers
+    from artifacts.remotes.config import get_remote
+
+    store, remote, _ = pushed_store(tmp_path)
+    spec = get_remote(store, "nas")
+    (remote / "refs" / "a~").write_text("backup")
+    (remote / "refs" / "remotes" / "other").mkdir(parents=True)
+    (remote / "refs" / "remotes" / "other" / "x").write_text("f" * 64)
+    (remote / "refs" / "remote-logs").mkdir()
+    (remote / "refs" / "remote-logs" / "y").write_text("f" * 64)
+    shutil.rmtree(store.root / "remotes")  # a store that never talked to a remote has no remotes/ yet
+    pointed = pointers.read_pointers(store, spec, DirBackend(spec), "refs")
+    assert sorted(pointed) == sorted(pointers.local_refs(store))
+    cache = json.loads((store.root / "remotes" / "nas" / "refs.json").read_bytes())
+    assert cache == {n: [v, i] for n, (i, v) in pointed.items()}
+    backend = DirBackend(spec)
+    real_read = backend.read_versioned
+    gone = sorted(pointed)[0]
+    backend.read_versioned = lambda key: None if key == f"refs/{gone}" else real_read(key)
+    (store.root / "remotes" / "nas" / "refs.json").unlink()
+    assert sorted(pointers.read_pointers(store, spec, backend, "refs")) == sorted(pointed)[1:]  # removed meanwhile
+    for held, shown in [(b"not an id at all, really", "not an id at all, re"), (b"\xff\xfe" + b"0" * 30, "\ufffd\ufffd" + "0" * 18)]:
+        (remote / "refs" / "team" / "b").write_bytes(held)
+        with pytest.raises(StoreError) as exc:
+            pointers.read_pointers(store, spec, DirBackend(spec), "refs")
+        assert str(exc.value) == f"remote nas ({remote}): refs/team/b is damaged (holds {shown!r}, not an id)"
