@@ -1900,3 +1900,149 @@ def test_reading_the_remote_s_refs_skips_files_that_are_not_refs_and_tracking_re
         with pytest.raises(StoreError) as exc:
             pointers.read_pointers(store, spec, DirBackend(spec), "refs")
         assert str(exc.value) == f"remote nas ({remote}): refs/team/b is damaged (holds {shown!r}, not an id)"
+
+
+def test_a_remote_s_config_is_made_on_first_push_and_checked_on_every_use(tmp_path, monkeypatch):
+    """pointers.check_remote_config: made once (canonical bytes) when asked to create, else a missing one is
+    one line; a config that is not an accrue remote's, or of another format or hash, is refused word for
+    word; a config another store made at the same moment is taken (ids in the triage files of round 12)."""
+    from artifacts.remotes.pointers import check_remote_config
+
+    remote = tmp_path / "remote"
+    backend = DirBackend(parse_url("nas", str(remote)))
+    with pytest.raises(StoreError) as exc:
+        check_remote_config(backend, create=False)
+    assert str(exc.value) == f"remote nas ({remote}): the directory does not exist (is the disk mounted?)"
+    remote.mkdir()
+    with pytest.raises(StoreError) as exc:
+        check_remote_config(backend, create=False)
+    assert str(exc.value) == f"remote nas ({remote}) holds no accrue store yet (push to it first)"
+    assert not (remote / "config").exists()
+    check_remote_config(backend, create=True)
+    assert (remote / "config").read_bytes() == b'{"format":1,"hash":"blake3","type":"accrue-remote"}\n'
+    check_remote_config(backend, create=False)
+    unmade = tmp_path / "second-remote"
+    check_remote_config(DirBackend(parse_url("usb", str(unmade))), create=True)  # a first push makes the folder
+    assert (unmade / "config").is_file()
+    check_remote_config(backend, create=True)  # there already: kept
+    for raw, why in [
+        (b"not json", "its config is not an accrue remote's"),
+        (b"[1]", "its config is not an accrue remote's"),
+        (b'{"format":1,"hash":"blake3","type":"accrue-store"}', "its config is not an accrue remote's"),
+        (b'{"format":2,"hash":"blake3","type":"accrue-remote"}', "unsupported remote format 2 / hash 'blake3'"),
+        (b'{"format":1,"hash":"sha1","type":"accrue-remote"}', "unsupported remote format 1 / hash 'sha1'"),
+        (b'{"type":"accrue-remote"}', "unsupported remote format None / hash None"),
+    ]:
+        os.chmod(remote / "config", 0o644)
+        (remote / "config").write_bytes(raw)
+        with pytest.raises(StoreError) as exc:
+            check_remote_config(backend, create=False)
+        assert str(exc.value) == f"remote nas ({remote}): {why}"
+    (remote / "config").unlink()
+    real_swap = backend.swap
+
+    def raced(key, data, expect):
+        real_swap(key, data, expect)  # another store made it first
+        return real_swap(key, data, expect)
+
+    monkeypatch.setattr(backend, "swap", raced)
+    check_remote_config(backend, create=True)
+    assert (remote / "config").read_bytes() == b'{"format":1,"hash":"blake3","type":"accrue-remote"}\n'
+
+
+def test_refs_named_on_the_command_line_pick_those_refs_or_the_refs_under_them():
+    """pointers.select_refs: nothing named is every ref; a name picks itself and what is under it (a
+    trailing slash is the same), never a ref that only starts with its letters; a tracking ref and an
+    unknown name are refused in one line (ids in the triage files of round 12)."""
+    from artifacts.remotes.pointers import select_refs
+
+    names = {"team/a": "1", "team/a/x": "2", "team/ab": "3", "solo": "4"}
+    everything = select_refs(names, [], "here")
+    assert everything == names and everything is not names
+    assert select_refs(names, ["team/a/"], "here") == {"team/a": "1", "team/a/x": "2"}
+    assert select_refs(names, ["team", "solo"], "here") == names
+    assert select_refs({"run/X": "5", "run/Y": "6"}, ["run/X"], "here") == {"run/X": "5"}  # only slashes are cut
+    with pytest.raises(StoreError) as exc:
+        select_refs(names, ["remotes/nas/team/a"], "here")
+    assert str(exc.value) == "remotes/nas/team/a: remote-tracking refs are never pushed or pulled"
+    with pytest.raises(StoreError) as exc:
+        select_refs(names, ["remote-logs/nas/x/"], "here")
+    assert str(exc.value) == "remote-logs/nas/x: remote-tracking refs are never pushed or pulled"
+    with pytest.raises(StoreError) as exc:
+        select_refs(names, ["solo", "team/b"], "on remote nas")
+    assert str(exc.value) == "no ref 'team/b' on remote nas"
+
+
+def test_merge_bases_are_recorded_once_per_change_and_fall_back_to_tracking_refs(bare_store, monkeypatch):
+    """pointers.record_bases, merge_bases, tracking_refs, local_refs: base.json (canonical, made with its
+    folders) wins over the remote-tracking refs; nothing agreed or nothing new writes nothing (ids in the
+    triage files of round 12)."""
+    import artifacts.remotes.pointers as pointers
+    from artifacts.hashing import canonical_json
+    from artifacts.refs import set_ref
+
+    a, b, c = (bare_store.put_bytes(x) for x in (b"a", b"b", b"c"))
+    set_ref(bare_store, "remotes/nas/team/a", a)
+    set_ref(bare_store, "remotes/nas/team/b", b)
+    set_ref(bare_store, "remotes/usb/team/a", c)
+    set_ref(bare_store, "remote-logs/nas/x", c)
+    set_ref(bare_store, "team/mine", c)
+    assert pointers.tracking_refs(bare_store, "nas") == {"team/a": a, "team/b": b}
+    assert pointers.tracking_refs(bare_store, "nas", "remote-logs") == {"x": c}
+    assert pointers.local_refs(bare_store) == {"team/mine": c}
+    assert pointers.merge_bases(bare_store, "nas") == {"team/a": a, "team/b": b}
+    saved = []
+    real_save = pointers.save_json
+    monkeypatch.setattr(pointers, "save_json", lambda path, value: saved.append(value) or real_save(path, value))
+    pointers.record_bases(bare_store, "nas", {})
+    assert saved == [] and not (bare_store.root / "remotes").exists()
+    pointers.record_bases(bare_store, "nas", {"team/a": c})
+    base = bare_store.root / "remotes" / "nas" / "base.json"
+    assert base.read_bytes() == canonical_json({"team/a": c}) + b"\n"
+    pointers.record_bases(bare_store, "nas", {"team/a": c})
+    assert saved == [{"team/a": c}]  # the same again: not rewritten
+    pointers.record_bases(bare_store, "nas", {"team/b": a, "team/a": c})
+    assert saved[-1] == {"team/a": c, "team/b": a}
+    assert pointers.merge_bases(bare_store, "nas") == {"team/a": c, "team/b": a}
+    from artifacts.locks import store_lock
+
+    with store_lock(bare_store.locks_dir, "remote-nas"):  # a push or pull of nas is running
+        t = threading.Thread(target=pointers.record_bases, args=(bare_store, "nas", {"team/a": b}))
+        t.start()
+        t.join(0.5)
+        assert t.is_alive()
+    t.join(10)
+    assert not t.is_alive() and pointers.merge_bases(bare_store, "nas")["team/a"] == b
+
+
+def test_which_objects_a_remote_holds_is_asked_one_head_each_up_to_256_else_by_one_listing(tmp_path, monkeypatch):
+    """pointers.present_on_remote: up to HEAD_MAX candidates one HEAD each (on `jobs` threads), more, or
+    `listing`, one listing; either way only the candidates held there (ids in the triage files of round 12)."""
+    import artifacts.remotes.pointers as pointers
+    from artifacts.remotes.config import get_remote
+
+    store, remote, contents = pushed_store(tmp_path)
+    backend = DirBackend(get_remote(store, "nas"))
+    heads, listings, jobs_seen = [], [], []
+    real_head, real_list, real_parallel = backend.head, backend.remote_object_ids, pointers.parallel
+    monkeypatch.setattr(backend, "head", lambda key: heads.append(key) or real_head(key))
+    monkeypatch.setattr(backend, "remote_object_ids", lambda: listings.append(1) or real_list())
+
+    def parallel(fn, items, jobs):
+        jobs_seen.append(jobs)
+        return real_parallel(fn, items, jobs)
+
+    monkeypatch.setattr(pointers, "parallel", parallel)
+    held = [contents["a"], contents["b"]]
+    absent = [hash_bytes(f"absent {i}".encode()) for i in range(255)]
+    assert pointers.present_on_remote(backend, held[:1] + absent[:1], 3) == {held[0]}
+    assert sorted(heads) == sorted(f"objects/blake3/{o[:2]}/{o[2:]}" for o in held[:1] + absent[:1]) and listings == []
+    assert jobs_seen == [3]
+    heads.clear()
+    assert pointers.present_on_remote(backend, held[:1] + absent, 2) == {held[0]}  # 256: still HEADs
+    assert len(heads) == 256 and listings == []
+    heads.clear()
+    assert pointers.present_on_remote(backend, held + absent, 2) == set(held)  # 257: one listing
+    assert heads == [] and listings == [1]
+    assert pointers.present_on_remote(backend, held[1:], 2, listing=True) == {held[1]}
+    assert heads == [] and listings == [1, 1]
