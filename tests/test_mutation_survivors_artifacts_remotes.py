@@ -2046,3 +2046,24 @@ def test_which_objects_a_remote_holds_is_asked_one_head_each_up_to_256_else_by_o
     assert heads == [] and listings == [1]
     assert pointers.present_on_remote(backend, held[1:], 2, listing=True) == {held[1]}
     assert heads == [] and listings == [1, 1]
+
+
+# ----------------------------------------------------------------------------- remotes.closure.bottom_up (round 12)
+def test_manifests_are_grouped_by_height_so_each_is_written_after_what_it_names():
+    """closure.bottom_up: a manifest met before what it names still lands above it; ids that are not
+    manifests (data) have no group; each group sorted; a diamond and a long chain (ids in the triage
+    files of round 12)."""
+    from artifacts.remotes.closure import bottom_up
+
+    assert bottom_up({}) == []
+    named = {
+        "top": ["mid-b", "mid-a", "data-1"],
+        "mid-b": ["low"],
+        "mid-a": ["low", "data-2"],
+        "low": ["data-1"],
+        "lone": [],
+    }
+    assert bottom_up(named) == [["lone", "low"], ["mid-a", "mid-b"], ["top"]]
+    chain = {f"m{i}": [f"m{i - 1}"] if i else ["data"] for i in range(6)}
+    reversed_chain = dict(reversed(list(chain.items())))
+    assert bottom_up(reversed_chain) == [[f"m{i}"] for i in range(6)]
