@@ -1355,3 +1355,133 @@ def test_a_store_whose_lock_cannot_be_made_or_taken_is_still_written_without_one
     monkeypatch.setattr(writers.fcntl, "lockf", no_posix_locks)
     store.put_bytes(b"also without")
     assert lock not in writers._held and not getattr(store, "_writer_held", False)
+
+
+# ----------------------------------------------------------------------------- refs (round 12)
+def test_ref_names_are_slash_separated_parts_of_a_safe_alphabet():
+    """refs.check_ref_name: each part starts with a letter or digit and is at most 100 characters."""
+    from artifacts.refs import check_ref_name
+
+    for good in ("a", "team/A9/x_y.z+1-2", "9" * 100, "a/" + "b" * 100):
+        assert check_ref_name(good) == good
+    for bad in ("", "a//b", "/a", "a/", ".hidden", "a/-x", "a b", "a/" + "b" * 101, "café"):
+        with pytest.raises(StoreError) as exc:
+            check_ref_name(bad)
+        assert str(exc.value) == (
+            f"bad ref name {bad!r}: use '/'-separated parts of letters, digits, '.', '_', '-', '+'"
+        )
+
+
+def test_a_ref_file_holding_anything_but_an_id_is_named_and_never_read_whole(store, monkeypatch):
+    """refs.read_ref, _read_ref_file: an id with surrounding whitespace is read; a missing ref, or a folder
+    in its place, is none; damaged and unreadable files are one line each; at most 128 bytes are read."""
+    from artifacts.refs import read_ref
+
+    oid = store.put_bytes(b"x")
+    ref = store.refs_dir / "team" / "a"
+    ref.parent.mkdir()
+    ref.write_text(f"  {oid}\n\n")
+    assert read_ref(store, "team/a") == oid
+    assert read_ref(store, "team/none") is None and read_ref(store, "team") is None
+    assert read_ref(store, "team/a/deeper") is None  # under a file: not a directory
+    ref.write_bytes(b"\x00\xffnot an id" + b"z" * 10_000)
+    import artifacts.refs
+
+    reads = []
+
+    class CountingFile:
+        def __init__(self, path, mode):
+            self.f = open(path, mode)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.f.close()
+
+        def read(self, n=-1):
+            reads.append(n)
+            return self.f.read(n)
+
+    monkeypatch.setattr(artifacts.refs, "open", CountingFile, raising=False)
+    with pytest.raises(StoreError) as exc:
+        read_ref(store, "team/a")
+    assert reads == [128]
+    shown = repr(b"\x00\xffnot an id" + b"z" * 9)
+    assert str(exc.value) == (
+        f"ref team/a is damaged (holds {shown}, not an id): not written by accrue? move {ref} out of the store"
+    )
+
+    def unreadable(path, mode):
+        raise PermissionError(errno.EACCES, "Permission denied", str(path))
+
+    monkeypatch.setattr(artifacts.refs, "open", unreadable, raising=False)
+    with pytest.raises(StoreError) as exc:
+        read_ref(store, "team/a")
+    assert str(exc.value) == "ref team/a cannot be read (Permission denied)"
+
+
+def test_moving_a_ref_writes_its_id_logs_the_move_and_refuses_what_would_break_the_tree(store, monkeypatch):
+    """refs.set_ref, _move: only an id the store holds; the old target returned and logged (not when
+    unchanged, nor with log=False); a ref cannot sit where a ref folder is or under a ref; under the refs
+    lock; an OS error is one line (ids in the triage files of round 12)."""
+    import artifacts.refs
+    from artifacts.refs import read_ref, set_ref
+
+    a, b = store.put_bytes(b"a"), store.put_bytes(b"b")
+    for target in ("nothing", hash_bytes(b"not stored")):
+        with pytest.raises(StoreError) as exc:
+            set_ref(store, "team/a", target)
+        assert str(exc.value) == f"refusing to point ref team/a at {target[:12]}: no such object in the store"
+    locks = []
+    real_lock = artifacts.refs.store_lock
+    monkeypatch.setattr(artifacts.refs, "store_lock", lambda where, name: locks.append(name) or real_lock(where, name))
+    assert set_ref(store, "team/a", a) is None
+    assert (store.refs_dir / "team" / "a").read_bytes() == f"{a}\n".encode() and locks == ["refs"]
+    assert set_ref(store, "team/a", b) == a
+    assert set_ref(store, "team/a", b) == b  # unchanged: not logged again
+    assert set_ref(store, "quiet", a, log=False) is None
+    moves = [(e["ref"], e["old"], e["new"]) for e in iter_events(store) if e["event"] == "ref-moved"]
+    assert moves == [("team/a", None, a), ("team/a", a, b)]
+    with pytest.raises(StoreError) as exc:
+        set_ref(store, "team/a/deeper", a)
+    assert str(exc.value) == "ref team/a/deeper conflicts with existing ref team/a"
+    with pytest.raises(StoreError) as exc:
+        set_ref(store, "team", a)
+    assert str(exc.value) == "ref team conflicts with existing refs under team/"
+    assert read_ref(store, "team/a") == b and not (store.refs_dir / "team" / "a").is_dir()
+
+    def full(path, data, tmp_dir=None):
+        raise OSError(errno.ENOSPC, "No space left on device", str(path))
+
+    monkeypatch.setattr(artifacts.refs, "write_replace", full)
+    with pytest.raises(StoreError) as exc:
+        set_ref(store, "team/c", a)
+    assert str(exc.value) == f"cannot move ref team/c: {store.refs_dir / 'team' / 'c'}: No space left on device"
+
+
+def test_refs_are_listed_by_prefix_skipping_temp_files_and_reporting_or_raising_on_damaged_ones(store):
+    """refs.list_refs: sorted names under a prefix; dot files (a ref update's temp file) and folders are
+    not refs; a damaged file or one whose name is not a ref raises, or goes to `problems` and is skipped
+    (ids in the triage files of round 12)."""
+    from artifacts.refs import list_refs, set_ref
+
+    a, b = store.put_bytes(b"a"), store.put_bytes(b"b")
+    set_ref(store, "team/b", b)
+    set_ref(store, "team/a", a)
+    set_ref(store, "teams", a)
+    set_ref(store, "solo", b)
+    (store.refs_dir / "team" / ".tmp-1-ab").write_text("half")
+    assert list(list_refs(store)) == ["solo", "team/a", "team/b", "teams"]
+    assert list_refs(store, "team/") == {"team/a": a, "team/b": b}
+    assert list_refs(store, "team") == {"team/a": a, "team/b": b, "teams": a}
+    (store.refs_dir / "team" / "broken").write_text("junk")
+    with pytest.raises(StoreError, match="ref team/broken is damaged"):
+        list_refs(store)
+    (store.refs_dir / "team" / "broken").unlink()
+    (store.refs_dir / "team" / "bad name").write_text(a)
+    problems: list[str] = []
+    assert list_refs(store, problems=problems) == {"solo": b, "team/a": a, "team/b": b, "teams": a}
+    assert problems == ["bad ref name 'team/bad name': use '/'-separated parts of letters, digits, '.', '_', '-', '+'"]
+    shutil.rmtree(store.refs_dir)
+    assert list_refs(store) == {}
