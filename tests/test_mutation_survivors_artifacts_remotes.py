@@ -1895,7 +1895,10 @@ def test_reading_the_remote_s_refs_skips_files_that_are_not_refs_and_tracking_re
     backend.read_versioned = lambda key: None if key == f"refs/{gone}" else real_read(key)
     (store.root / "remotes" / "nas" / "refs.json").unlink()
     assert sorted(pointers.read_pointers(store, spec, backend, "refs")) == sorted(pointed)[1:]  # removed meanwhile
-    for held, shown in [(b"not an id at all, really", "not an id at all, re"), (b"\xff\xfe" + b"0" * 30, "\ufffd\ufffd" + "0" * 18)]:
+    for held, shown in [
+        (b"not an id at all, really", "not an id at all, re"),
+        (b"\xff\xfe" + b"0" * 30, "\ufffd\ufffd" + "0" * 18),
+    ]:
         (remote / "refs" / "team" / "b").write_bytes(held)
         with pytest.raises(StoreError) as exc:
             pointers.read_pointers(store, spec, DirBackend(spec), "refs")

@@ -902,7 +902,9 @@ def test_an_id_prefix_resolves_when_unambiguous_and_each_refusal_is_one_exact_li
         assert str(exc.value) == f"{bad!r} is neither a ref nor an id (ids are hex, at least 4 digits)"
     absent = next(p for p in (f"{n:02x}00" for n in range(256)) if not (store.objects_dir / p[:2]).is_dir())
     stored = list(store.iter_object_ids())
-    near = next(f"{prefix[:2]}{n:02x}" for n in range(256) if not any(o.startswith(f"{prefix[:2]}{n:02x}") for o in stored))
+    near = next(
+        f"{prefix[:2]}{n:02x}" for n in range(256) if not any(o.startswith(f"{prefix[:2]}{n:02x}") for o in stored)
+    )
     for unknown in (absent, near.upper()):
         with pytest.raises(StoreError) as exc:
             store.resolve_prefix(unknown)
@@ -940,7 +942,13 @@ def test_a_new_store_has_its_layout_and_config_and_a_second_init_opens_it(tmp_pa
     assert (root / "config").read_bytes() == b'{"format":1,"hash":"blake3"}\n'
     assert [p.name for p in (root / "objects").iterdir()] == ["blake3"]
     paths = (store.objects_dir, store.refs_dir, store.records_dir, store.log_path, store.locks_dir)
-    assert paths == (root / "objects/blake3", root / "refs", root / "records", root / "log/events.jsonl", root / "locks")
+    assert paths == (
+        root / "objects/blake3",
+        root / "refs",
+        root / "records",
+        root / "log/events.jsonl",
+        root / "locks",
+    )
     assert (store.tmp_dir, store.quarantine_dir) == (root / "tmp", root / "quarantine")
     assert all(p.is_dir() for p in (store.objects_dir, store.refs_dir, store.records_dir, store.locks_dir))
     again, created = Store.init(root)
