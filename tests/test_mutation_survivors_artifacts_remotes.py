@@ -2070,3 +2070,107 @@ def test_manifests_are_grouped_by_height_so_each_is_written_after_what_it_names(
     chain = {f"m{i}": [f"m{i - 1}"] if i else ["data"] for i in range(6)}
     reversed_chain = dict(reversed(list(chain.items())))
     assert bottom_up(reversed_chain) == [[f"m{i}"] for i in range(6)]
+
+
+# ----------------------------------------------------------------------------- remotes.config (round 12)
+def test_a_remote_url_is_an_s3_bucket_and_prefix_or_a_directory_and_each_malformed_one_is_one_line(
+    tmp_path, monkeypatch
+):
+    """config.parse_url: s3:// and s3a:// (bucket, prefix without its slashes, settings), a directory as a
+    path, ~ or file://; every refusal word for word (ids in the triage files of round 12)."""
+    from artifacts.remotes.config import RemoteSpec
+
+    spec = parse_url("origin", "s3://lab-bucket.1//runs/a/", promisor=True, settings={"region": "eu-west-1"})
+    assert spec == RemoteSpec(
+        "origin", "s3://lab-bucket.1//runs/a/", "s3", bucket="lab-bucket.1", prefix="runs/a", promisor=True
+    )
+    assert spec.settings == {"region": "eu-west-1"} and spec.path is None
+    assert parse_url("o", "s3://lab/a://b/").prefix == "a://b"  # only the first :// is the scheme's
+    assert parse_url("o", "s3://lab/runX/").prefix == "runX"  # only slashes are cut
+    bare = parse_url("o", "s3a://abc")
+    assert (bare.kind, bare.bucket, bare.prefix, bare.settings, bare.promisor) == ("s3", "abc", "", {}, False)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    for url, path in [
+        ("nas", tmp_path / "nas"),
+        ("./odd:name", tmp_path / "odd:name"),
+        ("file:///mnt/nas/accrue", Path("/mnt/nas/accrue")),
+        ("~/remote", tmp_path / "home" / "remote"),
+        ("file://~/r", tmp_path / "home" / "r"),
+    ]:
+        spec = parse_url("nas", url)
+        assert (spec.name, spec.kind, spec.path, spec.url, spec.bucket, spec.prefix) == (
+            "nas",
+            "dir",
+            path,
+            url,
+            "",
+            "",
+        )
+    assert parse_url("nas", "nas", promisor=True).promisor is True
+    for url, line in [
+        ("", "remote URL is empty (use s3://BUCKET/PREFIX or a directory)"),
+        ("  ", "remote URL is empty (use s3://BUCKET/PREFIX or a directory)"),
+        ("s3:///prefix", "remote URL 's3:///prefix' names no bucket (use s3://BUCKET/PREFIX)"),
+        ("s3://Bucket/x", "remote URL 's3://Bucket/x': 'Bucket' is not a valid S3 bucket name (3-63 of a-z 0-9 . -)"),
+        ("s3://ab", "remote URL 's3://ab': 'ab' is not a valid S3 bucket name (3-63 of a-z 0-9 . -)"),
+        (
+            "s3://" + "a" * 64,
+            f"remote URL {'s3://' + 'a' * 64!r}: {'a' * 64!r} is not a valid S3 bucket name (3-63 of a-z 0-9 . -)",
+        ),
+        ("gs://b/p", "remote URL 'gs://b/p': unsupported scheme (use s3://BUCKET/PREFIX or a directory)"),
+        (
+            "s3:/bucket",
+            "remote URL 's3:/bucket' is malformed (a scheme needs '//': s3://BUCKET/PREFIX or file:///PATH; "
+            "a directory whose name has ':' as ./NAME)",
+        ),
+        (
+            "file:nas",
+            "remote URL 'file:nas' is malformed (a scheme needs '//': s3://BUCKET/PREFIX or file:///PATH; "
+            "a directory whose name has ':' as ./NAME)",
+        ),
+    ]:
+        with pytest.raises(StoreError) as exc:
+            parse_url("nas", url)
+        assert str(exc.value) == line
+    assert parse_url("nas", "s3://" + "a" * 63).bucket == "a" * 63 and parse_url("nas", "C:data").kind == "dir"
+
+
+def test_remotes_are_added_once_listed_by_name_and_looked_up_with_a_helpful_refusal(tmp_path, monkeypatch):
+    """config.add_remote, list_remotes, get_remote, check_remote_name (ids in the triage files of round 12)."""
+    from artifacts.remotes.config import add_remote, get_remote, list_remotes, set_promisor, set_setting
+
+    store, _ = Store.init(tmp_path / "store")
+    with pytest.raises(StoreError) as exc:
+        get_remote(store, "origin")
+    assert str(exc.value) == "no remote named 'origin' (known: none; add one with `accrue remote add NAME URL`)"
+    monkeypatch.chdir(tmp_path)
+    spec = add_remote(store, "nas", "backup")
+    assert (spec.name, spec.kind, spec.path, spec.url) == ("nas", "dir", tmp_path / "backup", str(tmp_path / "backup"))
+    assert store.read_config()["remotes"] == {"nas": {"url": str(tmp_path / "backup")}}  # where it was added
+    s3 = add_remote(store, "b2", "s3://lab/runs")
+    assert (s3.url, s3.bucket, s3.prefix) == ("s3://lab/runs", "lab", "runs")
+    with pytest.raises(StoreError) as exc:
+        add_remote(store, "nas", "elsewhere")
+    assert str(exc.value) == f"remote 'nas' exists already ({tmp_path / 'backup'}); remove it first"
+    for bad in ("-x", "a/b", "x" * 41, ""):
+        with pytest.raises(StoreError) as exc:
+            add_remote(store, bad, "elsewhere")
+        assert str(exc.value) == f"bad remote name {bad!r}: use letters, digits, '.', '_', '-' (e.g. origin, nas)"
+    assert add_remote(store, "x" * 40, "s3://lab/long").name == "x" * 40
+    for inside in (str(store.root), str(store.root / "objects" / "r")):
+        with pytest.raises(StoreError) as exc:
+            add_remote(store, "inside", inside)
+        assert str(exc.value) == (
+            f"remote inside: {Path(inside)} is inside this store ({store.root}); use a directory outside it"
+        )
+    set_promisor(store, "b2")
+    set_setting(store, "b2", "region", "eu-west-1")
+    listed = list_remotes(store)
+    assert list(listed) == ["b2", "nas", "x" * 40]
+    assert listed["b2"].promisor is True and listed["b2"].settings == {"region": "eu-west-1"}
+    assert listed["nas"].promisor is False and listed["nas"].settings == {}
+    assert get_remote(store, "b2") == listed["b2"]
+    with pytest.raises(StoreError) as exc:
+        get_remote(store, "origin")
+    assert str(exc.value) == f"no remote named 'origin' (known: b2, nas, {'x' * 40})"
