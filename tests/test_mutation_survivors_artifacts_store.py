@@ -1493,3 +1493,48 @@ def test_refs_are_listed_by_prefix_skipping_temp_files_and_reporting_or_raising_
     assert problems == ["bad ref name 'team/bad name': use '/'-separated parts of letters, digits, '.', '_', '-', '+'"]
     shutil.rmtree(store.refs_dir)
     assert list_refs(store) == {}
+
+
+# ----------------------------------------------------------------------------- resolve (round 12)
+def test_what_a_user_types_resolves_to_a_ref_s_id_an_id_or_a_step_output_and_each_miss_is_one_line(store):
+    """resolve.resolve: a ref (before a prefix of the same letters), a full id or a prefix, `X:role` of a step
+    record; a role of something that is not a step record, or one the step lacks, word for word; the
+    handle holds the writer lock from the lookup on (ids in the triage files of round 12)."""
+    import artifacts.writers as writers
+    from artifacts.refs import set_ref
+    from artifacts.resolve import resolve
+
+    data = store.put_bytes(b"data")
+    other = store.put_bytes(b"other")
+    record = store.put_json({"type": "step-record", "step": "train", "outputs": {"ckpt": data, "replay": other}})
+    empty = store.put_json({"type": "step-record", "step": "eval", "outputs": {}})
+    set_ref(store, "team/run", record)
+    set_ref(store, data[:6], other)  # a ref whose name is also a prefix of an id: the ref wins
+    store.close()
+    assert resolve(store, "team/run") == record
+    assert str(store.locks_dir / "writers.lock") in writers._held
+    assert resolve(store, data[:6]) == other
+    assert resolve(store, data) == data and resolve(store, other[:8]) == other
+    assert resolve(store, "team/run:ckpt") == data and resolve(store, f"{record[:10]}:replay") == other
+    tree = store.put_json({"type": "tree", "entries": []})
+    for text, line in [
+        (f"{tree}:ckpt", f"{tree!r}: not a step record, so it has no output 'ckpt'"),
+        (f"{data[:8]}:ckpt", f"object {data[:12]} is not a JSON manifest"),
+        ("team/run:eval", "'team/run': step train has no output 'eval' (it has: ckpt, replay)"),
+        (f"{empty}:x", f"{empty!r}: step eval has no output 'x' (it has: none)"),
+    ]:
+        with pytest.raises(StoreError) as exc:
+            resolve(store, text)
+        assert str(exc.value) == line
+    posing = store.put_json({"type": "note", "outputs": {"ckpt": data}})
+    with pytest.raises(StoreError) as exc:
+        resolve(store, f"{posing}:ckpt")
+    assert str(exc.value) == f"{posing!r}: not a step record, so it has no output 'ckpt'"
+    for text in ("", "a b", "a b:ckpt"):
+        with pytest.raises(StoreError) as exc:
+            resolve(store, text)
+        assert (
+            str(exc.value) == f"{text.partition(':')[0]!r} is neither a ref nor an id (ids are hex, at least 4 digits)"
+        )
+    with pytest.raises(StoreError, match="no object or ref matches 'fffff0'"):
+        resolve(store, "fffff0")
