@@ -112,8 +112,7 @@ def test_a_damaged_object_moved_aside_leaves_a_quarantined_event_naming_it(store
     aid, _ = add_path(store, src, "demos")
     [(oid, _, _)] = content_objects(store, read_artifact(store, aid))
     path = store.object_path(oid)
-    os.chmod(path, 0o644)
-    path.write_bytes(b"y" * 100)
+    _overwrite(path, b"y" * 100)
     with pytest.raises(StoreError, match="is corrupt"):
         verify_artifact(store, aid, quarantine=True)
     event = list(iter_events(store))[-1]
@@ -402,10 +401,14 @@ def _loose(store: Store, *blobs: bytes) -> list[str]:
     return sorted(store.put_bytes(b) for b in blobs)
 
 
-def _damage(store: Store, oid: str) -> None:
-    path = store.object_path(oid)
+def _overwrite(path: Path, data: bytes) -> None:
+    """Put other bytes in a read-only file of the store (an object, a record, the config)."""
     os.chmod(path, 0o644)
-    path.write_bytes(b"not what was stored")
+    path.write_bytes(data)
+
+
+def _damage(store: Store, oid: str) -> None:
+    _overwrite(store.object_path(oid), b"not what was stored")
 
 
 def test_a_full_verify_names_an_unreadable_object_then_hashes_the_rest(store):
@@ -680,9 +683,7 @@ def _damaged_file_artifact(store: Store, tmp_path: Path) -> tuple[str, str]:
     src.write_bytes(b"x" * 100)
     aid, _ = add_path(store, src, "demos")
     oid = read_artifact(store, aid)["content"]
-    path = store.object_path(oid)
-    os.chmod(path, 0o644)
-    path.write_bytes(b"y" * 100)
+    _overwrite(store.object_path(oid), b"y" * 100)
     return aid, oid
 
 
@@ -759,8 +760,7 @@ def test_a_same_size_damaged_object_stops_the_copy_is_moved_aside_and_leaves_pla
 
     aid, oids = _two_file_demos(store, tmp_path)
     damaged = store.object_path(oids["b.bin"])
-    os.chmod(damaged, 0o644)
-    damaged.write_bytes(b"x" * 50)
+    _overwrite(damaged, b"x" * 50)
     old_umask = os.umask(0o022)
     try:
         with pytest.raises(StoreError) as exc:
@@ -856,8 +856,7 @@ def test_an_adopted_file_replaces_a_damaged_object_of_its_id_and_becomes_read_on
     """Store.adopt_file 6 (the damaged copy is moved aside by id), 18 (the new object is r--r--r--)."""
     oid = store.put_bytes(b"r" * 40)
     path = store.object_path(oid)
-    os.chmod(path, 0o644)
-    path.write_bytes(b"r" * 39)  # damaged: another size
+    _overwrite(path, b"r" * 39)  # damaged: another size
     staged = store.new_tmp_dir("stage") / "replay.bin"
     staged.write_bytes(b"r" * 40)
     assert store.adopt_file(staged) == (oid, 40)
@@ -977,14 +976,13 @@ def test_a_store_cannot_be_made_on_a_file_or_where_a_folder_cannot_be_made(tmp_p
 
 
 def test_opening_a_store_refuses_each_kind_of_bad_config_in_one_exact_line(tmp_path):
-    """Store.open: no store, config not JSON, not an object, another format or hash, unreadable."""
+    """Store.open: no store, config not JSON, not an object, another format or hash, a folder in its place."""
     root = tmp_path / "store"
     with pytest.raises(StoreError) as exc:
         Store.open(root)
     assert str(exc.value) == f"no accrue store at {root} (run `accrue init` or pass --store PATH)"
     Store.init(root)[0].close()
     config = root / "config"
-    os.chmod(config, 0o644)
     for text, line in [
         (b"{not json", f"{config}: not valid JSON"),
         (b"\xff\xfe", f"{config}: not valid JSON"),
@@ -999,7 +997,7 @@ def test_opening_a_store_refuses_each_kind_of_bad_config_in_one_exact_line(tmp_p
         ),
         (b"{}", f"{config}: unsupported store format None / hash None (this accrue reads format 1, blake3)"),
     ]:
-        config.write_bytes(text)
+        _overwrite(config, text)
         with pytest.raises(StoreError) as exc:
             Store.open(root)
         assert str(exc.value) == line
@@ -1131,7 +1129,6 @@ def test_an_attempt_record_is_its_fields_and_the_log_s_head_in_canonical_bytes(s
     with pytest.raises(ValueError) as exc:
         write_attempt(store, {**attempt, "state": "paused"})
     assert str(exc.value) == "bad attempt state paused"
-    os.chmod(path, 0o644)
     shutil.rmtree(store.records_dir / key)
     (store.records_dir / key).write_text("a file where the key's folder goes")
     with pytest.raises(StoreError) as exc:
@@ -1156,8 +1153,7 @@ def test_attempts_are_listed_per_key_oldest_first_and_damaged_ones_reported_or_r
     assert [a["attempt"] for a in list_attempts(store, two)] == [1, 2, 10]
     assert list_attempts(store, "12" * 32) == []
     damaged = store.records_dir / two / "0002.json"
-    os.chmod(damaged, 0o644)
-    damaged.write_text("{half")
+    _overwrite(damaged, b"{half")
     with pytest.raises(StoreError) as exc:
         list_attempts(store, two)
     assert str(exc.value) == f"{damaged}: damaged attempt record (JSONDecodeError)"
@@ -1186,8 +1182,7 @@ def test_a_stored_object_is_read_back_verified_and_a_damaged_or_missing_one_is_o
         with pytest.raises(StoreError) as exc:
             store.read_json(bad)
         assert str(exc.value) == f"object {bad[:12]} is not a JSON manifest"
-    os.chmod(path, 0o644)
-    path.write_bytes(b'{"a":[1,2],"b":2}')
+    _overwrite(path, b'{"a":[1,2],"b":2}')
     with pytest.raises(StoreError) as exc:
         store.read_bytes(oid)
     assert str(exc.value) == (
@@ -1216,8 +1211,7 @@ def test_the_config_is_changed_under_its_lock_and_keeps_keys_it_does_not_know(st
 
     monkeypatch.setattr(artifacts.locks, "store_lock", store_lock)
     config = store.root / "config"
-    os.chmod(config, 0o644)
-    config.write_bytes(b'{"format":1,"hash":"blake3","future":{"x":1}}\n')
+    _overwrite(config, b'{"format":1,"hash":"blake3","future":{"x":1}}\n')
     assert store.read_config() == {"format": 1, "hash": "blake3", "future": {"x": 1}}
 
     def change(cfg):
