@@ -6,8 +6,9 @@ and once with none, so "killed by test X" in docs/MUTATION.md is a measured fact
     .venv/bin/python scripts/mutation_verify.py NAMES.txt TESTS... --out verdicts.tsv --mutants DIR
 
 NAMES.txt: one mutant name a line (`mutmut results` spelling). The test files are copied from this checkout into
-the copy, so new tests can be checked against mutants generated before them. Prints, and writes to --out, one
-`NAME<TAB>killed|survived|error rc=N|timeout` line a mutant: killed = pytest exit 1 (a test failed), survived =
+the copy (tests/ whole, with its helper modules), so new tests can be checked against mutants generated before
+them. Prints, and writes to --out, one `NAME<TAB>killed<TAB>TEST|survived|error rc=N|timeout` line a mutant:
+killed = pytest exit 1 (a test failed; TEST is the one that failed first, pytest runs with -x), survived =
 exit 0; anything else (a collection error, a crash) is not a kill. Exit 1 if the clean run fails.
 """
 
@@ -25,18 +26,23 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from mutation_critical import PYTEST_ENV, ROOT  # noqa: E402
 
 SWEEP_MUTANTS = Path(tempfile.gettempdir()) / "accrue-mutmut" / "tree" / "mutants"
+IGNORED = shutil.ignore_patterns(".hypothesis", "__pycache__")
 
 
 def run_tests(where: Path, tests: list[str], mutant: str | None, timeout: float) -> str:
+    """'killed<TAB>the first failing test', 'survived', 'timeout' or 'error rc=N'."""
     env = {k: v for k, v in os.environ.items() if k != "MUTANT_UNDER_TEST"} | PYTEST_ENV
     if mutant is not None:
         env["MUTANT_UNDER_TEST"] = mutant
-    cmd = [sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *tests]
+    cmd = [sys.executable, "-m", "pytest", "-x", "-q", "-rf", "-p", "no:cacheprovider", *tests]
     try:
-        rc = subprocess.run(cmd, cwd=where, env=env, capture_output=True, timeout=timeout).returncode
+        done = subprocess.run(cmd, cwd=where, env=env, capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
         return "timeout"
-    return {0: "survived", 1: "killed"}.get(rc, f"error rc={rc}")
+    if done.returncode == 1:  # -x: the one failure is the test that killed it (a triage line names one test)
+        failed = [line[7:].split(" - ")[0] for line in done.stdout.splitlines() if line.startswith("FAILED ")]
+        return "\t".join(["killed", *failed[:1]])
+    return {0: "survived"}.get(done.returncode, f"error rc={done.returncode}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -58,9 +64,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     with tempfile.TemporaryDirectory() as tmp:
         where = Path(tmp) / "mutants"
-        shutil.copytree(args.mutants, where, ignore=shutil.ignore_patterns(".hypothesis", "__pycache__"))
-        for test in {t.split("::")[0] for t in args.tests}:
-            shutil.copyfile(args.source / test, where / test)
+        shutil.copytree(args.mutants, where, ignore=IGNORED)
+        # the tests as they are in this checkout, with the helper modules they import
+        shutil.copytree(args.source / "tests", where / "tests", dirs_exist_ok=True, ignore=IGNORED)
         clean = run_tests(where, args.tests, None, args.timeout)
         if clean != "survived":
             print(f"error: the tests do not pass without a mutant ({clean})", file=sys.stderr)

@@ -126,9 +126,10 @@ def test_saving_replaces_the_kept_verdicts_of_files_no_longer_mutated(tmp_path):
 def test_verify_runs_each_mutant_in_its_own_pytest_and_copies_new_tests_in(tmp_path):
     project = make_project(tmp_path / "p")
     mutmut(project, "run", "--max-children", "1")
-    # a test written after the sweep, too weak to see add's mutant (a + b -> a - b)
+    # a test written after the sweep, too weak to see add's mutant (a + b -> a - b), with a helper module
+    (project / "tests" / "calc_support.py").write_text("ZERO = 0\n")
     (project / "tests" / "test_weak.py").write_text(
-        "from pkg.calc import add\n\n\ndef test_zero():\n    assert add(0, 0) == 0\n"
+        "from calc_support import ZERO\nfrom pkg.calc import add\n\n\ndef test_zero():\n    assert add(ZERO, ZERO) == 0\n"
     )
     names = tmp_path / "names.txt"
     names.write_text("pkg.calc.x_add__mutmut_1\n")
@@ -136,7 +137,7 @@ def test_verify_runs_each_mutant_in_its_own_pytest_and_copies_new_tests_in(tmp_p
     verify = [sys.executable, str(Path(__file__).resolve().parents[1] / "scripts" / "mutation_verify.py")]
     common = ["--mutants", str(project / "mutants"), "--source", str(project), "--out", str(out)]
     subprocess.run([*verify, str(names), "tests/test_calc.py", *common], check=True, capture_output=True, timeout=120)
-    assert out.read_text() == "pkg.calc.x_add__mutmut_1\tkilled\n"
+    assert out.read_text() == "pkg.calc.x_add__mutmut_1\tkilled\ttests/test_calc.py::test_add\n"
     subprocess.run([*verify, str(names), "tests/test_weak.py", *common], check=True, capture_output=True, timeout=120)
     assert out.read_text() == "pkg.calc.x_add__mutmut_1\tsurvived\n"
 

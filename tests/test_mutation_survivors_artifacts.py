@@ -13,11 +13,12 @@ import contextlib
 import json
 import os
 import signal
+import sys
 from pathlib import Path
 
 import pytest
 
-from artifacts.auditlog import append_event, head_path
+from artifacts.auditlog import append_event
 from artifacts.diff import METRICS_FILE_MAX, METRICS_PER_OUTPUT, _seconds, describe, diff
 from artifacts.errors import QUOTE_LIMIT, StoreError, path_text
 from artifacts.hashing import canonical_json, hash_bytes
@@ -28,6 +29,9 @@ from artifacts.remotes.backends import RefMoved
 from artifacts.remotes.config import parse_url
 from artifacts.remotes.directory import DirBackend
 from artifacts.store import Store
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from auditlog_support import write_old_log  # noqa: E402
 
 KEY = "refs/team/handoff"
 
@@ -73,21 +77,6 @@ def test_a_file_name_in_a_message_is_readable_text_and_at_most_the_quote_limit()
 
 
 # ----------------------------------------------------------------------------- auditlog: an old log's tail
-def write_old_log(store: Store, extras: list[dict]) -> bytes:
-    """A log from before log/head existed (no log_format, no head file): one event per extra, chained.
-    Returns the last line (without its newline)."""
-    prev, raw, line = "0" * 64, [], b""
-    for seq, extra in enumerate(extras):
-        line = canonical_json(
-            {"seq": seq, "ts": "2026-01-01T00:00:00.000+00:00", "event": "custom", **extra, "prev": prev}
-        )
-        raw.append(line + b"\n")
-        prev = hash_bytes(line)
-    store.log_path.write_bytes(b"".join(raw))
-    head_path(store).unlink(missing_ok=True)
-    return line
-
-
 BIG = "b" * (100 * 1024)  # longer than the 64 KiB the tail reader starts with, shorter than twice that
 
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 import errno
 import json
 import os
+import shutil
 import socket
 import subprocess
 import sys
@@ -47,6 +48,7 @@ from artifacts.store import Store
 from artifacts.writers import LOCK_NAME, exclusive
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from auditlog_support import write_old_log  # noqa: E402
 from reliability_support import remount, small_fs  # noqa: E402
 
 DAY = 86400.0
@@ -1029,3 +1031,280 @@ def test_an_anchor_just_past_the_log_is_not_held_and_a_malformed_one_anchors_not
     assert [p.text for p in check_log(store, [past, *odd]).problems] == [
         "record p was written after log event seq 3, but the log does not hold it: it was cut or rewritten"
     ]
+
+
+# ----------------------------------------------------------------------------- auditlog: the next append's tail
+def damaged(reason: str, store: Store) -> str:
+    hint = "`accrue verify` shows the damage, `accrue verify --repair` seals it"
+    return f"audit log {store.log_path}: {reason}; nothing was written ({hint})"
+
+
+def spaced_events(store: Store, count: int) -> list[bytes]:
+    """`count` events whose notes hold spaces (a split at whitespace breaks them); the log's lines, each with
+    its newline."""
+    for n in range(count):
+        append_event(store, "custom", note=f"a note with spaces {n}")
+    return store.log_path.read_bytes().splitlines(keepends=True)
+
+
+def anchor_head_at(store: Store, lines: list[bytes], seq: int) -> None:
+    """log/head as an append of line `seq` left it, so the lines after it are unanchored (a crash between
+    a line and its head)."""
+    from artifacts.auditlog import head_path
+    from artifacts.hashing import canonical_json
+
+    start = len(b"".join(lines[:seq]))
+    head = {"seq": seq, "hash": hash_bytes(lines[seq][:-1]), "start": start, "end": start + len(lines[seq])}
+    head_path(store).unlink()
+    head_path(store).write_bytes(canonical_json(head) + b"\n")
+
+
+def refused(store: Store, reason: str) -> None:
+    """The next append (and the check before one) are refused in one line naming `reason`; the log is left."""
+    from artifacts.auditlog import _tail, ensure_appendable
+
+    before = store.log_path.read_bytes() if store.log_path.exists() else None
+    for attempt in (lambda: _tail(store), lambda: ensure_appendable(store), lambda: append_event(store, "x")):
+        with pytest.raises(StoreError) as exc:
+            attempt()
+        assert str(exc.value) == damaged(reason, store)
+    assert (store.log_path.read_bytes() if store.log_path.exists() else None) == before
+
+
+def test_the_first_append_starts_the_chain_whether_the_log_is_missing_or_empty(store):
+    """auditlog._tail 3-5 (a missing log's size), 13, 14 (seq 0, size 0), 6, 7 (the empty-log branch)."""
+    from artifacts.auditlog import GENESIS, _tail
+
+    assert not store.log_path.exists()
+    assert _tail(store) == (0, GENESIS, 0)
+    store.log_path.parent.mkdir(exist_ok=True)
+    store.log_path.write_bytes(b"")
+    assert _tail(store) == (0, GENESIS, 0)
+    assert append_event(store, "custom")["seq"] == 0
+
+
+def test_an_empty_log_beside_a_head_is_refused_naming_the_heads_seq(store):
+    """auditlog._tail 1, 2, 8-12 (the head not read, or the words lost)."""
+    spaced_events(store, 3)
+    store.log_path.write_bytes(b"")
+    refused(store, "the log is missing or empty, but log/head says it ended at seq 2")
+    store.log_path.unlink()
+    refused(store, "the log is missing or empty, but log/head says it ended at seq 2")
+
+
+def test_the_tail_of_a_log_with_its_head_is_the_anchored_lines(store):
+    """auditlog._tail 58-68, 71-74, 78-83, 85-89, 94 (the anchored line read and checked), 134, 135 (the next
+    seq)."""
+    from artifacts.auditlog import _tail
+
+    lines = spaced_events(store, 3)
+    size = len(b"".join(lines))
+    assert _tail(store) == (3, hash_bytes(lines[2][:-1]), size)
+
+
+@pytest.mark.parametrize("anchored", [0, 1, 2])
+def test_lines_a_crash_left_after_the_head_are_chained_on(store, anchored):
+    """auditlog._tail 69, 70 (the anchored line's span when it does not start the log), 105-112 (the
+    unanchored lines: read, split at newlines only, parsed), 116-125 (each checked), 130-133 (the chain
+    walked), 134, 135."""
+    from artifacts.auditlog import _tail
+
+    lines = spaced_events(store, 4)
+    anchor_head_at(store, lines, anchored)
+    assert _tail(store) == (4, hash_bytes(lines[3][:-1]), len(b"".join(lines)))
+    assert append_event(store, "custom")["seq"] == 4
+
+
+def test_a_log_shorter_than_its_head_says_names_both_lengths(store):
+    """auditlog._tail 53 (a log exactly as long as the head says is whole), 54-57 (the words)."""
+    lines = spaced_events(store, 3)
+    cut = b"".join(lines)[:-5]
+    store.log_path.write_bytes(cut)
+    refused(
+        store,
+        f"it is {len(cut)} bytes long, but log/head says its seq 2 ends at byte {len(b''.join(lines))}: "
+        "its tail was cut",
+    )
+
+
+@pytest.mark.parametrize("how", ["same-length-edit", "seq-in-the-head", "head-inside-the-line"])
+def test_an_anchored_line_that_is_not_the_one_the_head_recorded_is_refused(store, how):
+    """auditlog._tail 75-77 (each disagreement alone is enough), 84, 89, 90-93 (the words)."""
+    from artifacts.auditlog import head_path
+    from artifacts.hashing import canonical_json
+
+    lines = spaced_events(store, 3)
+    head = json.loads(head_path(store).read_bytes())
+    if how == "same-length-edit":
+        store.log_path.write_bytes(b"".join(lines[:2]) + lines[2].replace(b"spaces 2", b"spaces 9"))
+    else:
+        # the hash matches the line, but the head names another seq / ends the line one byte early
+        head |= {"seq": 7} if how == "seq-in-the-head" else {"end": head["end"] - 1}
+        head_path(store).unlink()
+        head_path(store).write_bytes(canonical_json(head) + b"\n")
+    seq = 7 if how == "seq-in-the-head" else 2
+    refused(store, f"its line of seq {seq} is not the one log/head recorded: it was edited")
+
+
+def test_a_half_written_line_after_the_head_is_refused(store):
+    """auditlog._tail 95-104."""
+    lines = spaced_events(store, 2)
+    store.log_path.write_bytes(b"".join(lines) + b'{"seq":2,"note":"half')
+    refused(store, "its last line is incomplete")
+
+
+@pytest.mark.parametrize("how", ["not-json", "a-json-list", "wrong-prev", "wrong-seq"])
+def test_an_unanchored_line_that_does_not_chain_on_is_refused_naming_the_seq_before_it(store, how):
+    """auditlog._tail 111-129; _parse 3, 4 (a JSON value that is not an object is no event)."""
+    lines = spaced_events(store, 4)
+    anchor_head_at(store, lines, 1)
+    event = json.loads(lines[2])
+    bad = {
+        "not-json": b"not an event",
+        "a-json-list": b"[1, 2]",
+        "wrong-prev": json.dumps(event | {"prev": "e" * 64}).encode(),
+        "wrong-seq": json.dumps(event | {"seq": 3}).encode(),
+    }[how]
+    store.log_path.write_bytes(b"".join(lines[:2]) + bad + b"\n" + lines[3])
+    refused(store, "the line after seq 1 is damaged")
+
+
+def test_an_old_log_without_a_head_continues_from_its_last_line(store):
+    """auditlog._tail 15-22 (the old log's last line read), 40 (an event without log_format is format 1),
+    48-52 (the next seq and prev)."""
+    from artifacts.auditlog import _tail
+
+    last = write_old_log(store, [{"note": "a first event"}, {"note": "the last event"}])
+    assert _tail(store) == (2, hash_bytes(last), store.log_path.stat().st_size)
+
+
+@pytest.mark.parametrize("log_format", [2, 3])
+def test_a_log_of_the_head_format_without_its_head_is_refused(store, log_format):
+    """auditlog._tail 34-39, 41 (format 2 and later need log/head), 42-47 (the words)."""
+    write_old_log(store, [{"note": "one"}, {"note": "two", "log_format": log_format}])
+    refused(store, "log/head is missing")
+
+
+@pytest.mark.parametrize(
+    "last",
+    [b"garbage", b"[1, 2]", b'{"seq": "1", "note": "seq as text"}', b""],
+    ids=["not-json", "a-json-list", "text-seq", "empty"],
+)
+def test_an_old_log_whose_last_line_is_no_event_is_refused(store, last):
+    """auditlog._tail 23-33; _parse 3, 4: a last line that is not JSON, not an object, has no integer seq,
+    or is empty."""
+    write_old_log(store, [{"note": "one"}])
+    store.log_path.write_bytes(store.log_path.read_bytes() + last + b"\n")
+    refused(store, "its last line is damaged")
+
+
+def test_an_append_writes_its_line_and_then_a_head_that_anchors_it(store):
+    """auditlog.append_event 4-42 (the record's fields, its line, the head's seq, hash and byte span),
+    _write_head 1-16 (log/head's exact bytes), head_path 1-3, read_head 8-28 (the head read back),
+    _append_line 4, 7, 10 (the log's mode)."""
+    from artifacts.auditlog import LOG_FORMAT, Head, head_path, read_head
+    from artifacts.hashing import canonical_json
+
+    first = append_event(store, "custom", note="one")
+    second = append_event(store, "other", note="two", count=2)
+    lines = store.log_path.read_bytes().splitlines(keepends=True)
+    assert [json.loads(line) for line in lines] == [first, second]
+    assert set(second) == {"seq", "ts", "event", "pid", "host", "note", "count", "prev", "log_format"}
+    assert (second["seq"], second["event"], second["pid"], second["host"]) == (
+        1,
+        "other",
+        os.getpid(),
+        socket.gethostname(),
+    )
+    assert (second["prev"], second["log_format"]) == (hash_bytes(lines[0][:-1]), LOG_FORMAT)
+    assert lines[1] == canonical_json(second) + b"\n"
+    start, end = len(lines[0]), len(lines[0]) + len(lines[1])
+    head = {"seq": 1, "hash": hash_bytes(lines[1][:-1]), "start": start, "end": end}
+    assert head_path(store) == store.log_path.parent / "head"
+    assert head_path(store).read_bytes() == canonical_json(head) + b"\n"
+    assert read_head(store) == Head(1, head["hash"], start, end)
+    umask = os.umask(0)
+    os.umask(umask)
+    assert store.log_path.stat().st_mode & 0o777 == 0o644 & ~umask
+
+
+def test_an_append_takes_the_stores_log_lock(store):
+    """auditlog._log_lock 3-8, append_event 1: an append waits while another holds locks/log.lock."""
+    done = threading.Event()
+    with store_lock(store.locks_dir, "log"):
+        worker = threading.Thread(target=lambda: (append_event(store, "custom"), done.set()))
+        worker.start()
+        assert not done.wait(0.5)
+    worker.join(10)
+    assert done.is_set()
+    assert [e["event"] for e in iter_events(store)] == ["custom"]
+
+
+def test_an_append_into_a_store_whose_log_folder_is_a_file_says_so_in_one_line(store):
+    """auditlog._log_lock 1, 2 (the log's folder may exist already), 9, 10 (the words)."""
+    append_event(store, "custom")
+    append_event(store, "custom")  # the log folder exists now: still appendable
+    shutil.rmtree(store.log_path.parent)
+    store.log_path.parent.write_bytes(b"not a folder")
+    with pytest.raises(StoreError) as exc:
+        append_event(store, "custom")
+    assert str(exc.value) == f"cannot write the audit log: {store.log_path.parent}: File exists"
+
+
+def test_a_short_write_takes_back_its_partial_line_and_says_the_disk_is_full(store, monkeypatch):
+    """auditlog._append_line 11-26 (the short write noticed and named), 28-31 (the partial line taken back),
+    append_event 25, 43, 44 (the size it takes back to; the words)."""
+    import artifacts.auditlog
+
+    append_event(store, "custom", note="kept")
+    before = store.log_path.read_bytes()
+    real_write = os.write
+
+    def short_write(fd, data):
+        return real_write(fd, data[:10])
+
+    monkeypatch.setattr(artifacts.auditlog.os, "write", short_write)
+    with pytest.raises(StoreError) as exc:
+        append_event(store, "custom", note="lost")
+    monkeypatch.undo()
+    assert str(exc.value) == (f"cannot write the audit log: {store.log_path}: No space left on device (short write)")
+    assert store.log_path.read_bytes() == before
+    assert append_event(store, "custom")["seq"] == 1
+
+
+def test_a_log_that_cannot_be_read_is_not_appendable_in_one_line(store):
+    """auditlog.ensure_appendable 1-4: an OSError reading the log (here: it is a folder) is one line."""
+    from artifacts.auditlog import ensure_appendable
+
+    store.log_path.parent.mkdir(exist_ok=True)
+    store.log_path.mkdir()
+    (store.log_path / "x").write_bytes(b"x" * 10)
+    with pytest.raises(StoreError) as exc:
+        ensure_appendable(store)
+    assert str(exc.value) == f"cannot write the audit log: {store.log_path}: Is a directory"
+
+
+def test_a_head_that_is_unreadable_or_damaged_is_named_in_one_line(store):
+    """auditlog.read_head 1-7, 29, 40 (the words), 30-39 (each check alone refuses: the hash, the byte span
+    with start == end or negative, a negative seq; seq 0 and start 0 are fine)."""
+    from artifacts.auditlog import Head, head_path, read_head
+    from artifacts.hashing import canonical_json
+
+    assert read_head(store) is None
+    append_event(store, "custom")
+    good = json.loads(head_path(store).read_bytes())
+    assert read_head(store) == Head(0, good["hash"], 0, good["end"])
+    path = head_path(store)
+    hint = "`accrue verify` shows the damage, `accrue verify --repair` seals it"
+    for change in ({"hash": "abc"}, {"start": 5, "end": 5}, {"start": -1}, {"seq": -1}, {"end": None}, {}):
+        head = good | change if change else {"seq": 0}
+        path.unlink()
+        path.write_bytes(canonical_json(head) + b"\n")
+        with pytest.raises(StoreError) as exc:
+            read_head(store)
+        assert str(exc.value) == f"{path} is damaged (not a log head); {hint}", change
+    path.unlink()
+    path.mkdir()
+    with pytest.raises(StoreError) as exc:
+        read_head(store)
+    assert str(exc.value) == f"cannot read the audit log's head: {path}: Is a directory"

@@ -2174,3 +2174,313 @@ def test_remotes_are_added_once_listed_by_name_and_looked_up_with_a_helpful_refu
     with pytest.raises(StoreError) as exc:
         get_remote(store, "origin")
     assert str(exc.value) == f"no remote named 'origin' (known: b2, nas, {'x' * 40})"
+
+
+# ----------------------------------------------------------------------------- remotes.push
+def store_pushing_to(tmp_path: Path, name: str, remote: Path, files: dict[str, bytes]) -> Store:
+    """A store with one file artifact per ref (kind replay), and directory remote nas at `remote`."""
+    from artifacts.ingest import add_path
+    from artifacts.remotes.config import add_remote
+
+    store, _ = Store.init(tmp_path / name)
+    for ref, data in files.items():
+        src = tmp_path / f"{name}-{ref.replace('/', '-')}.bin"
+        src.write_bytes(data)
+        add_path(store, src, "replay", ref=ref)
+    add_remote(store, "nas", str(remote))
+    return store
+
+
+def remote_files(remote: Path, under: str) -> dict[str, bytes]:
+    root = remote / under
+    return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def remote_object_sizes(remote: Path) -> dict[str, int]:
+    return {key.replace("/", ""): len(data) for key, data in remote_files(remote, "objects/blake3").items()}
+
+
+def user_refs(store: Store) -> dict[str, str]:
+    from artifacts.remotes.pointers import local_refs
+
+    return local_refs(store)
+
+
+def remote_state(store: Store, name: str) -> dict:
+    from artifacts.remotes.pointers import load_json, state_dir
+
+    return load_json(state_dir(store, "nas") / name)
+
+
+class BackendCalls:
+    """Counts a directory remote's HEADs and listings, and keeps the leases push writes."""
+
+    def __init__(self, monkeypatch) -> None:
+        self.heads, self.listings, self.leases = 0, 0, []
+        real_head, real_list, real_put = DirBackend.head, DirBackend.remote_object_ids, DirBackend.put_bytes
+
+        def head(backend, key):
+            self.heads += 1
+            return real_head(backend, key)
+
+        def listing(backend):
+            self.listings += 1
+            return real_list(backend)
+
+        def put_bytes(backend, key, data):
+            if key.startswith("pushes/"):
+                self.leases.append((key, data))
+            return real_put(backend, key, data)
+
+        monkeypatch.setattr(DirBackend, "head", head)
+        monkeypatch.setattr(DirBackend, "remote_object_ids", listing)
+        monkeypatch.setattr(DirBackend, "put_bytes", put_bytes)
+
+
+def test_a_first_push_sends_every_object_once_and_leaves_its_bookkeeping(tmp_path, monkeypatch):
+    """push.push 2-40 (the lease's name and bytes), 41-56, 59 (the lease removed); _push 1-25, 33-40 (every ref
+    moved from nothing), 57-66, 79-82, 100-120 (the first log segment), 121-141, 142-160, 163-200 (what is
+    checked and sent: one listing of a remote with no refs; an empty object counts 0 bytes), 201-261 (the
+    segment sent, its pointer swapped and remembered), 272-286, 316-330, 337-368 (refs swapped, remembered,
+    tracked, logged); _local_closure 1-27."""
+    import re
+    import socket
+
+    from artifacts.auditlog import iter_events
+    from artifacts.hashing import canonical_json
+    from artifacts.remotes.config import store_id
+    from artifacts.remotes.pointers import REMOTE_CONFIG, merge_bases, tracking_refs
+    from artifacts.remotes.push import push
+
+    remote = tmp_path / "remote"
+    store = store_pushing_to(tmp_path, "a", remote, {"team/a": b"alpha" * 100, "team/b": b"beta" * 50, "team/e": b""})
+    refs, local_objects = user_refs(store), set(store.iter_object_ids())
+    calls, meter = BackendCalls(monkeypatch), RecordingMeter()
+    log_before = store.log_path.read_bytes()
+
+    report = push(store, "nas", meter=meter)
+
+    sid, log_state = store_id(store), remote_state(store, "log.json")
+    segment = log_state["manifest"]
+    sent = remote_object_sizes(remote)
+    segment_data = json.loads((remote / "objects" / "blake3" / segment[:2] / segment[2:]).read_bytes())["content"]
+    assert set(sent) == local_objects | {segment, segment_data}
+    assert log_state == {"manifest": segment, "end": len(log_before)}
+    assert report.as_dict() == {
+        "remote": "nas",
+        "moved": {name: [None, oid] for name, oid in refs.items()},
+        "up_to_date": [],
+        "behind": [],
+        "conflicts": [],
+        "displaced": {},
+        "objects_sent": len(sent),
+        "bytes_sent": sum(sent.values()),
+        "objects_checked": len(sent),
+        "log_segment": segment,
+    }
+    assert 0 in sent.values()
+    local_bytes = sum(store.object_size(o) for o in local_objects)
+    assert meter.starts == [("push → nas", len(local_objects), local_bytes)]
+    assert sorted(meter.advanced) == sorted(store.object_size(o) for o in local_objects)
+    assert (calls.heads, calls.listings) == (0, 1)  # a remote with no refs is listed once, not asked per object
+    assert (remote / "config").read_bytes() == canonical_json(REMOTE_CONFIG) + b"\n"
+    assert remote_files(remote, "refs") == {name: f"{oid}\n".encode() for name, oid in refs.items()}
+    assert remote_files(remote, "logs") == {sid: f"{segment}\n".encode()}
+    assert remote_state(store, "refs.json") == {name: [f"{oid}\n", oid] for name, oid in refs.items()}
+    assert remote_state(store, "logs.json") == {sid: [f"{segment}\n", segment]}
+    assert tracking_refs(store, "nas") == refs and merge_bases(store, "nas") == refs
+    last = list(iter_events(store))[-1]
+    assert (last["event"], last["remote"], last["refs"]) == ("pushed", "nas", refs)
+    [(lease, lease_bytes)] = calls.leases
+    assert re.fullmatch(rf"pushes/{sid}-{os.getpid()}-[0-9a-f]{{8}}", lease)
+    assert lease_bytes == canonical_json({"host": socket.gethostname(), "pid": os.getpid()}) + b"\n"
+    assert not (remote / "pushes").exists() or not any((remote / "pushes").iterdir())
+
+
+def test_later_pushes_send_only_what_is_new_and_chain_the_log_segments(tmp_path, monkeypatch):
+    """_push 26-32 (a ref already there is up to date), 35, 36, 280, 286 (a ref only this store moved moves
+    with the remote's version), 83-120 (the next segment continues the last from where it ended), 121-127
+    (what the remote's refs reach is not checked again), 148, 149, 155 (few candidates: one HEAD each),
+    345-349 (an up-to-date push tracks and logs nothing)."""
+    from artifacts.auditlog import iter_events
+    from artifacts.ingest import add_path
+    from artifacts.refs import set_ref
+    from artifacts.remotes.push import push
+
+    remote = tmp_path / "remote"
+    store = store_pushing_to(tmp_path, "a", remote, {"team/a": b"alpha" * 100, "team/b": b"beta" * 50})
+    push(store, "nas")
+    first = remote_state(store, "log.json")
+    refs, old_objects = user_refs(store), set(store.iter_object_ids())
+
+    (tmp_path / "c.bin").write_bytes(b"gamma" * 30)
+    add_path(store, tmp_path / "c.bin", "replay", ref="team/c")
+    set_ref(store, "team/a", refs["team/b"])  # moved here only
+    log_before = store.log_path.read_bytes()
+    calls = BackendCalls(monkeypatch)
+    report = push(store, "nas")
+
+    second = remote_state(store, "log.json")
+    segment = json.loads((remote / "objects" / "blake3" / second["manifest"][:2] / second["manifest"][2:]).read_bytes())
+    new_objects = set(store.iter_object_ids()) - old_objects
+    now = user_refs(store)
+    assert report.moved == {n: [refs.get(n), now[n]] for n in now if now[n] != refs.get(n)}
+    assert set(report.moved) == {"team/a", "team/c", *[n for n in now if n.startswith("ingested/") and n not in refs]}
+    assert report.up_to_date == [n for n in now if n not in report.moved]
+    assert report.objects_checked == len(new_objects) + 2
+    assert report.objects_sent == len(new_objects) + 2
+    assert calls.heads == len(new_objects) + 2 and calls.listings == 0
+    assert second == {"manifest": report.log_segment, "end": len(log_before)}
+    assert segment["inputs"] == {"previous": first["manifest"]}
+    first_new = json.loads(log_before[first["end"] :].splitlines()[0])["seq"]
+    assert segment["meta"]["first_seq"] == first_new
+    assert remote_files(remote, "refs")["team/a"] == f"{refs['team/b']}\n".encode()
+
+    events = len(list(iter_events(store)))
+    push(store, "nas")  # the pushed event of the last push: a segment, nothing else
+    quiet = push(store, "nas")
+    assert (quiet.moved, quiet.objects_sent, quiet.objects_checked, quiet.log_segment) == ({}, 0, 0, None)
+    assert len(list(iter_events(store))) == events  # no ref changed: no pushed event either time
+
+
+def test_a_push_of_chosen_refs_moves_only_those_and_an_unknown_one_is_refused(tmp_path):
+    """push.push 11-20 (the refs chosen, and the words for one that is not in the store)."""
+    from artifacts.remotes.push import push
+
+    remote = tmp_path / "remote"
+    store = store_pushing_to(tmp_path, "a", remote, {"team/a": b"alpha" * 100, "team/b": b"beta" * 50})
+    report = push(store, "nas", ["team/a"])
+    assert set(report.moved) == {"team/a"}
+    assert set(remote_files(remote, "refs")) == {"team/a"}
+    with pytest.raises(StoreError) as exc:
+        push(store, "nas", ["team/nothing"])
+    assert str(exc.value) == "no ref 'team/nothing' in this store"
+
+
+def test_a_push_behind_the_remote_in_conflict_with_it_and_forced_over_it(tmp_path):
+    """push.push 1 (not forced by default), 46; _push 33-56 (behind: nothing sent; both moved: the conflict's
+    words with both ids and the last agreed one), 41, 262-271, 330-336 (--force keeps the remote's id under
+    refs/displaced/ and reports it)."""
+    from artifacts.refs import set_ref
+    from artifacts.remotes.config import add_remote
+    from artifacts.remotes.pointers import both_moved, displaced_ref
+    from artifacts.remotes.pull import pull
+    from artifacts.remotes.push import push
+
+    remote = tmp_path / "remote"
+    a = store_pushing_to(tmp_path, "a", remote, {"team/x": b"x1" * 40, "team/y": b"y" * 40, "team/z": b"z" * 40})
+    push(a, "nas")
+    b, _ = Store.init(tmp_path / "b")
+    add_remote(b, "nas", str(remote))
+    pull(b, "nas")
+    ids = user_refs(a)
+    x1, y, z = ids["team/x"], ids["team/y"], ids["team/z"]
+
+    set_ref(a, "team/x", y)
+    push(a, "nas")
+    behind = push(b, "nas", ["team/x"])
+    assert (behind.behind, behind.moved, behind.conflicts) == (["team/x"], {}, [])
+
+    set_ref(b, "team/x", z)
+    conflict = push(b, "nas", ["team/x"])
+    assert conflict.conflicts == [both_moved("team/x", "nas", z, y, x1)]
+    assert conflict.moved == {} and remote_files(remote, "refs")["team/x"] == f"{y}\n".encode()
+    assert conflict.conflicts[0].startswith(f"ref team/x: moved on both sides since {x1[:12]}: this store has {z[:12]}")
+
+    forced = push(b, "nas", ["team/x"], force=True)
+    kept = displaced_ref("team/x", y)
+    assert (forced.moved, forced.displaced) == ({"team/x": [y, z]}, {"team/x": kept})
+    assert remote_files(remote, "refs")["team/x"] == f"{z}\n".encode()
+    assert remote_files(remote, "refs")[kept] == f"{y}\n".encode()
+
+
+@pytest.mark.parametrize("race", ["moved", "deleted"])
+def test_a_ref_the_remote_moves_during_the_push_is_a_conflict_and_the_rest_still_move(tmp_path, monkeypatch, race):
+    """_push 287-315: the swap loses to another store (the ref moved or was deleted meanwhile): that ref is a
+    conflict naming what the remote has now, is neither tracked nor agreed on, and the refs after it move."""
+    from artifacts.ingest import add_path
+    from artifacts.refs import set_ref
+    from artifacts.remotes.pointers import both_moved, merge_bases, tracking_refs
+    from artifacts.remotes.push import push
+
+    remote = tmp_path / "remote"
+    store = store_pushing_to(tmp_path, "a", remote, {"team/a": b"alpha" * 100, "team/b": b"beta" * 50})
+    push(store, "nas")
+    before = user_refs(store)
+    (tmp_path / "c.bin").write_bytes(b"gamma" * 30)
+    other = add_path(store, tmp_path / "c.bin", "replay")[0]
+    set_ref(store, "team/a", before["team/b"])
+    set_ref(store, "team/b", before["team/a"])
+    real_swap = DirBackend.swap
+
+    def racing_swap(backend, key, data, expect):
+        if key == "refs/team/a" and expect is not None:
+            if race == "moved":
+                real_swap(backend, key, f"{other}\n".encode(), expect)
+            else:
+                backend.delete(key, expect)
+        return real_swap(backend, key, data, expect)
+
+    monkeypatch.setattr(DirBackend, "swap", racing_swap)
+    report = push(store, "nas", ["team/a", "team/b"])
+    now = other if race == "moved" else None
+    assert report.conflicts == [both_moved("team/a", "nas", before["team/b"], now, before["team/a"])]
+    assert report.moved == {"team/b": [before["team/b"], before["team/a"]]}
+    assert tracking_refs(store, "nas")["team/a"] == before["team/a"]
+    assert merge_bases(store, "nas")["team/a"] == before["team/a"]
+    assert tracking_refs(store, "nas")["team/b"] == before["team/a"]
+
+
+def test_a_partial_clone_pushes_what_the_remote_has_but_not_what_no_one_has(tmp_path):
+    """_push 158-162 (an object neither this store nor the remote has: one line naming it, nothing sent),
+    _local_closure 10-15 (a missing object is not read, only checked)."""
+    from artifacts.refs import set_ref
+    from artifacts.remotes.config import add_remote
+    from artifacts.remotes.pull import pull
+    from artifacts.remotes.push import push
+
+    remote = tmp_path / "remote"
+    a = store_pushing_to(tmp_path, "a", remote, {"team/a": b"alpha" * 100, "team/b": b"beta" * 50})
+    push(a, "nas")
+    b, _ = Store.init(tmp_path / "b")
+    add_remote(b, "nas", str(remote))
+    pull(b, "nas", only={"handoff"})
+    absent = set(a.iter_object_ids()) - set(b.iter_object_ids())
+    assert absent
+    set_ref(b, "team/copy", user_refs(a)["team/a"])
+    assert set(push(b, "nas", ["team/copy"]).moved) == {"team/copy"}  # the remote has the data: fine
+
+    add_remote(b, "other", str(tmp_path / "other"))
+    with pytest.raises(StoreError) as exc:
+        push(b, "other")
+    assert str(exc.value) == (
+        f"object {min(absent)[:12]} is not in this store (a partial clone) and remote other lacks it too; "
+        "pull it from the remote that has it first"
+    )
+    assert remote_files(tmp_path / "other", "refs") == {}
+
+
+def test_push_runs_its_transfers_on_the_jobs_it_is_given_or_the_default(tmp_path, monkeypatch):
+    """push.push 47, 57 (jobs given, or the default when not), _push 148, 187-198 (each transfer on them)."""
+    import artifacts.remotes.push as push_module
+
+    seen: list[int] = []
+    real_parallel = push_module.parallel
+
+    def recording_parallel(fn, items, jobs):
+        seen.append(jobs)
+        return real_parallel(fn, items, jobs)
+
+    monkeypatch.setattr(push_module, "parallel", recording_parallel)
+    monkeypatch.setenv("ACCRUE_REMOTE_JOBS", "5")
+    remote = tmp_path / "remote"
+    store = store_pushing_to(tmp_path, "a", remote, {"team/a": b"alpha" * 100})
+    push_module.push(store, "nas", jobs=3)
+    assert seen and set(seen) == {3}
+    seen.clear()
+    (tmp_path / "n.bin").write_bytes(b"new")
+    from artifacts.ingest import add_path
+
+    add_path(store, tmp_path / "n.bin", "replay", ref="team/n")
+    push_module.push(store, "nas")
+    assert seen and set(seen) == {5}
