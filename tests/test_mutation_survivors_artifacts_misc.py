@@ -1308,3 +1308,84 @@ def test_a_head_that_is_unreadable_or_damaged_is_named_in_one_line(store):
     with pytest.raises(StoreError) as exc:
         read_head(store)
     assert str(exc.value) == f"cannot read the audit log's head: {path}: Is a directory"
+
+
+# ----------------------------------------------------------------------------- hashing
+def test_canonical_json_is_one_byte_form_sorted_compact_utf8_and_without_nan():
+    """hashing.canonical_json 1-18."""
+    from artifacts.hashing import canonical_json
+
+    value = {"b": [1, 2.5, None, True], "a": {"é": "ü", "z": 0}}
+    assert canonical_json(value) == '{"a":{"z":0,"é":"ü"},"b":[1,2.5,null,true]}'.encode()
+    with pytest.raises(ValueError):
+        canonical_json({"x": float("nan")})
+
+
+@pytest.mark.parametrize("size", [0, 1000, CHUNK_SIZE + 5], ids=["empty", "small", "over-a-chunk"])
+def test_a_files_id_and_size_are_its_blake3_and_length_read_in_chunks(tmp_path, size):
+    """hashing.hash_file 1-23, hash_bytes."""
+    data = bytes(range(256)) * (size // 256) + b"x" * (size % 256)
+    path = tmp_path / "f.bin"
+    path.write_bytes(data)
+    assert hash_file(path) == (blake3.blake3(data).hexdigest(), size)
+    assert hash_bytes(data) == blake3.blake3(data).hexdigest()
+
+
+@pytest.mark.parametrize("size", [0, 3000, CHUNK_SIZE + 3000], ids=["empty", "small", "over-a-chunk"])
+def test_a_copy_under_the_pipeline_size_writes_every_byte_even_in_short_writes(tmp_path, monkeypatch, size):
+    """hashing.copy_hashing 1-12 (below 32 MiB the serial copy), _copy_hashing_serial 1-16, _write_all 1-9 (a
+    write that takes only part of a chunk is continued where it stopped)."""
+    import io
+
+    import artifacts.hashing
+
+    data = os.urandom(size)
+    real_write = os.write
+    calls = []
+
+    def short_write(fd, chunk):
+        calls.append(len(chunk))
+        return real_write(fd, bytes(chunk[:1000]))
+
+    monkeypatch.setattr(artifacts.hashing.os, "write", short_write)
+    out = tmp_path / "copy.bin"
+    fd = os.open(out, os.O_WRONLY | os.O_CREAT, 0o644)
+    try:
+        got = copy_hashing(io.BytesIO(data), fd, size_hint=size)
+    finally:
+        os.close(fd)
+    monkeypatch.undo()
+    assert got == (blake3.blake3(data).hexdigest(), size)
+    assert out.read_bytes() == data
+    assert all(n <= CHUNK_SIZE for n in calls)
+
+
+def test_large_inputs_are_hashed_on_all_cores_and_small_ones_on_one(monkeypatch):
+    """hashing._hasher 1-6: from 4 MiB on, blake3 may use every core; below it threads cost more than they
+    gain."""
+    import artifacts.hashing
+
+    asked = []
+    real = blake3.blake3
+
+    class Recording:
+        AUTO = real.AUTO
+
+        def __new__(cls, *args, max_threads=1, **kwargs):
+            asked.append(max_threads)
+            return real(*args, max_threads=max_threads, **kwargs)
+
+    monkeypatch.setattr(artifacts.hashing.blake3, "blake3", Recording)
+    artifacts.hashing._hasher(4 * 1024 * 1024 - 1)
+    artifacts.hashing._hasher(4 * 1024 * 1024)
+    artifacts.hashing._hasher()
+    assert asked == [1, real.AUTO, 1]
+
+
+def test_a_full_id_is_exactly_64_lowercase_hex_digits():
+    """hashing.is_full_id 1-6."""
+    from artifacts.hashing import is_full_id
+
+    assert is_full_id("0123456789abcdef" * 4)
+    for text in ("0123456789abcdef" * 4 + "0", ("0123456789abcdef" * 4)[:-1], "A" * 64, "g" * 64, ""):
+        assert not is_full_id(text)

@@ -2484,3 +2484,183 @@ def test_push_runs_its_transfers_on_the_jobs_it_is_given_or_the_default(tmp_path
     add_path(store, tmp_path / "n.bin", "replay", ref="team/n")
     push_module.push(store, "nas")
     assert seen and set(seen) == {5}
+
+
+# ----------------------------------------------------------------------------- remotes.logsegment
+def test_a_log_segment_is_the_whole_lines_since_the_last_push_as_an_audit_log_artifact(tmp_path):
+    """logsegment.next_segment 1-99: no log, no whole line since `start` (a line being written waits), the
+    lines since as one file artifact chained to the segment before, and a log shorter than `start` (replaced)
+    sent again from its start with no previous segment."""
+    import socket
+
+    from artifacts.auditlog import append_event
+    from artifacts.hashing import canonical_json
+    from artifacts.manifests import MANIFEST_FORMAT
+    from artifacts.remotes.logsegment import KIND, Segment, next_segment
+
+    store, _ = Store.init(tmp_path / "store")
+    previous = "p" * 64
+    assert next_segment(store, "sid", previous, 0) is None
+    events = [append_event(store, "custom", note=f"event {n}") for n in range(3)]
+    log = store.log_path.read_bytes()
+    lines = log.splitlines(keepends=True)
+    store.log_path.write_bytes(log + b'{"seq": 3, "half')  # being appended right now
+
+    def expected(data: bytes, first: int, last: int, inputs: dict) -> Segment:
+        manifest = {
+            "type": "artifact",
+            "format": MANIFEST_FORMAT,
+            "kind": KIND,
+            "producer": {"store": "sid", "host": socket.gethostname()},
+            "inputs": inputs,
+            "config": {},
+            "code_version": "",
+            "created": events[last]["ts"],
+            "meta": {"first_seq": first, "last_seq": last, "events": last - first + 1},
+            "layout": "file",
+            "content": hash_bytes(data),
+            "size": len(data),
+            "files": 1,
+            "name": "events.jsonl",
+        }
+        raw = canonical_json(manifest)
+        return Segment(hash_bytes(raw), raw, hash_bytes(data), data, len(log))
+
+    assert KIND == "audit-log"
+    assert next_segment(store, "sid", previous, len(lines[0])) == expected(
+        b"".join(lines[1:]), 1, 2, {"previous": previous}
+    )
+    size = store.log_path.stat().st_size
+    assert next_segment(store, "sid", previous, len(log)) is None
+    assert next_segment(store, "sid", previous, size) is None  # as long as the log: not replaced
+    assert next_segment(store, "sid", previous, size + 1) == expected(log, 0, 2, {})
+    assert next_segment(store, "sid", None, 0) == expected(log, 0, 2, {})
+
+
+# ----------------------------------------------------------------------------- remotes.config: the store's id
+def test_a_stores_id_is_made_once_where_it_lives_and_a_copy_is_refused_until_rekeyed(tmp_path):
+    """config.store_id 1-18 (made once, random, with the folder it was made in; an older store's id kept when
+    its folder is recorded later), check_not_copied 1-24 (no id yet: None; a copy elsewhere refused word for
+    word, a moved store or one whose record is an inode marker or unreadable accepted)."""
+    import re
+
+    from artifacts.remotes.config import check_not_copied, store_id
+
+    store, _ = Store.init(tmp_path / "store")
+    assert check_not_copied(store) is None
+    sid = store_id(store)
+    assert re.fullmatch(r"[0-9a-f]{32}", sid)
+    home = {"path": str(store.root.resolve()), "ino": store.root.stat().st_ino}
+    assert (store.read_config()["store_id"], store.read_config()["store_home"]) == (sid, home)
+    assert store_id(store) == sid and check_not_copied(store) == sid
+
+    shutil.copytree(store.root, tmp_path / "copy")
+    copy = Store.open(tmp_path / "copy")
+    refusal = (
+        f"this store's id {sid[:12]} was made in another directory (a copy, e.g. cp -a?); "
+        "run `accrue remote rekey` to give this copy its own id"
+    )
+    for call in (check_not_copied, store_id):
+        with pytest.raises(StoreError) as exc:
+            call(copy)
+        assert str(exc.value) == refusal
+
+    os.rename(tmp_path / "store", tmp_path / "moved")
+    assert check_not_copied(Store.open(tmp_path / "moved")) == sid  # same inode: moved, not copied
+
+    for marker, copied in ((copy.root.stat().st_ino + 1, True), (copy.root.stat().st_ino, False), ("?", False)):
+        copy.update_config(lambda c, m=marker: c.update(store_home=m))
+        if copied:
+            with pytest.raises(StoreError):
+                check_not_copied(copy)
+        else:
+            assert check_not_copied(copy) == sid
+
+    copy.update_config(lambda c: c.pop("store_home"))  # an older store: an id without its folder
+    assert check_not_copied(copy) is None
+    assert store_id(copy) == sid
+    assert copy.read_config()["store_home"] == {"path": str(copy.root.resolve()), "ino": copy.root.stat().st_ino}
+
+
+# ----------------------------------------------------------------------------- remotes: listing, connecting, threads
+def test_a_remotes_object_listing_keeps_only_names_that_are_ids(tmp_path):
+    """Backend.remote_object_ids 1-18: the id is the fan-out folder and the file name together; other names
+    (too short, not hex, no folder) are not objects."""
+    oid = hash_bytes(b"an object")
+    other = hash_bytes(b"another")
+
+    class Listed(DirBackend):
+        def list_sizes(self, prefix):
+            assert prefix == "objects/blake3"
+            return {
+                f"objects/blake3/{oid[:2]}/{oid[2:]}": 9,
+                f"{other[:2]}/{other[2:]}": 7,
+                f"objects/blake3/{oid[:2]}/{oid[2:-1]}": 8,
+                f"objects/blake3/zz/{'g' * 62}": 1,
+                oid: 3,
+            }
+
+    assert Listed(parse_url("nas", str(tmp_path))).remote_object_ids() == {oid: 9, other: 7}
+
+
+def test_a_remote_is_opened_by_its_kind(tmp_path):
+    """connect.open_backend 1-5."""
+    from artifacts.remotes.connect import open_backend
+    from artifacts.remotes.s3 import S3Backend
+
+    assert type(open_backend(parse_url("nas", str(tmp_path)))) is DirBackend
+    s3 = open_backend(parse_url("cloud", "s3://bucket/prefix"))
+    assert type(s3) is S3Backend and s3.spec.name == "cloud"
+
+
+def test_remote_transfers_use_16_threads_unless_the_environment_says_otherwise(monkeypatch):
+    """transfer.default_jobs 1-13 (never fewer than one)."""
+    from artifacts.remotes.transfer import default_jobs
+
+    monkeypatch.delenv("ACCRUE_REMOTE_JOBS", raising=False)
+    assert default_jobs() == 16
+    for text, jobs in (("3", 3), ("1", 1), ("0", 1), ("-4", 1)):
+        monkeypatch.setenv("ACCRUE_REMOTE_JOBS", text)
+        assert default_jobs() == jobs
+
+
+def test_parallel_keeps_the_order_runs_at_most_jobs_at_once_and_raises_the_first_failure():
+    """transfer.parallel 1-38: one item or one job runs here; more run on at most `jobs` named threads, results
+    in the items' order; a failure stops what has not started and is raised as itself."""
+    import time
+
+    from artifacts.remotes.transfer import parallel
+
+    here = threading.current_thread().name
+    assert parallel(lambda i: (i, threading.current_thread().name), [7], 4) == [(7, here)]
+    assert parallel(lambda i: (i, threading.current_thread().name), [1, 2, 3], 1) == [(1, here), (2, here), (3, here)]
+    assert parallel(lambda i: i, [], 4) == []
+
+    running, most, lock = [0], [0], threading.Lock()
+
+    def work(i):
+        with lock:
+            running[0] += 1
+            most[0] = max(most[0], running[0])
+        time.sleep(0.02)
+        with lock:
+            running[0] -= 1
+        return i * 10, threading.current_thread().name
+
+    out = parallel(work, range(12), 3)
+    assert [r for r, _ in out] == [i * 10 for i in range(12)]
+    assert most[0] == 3 and all(name.startswith("accrue-remote") for _, name in out)
+    assert len(parallel(work, range(2), 8)) == 2 and most[0] == 3
+
+    started = []
+
+    def fail_first(i):
+        started.append(i)
+        if i == 0:
+            raise KeyError("the first failed")
+        time.sleep(0.05)
+        return i
+
+    with pytest.raises(KeyError, match="the first failed"):
+        parallel(fail_first, range(40), 2)
+    assert len(started) < 40

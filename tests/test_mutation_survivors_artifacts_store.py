@@ -1532,3 +1532,285 @@ def test_what_a_user_types_resolves_to_a_ref_s_id_an_id_or_a_step_output_and_eac
         )
     with pytest.raises(StoreError, match="no object or ref matches 'fffff0'"):
         resolve(store, "fffff0")
+
+
+# ----------------------------------------------------------------------------- manifests.put_tree / store_content
+def demo_folder(root: Path) -> dict[str, bytes]:
+    """A folder with nested folders, an empty file and an executable one; returns path -> bytes."""
+    files = {"b.txt": b"bee", "a/z.bin": b"zed" * 10, "a/deeper/empty": b"", "run.sh": b"#!/bin/sh\n"}
+    for rel, data in files.items():
+        (root / rel).parent.mkdir(parents=True, exist_ok=True)
+        (root / rel).write_bytes(data)
+    (root / "run.sh").chmod(0o755)
+    return files
+
+
+@pytest.mark.parametrize("how", ["copy", "adopt", "checked"])
+def test_a_folders_content_is_a_sorted_tree_of_its_files_stored_the_way_asked(store, tmp_path, how):
+    """manifests.put_tree 1-75 (each file stored by the way asked, its entry's path, id, size and exec bit,
+    the entries sorted by path, the totals), store_content 1-58 (a folder's and a file's content fields)."""
+    from artifacts.manifests import MANIFEST_FORMAT, store_content
+
+    folder = tmp_path / "folder"
+    files = demo_folder(folder)
+    source_inode = (folder / "b.txt").stat().st_ino
+    content = store_content(store, folder, how)
+    entries = [
+        {"path": rel, "id": hash_bytes(files[rel]), "size": len(files[rel]), "exec": rel == "run.sh"}
+        for rel in sorted(files)
+    ]
+    assert store.read_json(content["content"]) == {"type": "tree", "format": MANIFEST_FORMAT, "entries": entries}
+    assert content == {"layout": "dir", "content": content["content"], "size": 43, "files": 4}
+    linked = store.object_path(hash_bytes(b"bee")).stat().st_ino == source_inode
+    assert linked == (how == "adopt")
+
+    single = tmp_path / "single.bin"
+    single.write_bytes(b"one file")
+    single_inode = single.stat().st_ino
+    assert store_content(store, single, how) == {
+        "layout": "file",
+        "content": hash_bytes(b"one file"),
+        "size": 8,
+        "files": 1,
+        "name": "single.bin",
+    }
+    assert (store.object_path(hash_bytes(b"one file")).stat().st_ino == single_inode) == (how == "adopt")
+
+
+def test_content_that_is_not_regular_files_and_folders_is_refused_in_one_line(store, tmp_path):
+    """store_content 3-30 (a symlink, a missing path, a name that is not UTF-8), put_tree (a symlinked folder,
+    a symlinked file or a FIFO inside), _walk_error (a folder that cannot be listed)."""
+    from artifacts.manifests import put_tree, store_content
+
+    target = tmp_path / "target.bin"
+    target.write_bytes(b"x")
+    link = tmp_path / "link.bin"
+    link.symlink_to(target)
+    cases = [(link, f"{link}: a symlink; only regular files and directories can be stored")]
+    cases.append((tmp_path / "nowhere", f"{tmp_path / 'nowhere'}: no such file or directory"))
+    bad_name = Path(os.fsdecode(str(tmp_path).encode() + b"/caf\xe9.bin"))
+    bad_name.write_bytes(b"y")
+    cases.append((bad_name, f"{tmp_path}/caf\\udce9.bin: file name is not valid UTF-8; rename it to store it"))
+    for n, make in enumerate(
+        [
+            lambda d: (d / "sub").symlink_to(tmp_path, target_is_directory=True),
+            lambda d: (d / "f.bin").symlink_to(target),
+            lambda d: os.mkfifo(d / "pipe"),
+        ]
+    ):
+        folder = tmp_path / f"folder{n}"
+        folder.mkdir()
+        (folder / "ok.txt").write_bytes(b"ok")
+        make(folder)
+        inside = sorted(p for p in folder.iterdir() if p.name != "ok.txt")[0]
+        why = (
+            "a symlink; only regular files and directories can be stored (copy the target in instead)"
+            if n == 0
+            else "only regular files can be stored (symlinks and devices are refused)"
+        )
+        cases.append((folder, f"{inside}: {why}"))
+    for path, message in cases:
+        with pytest.raises(StoreError) as exc:
+            store_content(store, path)
+        assert str(exc.value) == message
+    with pytest.raises(StoreError) as exc:
+        put_tree(store, tmp_path / "nowhere", "copy")
+    assert str(exc.value) == f"cannot read {tmp_path / 'nowhere'}: No such file or directory"
+
+
+# ----------------------------------------------------------------------------- ingest.add_path
+def test_adding_a_file_writes_one_artifact_indexed_by_its_content_and_adding_it_again_reuses_it(store, tmp_path):
+    """ingest.add_path 1-82: the artifact written once (its event names it, its kind and source), indexed
+    under ingested/<kind>/<content>, the ref moved when one is given; the same bytes again (from anywhere)
+    are the same artifact, not a new event; an index pointing at other content is written afresh."""
+    from artifacts.auditlog import iter_events
+    from artifacts.refs import read_ref, set_ref
+
+    first, again = tmp_path / "first.bin", tmp_path / "elsewhere" / "again.bin"
+    again.parent.mkdir()
+    first.write_bytes(b"replay bytes")
+    again.write_bytes(b"replay bytes")
+    content = hash_bytes(b"replay bytes")
+    index = f"ingested/replay/{content}"
+
+    aid, created = add_path(store, first, "replay", ref="team/r")
+    assert created is True
+    manifest = store.read_json(aid)
+    assert (manifest["kind"], manifest["content"], manifest["producer"]) == ("replay", content, {"step": "add"})
+    events = [(e["event"], e.get("artifact"), e.get("kind"), e.get("source"), e.get("ref")) for e in iter_events(store)]
+    assert events[0] == ("artifact-written", aid, "replay", str(first.absolute()), None)
+    assert [e[0] for e in events] == ["artifact-written", "ref-moved", "ref-moved"]
+    assert (read_ref(store, index), read_ref(store, "team/r")) == (aid, aid)
+
+    assert add_path(store, again, "replay") == (aid, False)
+    assert add_path(store, again, "replay", ref="team/s") == (aid, False)
+    assert read_ref(store, "team/s") == aid
+    assert sum(e["event"] == "artifact-written" for e in iter_events(store)) == 1
+
+    other, _ = add_path(store, again, "demos")
+    assert other != aid and read_ref(store, f"ingested/demos/{content}") == other
+
+    (tmp_path / "x.bin").write_bytes(b"other bytes")
+    elsewhere, _ = add_path(store, tmp_path / "x.bin", "replay")
+    set_ref(store, index, elsewhere)  # an index that names an artifact of other bytes
+    fresh, created = add_path(store, first, "replay")
+    assert created is True and store.read_json(fresh)["content"] == content
+    assert read_ref(store, index) == fresh
+
+
+def test_an_add_that_cannot_be_logged_or_named_stores_nothing(store, tmp_path):
+    """ingest.add_path 1-5 (the kind checked first), 6-10 (a source path that is not UTF-8), 11-12 (a damaged
+    log refuses the add before anything is copied)."""
+    src = tmp_path / "data.bin"
+    src.write_bytes(b"data")
+    with pytest.raises(StoreError, match="^bad artifact kind 'Bad Kind'"):
+        add_path(store, src, "Bad Kind")
+    folder = Path(os.fsdecode(str(tmp_path).encode() + b"/caf\xe9"))
+    folder.mkdir()
+    (folder / "data.bin").write_bytes(b"data")
+    with pytest.raises(StoreError) as exc:
+        add_path(store, folder / "data.bin", "replay")
+    assert str(exc.value) == f"{tmp_path}/caf\\udce9/data.bin: file name is not valid UTF-8; rename it to store it"
+    store.log_path.parent.mkdir(exist_ok=True)
+    store.log_path.write_bytes(b"not an event\n")
+    with pytest.raises(StoreError, match="its last line is damaged; nothing was written"):
+        add_path(store, src, "replay")
+    assert list(store.iter_object_ids()) == []
+
+
+# ----------------------------------------------------------------------------- atomic: publishing a file
+def test_a_directory_sync_opens_a_directory_only_and_syncs_it(tmp_path, monkeypatch):
+    """atomic.fsync_dir 1-8: the directory is opened as one (a file is refused) and that descriptor synced."""
+    import artifacts.atomic as atomic
+
+    synced = []
+    real_fsync = os.fsync
+    monkeypatch.setattr(atomic.os, "fsync", lambda fd: synced.append(os.fstat(fd).st_ino) or real_fsync(fd))
+    atomic.fsync_dir(tmp_path)
+    assert synced == [tmp_path.stat().st_ino]
+    (tmp_path / "file").write_bytes(b"x")
+    with pytest.raises(NotADirectoryError):
+        atomic.fsync_dir(tmp_path / "file")
+
+
+def test_a_temp_name_is_hidden_in_the_directory_and_names_this_process(tmp_path):
+    """atomic.temp_name 1-4."""
+    import re
+
+    from artifacts.atomic import temp_name
+
+    for prefix in ("", "obj-"):
+        name = temp_name(tmp_path, prefix)
+        assert name.parent == tmp_path
+        assert re.fullmatch(rf"\.{prefix}tmp-{os.getpid()}-[0-9a-f]{{12}}", name.name)
+    assert temp_name(tmp_path) != temp_name(tmp_path)
+
+
+def test_a_new_file_is_written_whole_even_in_short_writes_synced_and_never_over_another(tmp_path, monkeypatch):
+    """atomic.write_new_fsynced 1-22: mode 0644 (less the umask), O_EXCL, every byte written when a write
+    takes only part, synced before it returns; a failing write leaves no partial file and is raised."""
+    import artifacts.atomic as atomic
+
+    data = os.urandom(5000)
+    real_write, real_fsync = os.write, os.fsync
+    synced = []
+    monkeypatch.setattr(atomic.os, "write", lambda fd, view: real_write(fd, bytes(view[:700])))
+    monkeypatch.setattr(atomic.os, "fsync", lambda fd: synced.append(os.fstat(fd).st_size) or real_fsync(fd))
+    path = tmp_path / "new.bin"
+    atomic.write_new_fsynced(path, data)
+    assert path.read_bytes() == data and synced == [5000]
+    umask = os.umask(0)
+    os.umask(umask)
+    assert path.stat().st_mode & 0o777 == 0o644 & ~umask
+    with pytest.raises(FileExistsError):
+        atomic.write_new_fsynced(path, b"other")
+    assert path.read_bytes() == data
+
+    def full_disk(fd, view):
+        if os.fstat(fd).st_size >= 1400:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real_write(fd, bytes(view[:700]))
+
+    monkeypatch.setattr(atomic.os, "write", full_disk)
+    with pytest.raises(OSError, match="No space left"):
+        atomic.write_new_fsynced(tmp_path / "partial.bin", data)
+    assert not (tmp_path / "partial.bin").exists()
+
+
+def test_a_replace_goes_through_a_temp_file_in_the_folder_or_the_one_given_and_leaves_none(tmp_path, monkeypatch):
+    """atomic.write_replace 1-15: the parent made, the temp file in the target's folder (or tmp_dir), renamed
+    over the target, the folder synced; a rename that fails removes its temp file and is raised."""
+    import artifacts.atomic as atomic
+
+    renamed, synced = [], []
+    real_replace = os.replace
+    monkeypatch.setattr(atomic.os, "replace", lambda a, b: renamed.append((Path(a).parent, b)) or real_replace(a, b))
+    monkeypatch.setattr(atomic, "fsync_dir", synced.append)
+    target = tmp_path / "deep" / "er" / "value.json"
+    atomic.write_replace(target, b"one")
+    atomic.write_replace(target, b"two")
+    assert target.read_bytes() == b"two"
+    assert renamed == [(target.parent, target)] * 2
+    assert synced[-1] == target.parent and synced.count(target.parent) == 2
+    spare = tmp_path / "spare"
+    spare.mkdir()
+    atomic.write_replace(target, b"three", tmp_dir=spare)
+    assert renamed[-1] == (spare, target) and target.read_bytes() == b"three"
+
+    blocked = tmp_path / "blocked"
+    (blocked / "inside").mkdir(parents=True)  # a non-empty folder where the file should go
+    with pytest.raises(OSError):
+        atomic.write_replace(blocked, b"x")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["blocked", "deep", "spare"]
+    assert [p.name for p in target.parent.iterdir()] == ["value.json"] and not any(spare.iterdir())
+
+
+def test_linking_into_place_publishes_once_and_never_overwrites(tmp_path, monkeypatch):
+    """atomic.link_into_place 1-10: the parent made, True for a new file and False (the existing bytes kept)
+    when the name is taken, the parent synced either way."""
+    import artifacts.atomic as atomic
+
+    synced = []
+    monkeypatch.setattr(atomic, "fsync_dir", synced.append)
+    first, second = tmp_path / "a.tmp", tmp_path / "b.tmp"
+    first.write_bytes(b"first")
+    second.write_bytes(b"second")
+    final = tmp_path / "objects" / "ab" / "cdef"
+    assert atomic.link_into_place(first, final) is True
+    assert atomic.link_into_place(second, final) is False
+    assert final.read_bytes() == b"first" and final.stat().st_ino == first.stat().st_ino
+    assert synced[-2:] == [final.parent, final.parent]
+
+
+# ----------------------------------------------------------------------------- locks, clock, the store's write errors
+def test_a_stores_lock_is_a_file_in_its_locks_folder_and_timeout_comes_from_filelock(tmp_path):
+    """locks.store_lock 1-9 (the folder made, the file named <name>.lock), locks.__getattr__ 1-5."""
+    import filelock
+
+    import artifacts.locks as locks
+
+    lock = locks.store_lock(tmp_path / "a" / "locks", "gc")
+    assert lock.lock_file == str(tmp_path / "a" / "locks" / "gc.lock")
+    with lock:
+        assert (tmp_path / "a" / "locks" / "gc.lock").exists()
+    assert locks.Timeout is filelock.Timeout
+    with pytest.raises(AttributeError, match="^Nope$"):
+        locks.Nope  # noqa: B018
+
+
+def test_timestamps_are_utc_iso_8601_to_the_millisecond():
+    """clock.now_iso 1-4."""
+    import re
+
+    from artifacts.clock import now_iso
+
+    stamp = now_iso()
+    assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}\+00:00", stamp)
+    assert abs(datetime.fromisoformat(stamp).timestamp() - datetime.now().timestamp()) < 60
+
+
+def test_an_error_that_is_not_about_the_disk_passes_through_a_store_write_unchanged(tmp_path):
+    """store._WriteErrors.__exit__ 5: only an OSError becomes the one-line store error."""
+    with pytest.raises(ValueError, match="not a disk problem"):
+        with artifacts.store._WriteErrors(tmp_path):
+            raise ValueError("not a disk problem")
