@@ -2242,7 +2242,7 @@ def test_a_first_push_sends_every_object_once_and_leaves_its_bookkeeping(tmp_pat
     moved from nothing), 57-66, 79-82, 100-120 (the first log segment), 121-141, 142-160, 163-200 (what is
     checked and sent: one listing of a remote with no refs; an empty object counts 0 bytes), 201-261 (the
     segment sent, its pointer swapped and remembered), 272-286, 316-330, 337-368 (refs swapped, remembered,
-    tracked, logged); _local_closure 1-27."""
+    tracked without an event each, logged once); _local_closure 1-27."""
     import re
     import socket
 
@@ -2257,6 +2257,7 @@ def test_a_first_push_sends_every_object_once_and_leaves_its_bookkeeping(tmp_pat
     refs, local_objects = user_refs(store), set(store.iter_object_ids())
     calls, meter = BackendCalls(monkeypatch), RecordingMeter()
     log_before = store.log_path.read_bytes()
+    events_before = len(list(iter_events(store)))
 
     report = push(store, "nas", meter=meter)
 
@@ -2289,8 +2290,8 @@ def test_a_first_push_sends_every_object_once_and_leaves_its_bookkeeping(tmp_pat
     assert remote_state(store, "refs.json") == {name: [f"{oid}\n", oid] for name, oid in refs.items()}
     assert remote_state(store, "logs.json") == {sid: [f"{segment}\n", segment]}
     assert tracking_refs(store, "nas") == refs and merge_bases(store, "nas") == refs
-    last = list(iter_events(store))[-1]
-    assert (last["event"], last["remote"], last["refs"]) == ("pushed", "nas", refs)
+    [pushed] = list(iter_events(store))[events_before:]  # tracking refs move without events of their own
+    assert (pushed["event"], pushed["remote"], pushed["refs"]) == ("pushed", "nas", refs)
     [(lease, lease_bytes)] = calls.leases
     assert re.fullmatch(rf"pushes/{sid}-{os.getpid()}-[0-9a-f]{{8}}", lease)
     assert lease_bytes == canonical_json({"host": socket.gethostname(), "pid": os.getpid()}) + b"\n"
@@ -2664,3 +2665,69 @@ def test_parallel_keeps_the_order_runs_at_most_jobs_at_once_and_raises_the_first
     with pytest.raises(KeyError, match="the first failed"):
         parallel(fail_first, range(40), 2)
     assert len(started) < 40
+
+
+def test_a_push_that_loses_its_log_pointer_to_another_store_moves_no_ref(tmp_path, monkeypatch):
+    """_push 212-228: the log pointer's swap, after the objects and before any ref, lost to a store pushing
+    under the same id: one line naming the id, and no ref moved."""
+    from artifacts.hashing import hash_bytes as digest
+    from artifacts.remotes.config import store_id
+    from artifacts.remotes.push import push
+
+    remote = tmp_path / "remote"
+    store = store_pushing_to(tmp_path, "a", remote, {"team/a": b"alpha" * 100})
+    real_swap = DirBackend.swap
+
+    def raced(backend, key, data, expect):
+        if key.startswith("logs/"):
+            real_swap(backend, key, f"{digest(b'another log')}\n".encode(), expect)
+        return real_swap(backend, key, data, expect)
+
+    monkeypatch.setattr(DirBackend, "swap", raced)
+    with pytest.raises(StoreError) as exc:
+        push(store, "nas")
+    sid = store_id(store)
+    assert str(exc.value) == (
+        f"remote nas: another store pushed an audit log with this store's id {sid[:12]} (a copied store?); "
+        "nothing was sent; run `accrue remote rekey` in the copy, then push again"
+    )
+    assert remote_files(remote, "refs") == {}
+
+
+def test_a_push_decides_by_what_it_last_agreed_on_not_by_a_later_fetch(tmp_path):
+    """_push 337-344: push records the ids both sides agreed on; a fetch that only moves the tracking refs
+    does not make this store's older id look like the newer one, so the push is behind, not a rewind."""
+    from artifacts.refs import set_ref
+    from artifacts.remotes.config import add_remote
+    from artifacts.remotes.pull import fetch, pull
+    from artifacts.remotes.push import push
+
+    remote = tmp_path / "remote"
+    b = store_pushing_to(tmp_path, "b", remote, {"team/x": b"x1" * 40, "team/y": b"y" * 40})
+    push(b, "nas")
+    x1, y = user_refs(b)["team/x"], user_refs(b)["team/y"]
+    a, _ = Store.init(tmp_path / "a")
+    add_remote(a, "nas", str(remote))
+    pull(a, "nas")
+    set_ref(a, "team/x", y)
+    push(a, "nas")
+    fetch(b, "nas")  # b's tracking ref now says y; b itself still has x1
+    report = push(b, "nas", ["team/x"])
+    assert (report.behind, report.moved) == (["team/x"], {})
+    assert remote_files(remote, "refs")["team/x"] == f"{y}\n".encode() != f"{x1}\n".encode()
+
+
+def test_a_store_that_lost_its_log_position_starts_its_log_chain_again_from_the_first_line(tmp_path):
+    """_push 93, 94: with no record of the last segment sent, the whole log goes again as a segment with no
+    previous one (not chained onto the remote's)."""
+    from artifacts.remotes.pointers import state_dir
+    from artifacts.remotes.push import push
+
+    remote = tmp_path / "remote"
+    store = store_pushing_to(tmp_path, "a", remote, {"team/a": b"alpha" * 100})
+    push(store, "nas")
+    (state_dir(store, "nas") / "log.json").unlink()
+    report = push(store, "nas")
+    oid = report.log_segment
+    segment = json.loads((remote / "objects" / "blake3" / oid[:2] / oid[2:]).read_bytes())
+    assert segment["inputs"] == {} and segment["meta"]["first_seq"] == 0
