@@ -2731,3 +2731,22 @@ def test_a_store_that_lost_its_log_position_starts_its_log_chain_again_from_the_
     oid = report.log_segment
     segment = json.loads((remote / "objects" / "blake3" / oid[:2] / oid[2:]).read_bytes())
     assert segment["inputs"] == {} and segment["meta"]["first_seq"] == 0
+
+
+def test_a_wiped_remote_gets_the_whole_log_again_as_a_new_chain_and_every_ref(tmp_path):
+    """_push 83 (no log on the remote is no other store's log), 38, 112 (the segment starts from the log's first
+    line, not where the last push to the lost remote ended), 122-125 (refs this store tracked that the remote
+    no longer has are not proof it holds their objects)."""
+    from artifacts.remotes.push import push
+
+    remote = tmp_path / "remote"
+    store = store_pushing_to(tmp_path, "a", remote, {"team/a": b"alpha" * 100})
+    push(store, "nas")
+    shutil.rmtree(remote)
+    refs = user_refs(store)
+    report = push(store, "nas")
+    assert report.moved == {name: [None, oid] for name, oid in refs.items()}
+    assert set(remote_object_sizes(remote)) >= set(store.iter_object_ids())
+    oid = report.log_segment
+    segment = json.loads((remote / "objects" / "blake3" / oid[:2] / oid[2:]).read_bytes())
+    assert segment["inputs"] == {} and segment["meta"]["first_seq"] == 0
