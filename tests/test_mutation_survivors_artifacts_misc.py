@@ -8,6 +8,9 @@ and a failed write is raised as itself; `remote prune` is a dry run with a one-d
 it cannot tell what is reachable, and stops when a ref moves meanwhile; status asks the remote, not
 the last fetch; the JSON of `remote verify` and `log --remote`. Everything runs in a temporary
 directory, with directory remotes (no network).
+
+The tests of round 13 (docs/MUTATION.md) were written ahead of the sweep, per function: their docstrings name
+the mutants they were written against; the sweep's verdicts, not the docstrings, are the measurement.
 """
 
 from __future__ import annotations

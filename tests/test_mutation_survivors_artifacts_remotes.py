@@ -3,6 +3,9 @@ round 3 of mutmut's fourth sweep (docs/MUTATION.md, "The fourth sweep"). Each do
 ids it kills. What they pin: a directory remote's ref deletion only removes the version it was told
 to, with one-line refusals; and a partial clone's missing object is fetched through the fetcher the
 remotes register. Everything runs in a temporary directory, without a network.
+
+The tests of round 13 (docs/MUTATION.md) were written ahead of the sweep, per function: their docstrings name
+the mutants they were written against; the sweep's verdicts, not the docstrings, are the measurement.
 """
 
 from __future__ import annotations

@@ -5,6 +5,9 @@ problem list), that a repair which cannot write leaves the log as it was with a 
 quarantined event a damaged object leaves behind, and how a checkpoint copy handles a damaged object
 or a file still being written, how a message quotes what the user gave, and what a full verify reports,
 counts, moves aside and logs (also on a store it cannot write). Everything runs in a temporary directory.
+
+The tests of round 13 (docs/MUTATION.md) were written ahead of the sweep, per function: their docstrings name
+the mutants they were written against; the sweep's verdicts, not the docstrings, are the measurement.
 """
 
 from __future__ import annotations
