@@ -2753,3 +2753,35 @@ def test_a_wiped_remote_gets_the_whole_log_again_as_a_new_chain_and_every_ref(tm
     oid = report.log_segment
     segment = json.loads((remote / "objects" / "blake3" / oid[:2] / oid[2:]).read_bytes())
     assert segment["inputs"] == {} and segment["meta"]["first_seq"] == 0
+
+
+def test_a_push_reads_each_manifest_once_however_many_refs_reach_it(tmp_path, monkeypatch):
+    """_local_closure 9: what the walk has seen is remembered, so a manifest many refs name is read once."""
+    from artifacts.refs import set_ref
+    from artifacts.remotes.push import push
+
+    remote = tmp_path / "remote"
+    store = store_pushing_to(tmp_path, "a", remote, {"team/a": b"alpha" * 100})
+    aid = user_refs(store)["team/a"]
+    for n in range(5):
+        set_ref(store, f"team/copy{n}", aid, log=False)
+    reads = []
+    real_read_json = Store.read_json
+    monkeypatch.setattr(Store, "read_json", lambda s, oid: reads.append(oid) or real_read_json(s, oid))
+    push(store, "nas")
+    assert reads.count(aid) == 1
+
+
+def test_a_push_of_a_ref_that_names_no_manifest_is_refused_naming_the_object(tmp_path):
+    """_local_closure 19-24: JSON of another shape is named in one line, and nothing moves."""
+    from artifacts.refs import set_ref
+    from artifacts.remotes.push import push
+
+    remote = tmp_path / "remote"
+    store = store_pushing_to(tmp_path, "a", remote, {"team/a": b"alpha" * 100})
+    note = store.put_json({"type": "note", "text": "not a manifest"})
+    set_ref(store, "team/note", note, log=False)
+    with pytest.raises(StoreError) as exc:
+        push(store, "nas")
+    assert str(exc.value) == f"object {note[:12]} is not a manifest"
+    assert remote_files(remote, "refs") == {}
