@@ -2721,8 +2721,9 @@ def test_a_push_decides_by_what_it_last_agreed_on_not_by_a_later_fetch(tmp_path)
 
 
 def test_a_store_that_lost_its_log_position_starts_its_log_chain_again_from_the_first_line(tmp_path):
-    """_push 93, 94: with no record of the last segment sent, the whole log goes again as a segment with no
-    previous one (not chained onto the remote's)."""
+    """_push 93, 94, 110: with no record of the last segment sent, the whole log goes again as a segment with no
+    previous one (not chained onto the remote's); 102: a segment names the store that wrote it."""
+    from artifacts.remotes.config import store_id
     from artifacts.remotes.pointers import state_dir
     from artifacts.remotes.push import push
 
@@ -2734,6 +2735,7 @@ def test_a_store_that_lost_its_log_position_starts_its_log_chain_again_from_the_
     oid = report.log_segment
     segment = json.loads((remote / "objects" / "blake3" / oid[:2] / oid[2:]).read_bytes())
     assert segment["inputs"] == {} and segment["meta"]["first_seq"] == 0
+    assert segment["producer"]["store"] == store_id(store)
 
 
 def test_a_wiped_remote_gets_the_whole_log_again_as_a_new_chain_and_every_ref(tmp_path):
