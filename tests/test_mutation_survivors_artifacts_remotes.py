@@ -2494,7 +2494,8 @@ def test_push_runs_its_transfers_on_the_jobs_it_is_given_or_the_default(tmp_path
 def test_a_log_segment_is_the_whole_lines_since_the_last_push_as_an_audit_log_artifact(tmp_path):
     """logsegment.next_segment 1-99: no log, no whole line since `start` (a line being written waits), the
     lines since as one file artifact chained to the segment before, and a log shorter than `start` (replaced)
-    sent again from its start with no previous segment."""
+    sent again from its start with no previous segment; 49, 51, 54: a last line without a time leaves the
+    segment's time empty."""
     import socket
 
     from artifacts.auditlog import append_event
@@ -2539,6 +2540,8 @@ def test_a_log_segment_is_the_whole_lines_since_the_last_push_as_an_audit_log_ar
     assert next_segment(store, "sid", previous, size) is None  # as long as the log: not replaced
     assert next_segment(store, "sid", previous, size + 1) == expected(log, 0, 2, {})
     assert next_segment(store, "sid", None, 0) == expected(log, 0, 2, {})
+    store.log_path.write_bytes(log + b'{"seq": 3, "event": "no time"}\n')  # a line without ts (hand-made)
+    assert json.loads(next_segment(store, "sid", None, len(log)).manifest)["created"] == ""
 
 
 # ----------------------------------------------------------------------------- remotes.config: the store's id
