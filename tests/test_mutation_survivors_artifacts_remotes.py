@@ -2659,6 +2659,12 @@ def test_parallel_keeps_the_order_runs_at_most_jobs_at_once_and_raises_the_first
     assert most[0] == 3 and all(name.startswith("accrue-remote") for _, name in out)
     assert len(parallel(work, range(2), 8)) == 2 and most[0] == 3
 
+    def thread_name(_item):
+        return threading.current_thread().name
+
+    for items, jobs in ((2, 8), (4, 2)):  # two items, or two jobs, already go on threads
+        assert all(n.startswith("accrue-remote") for n in parallel(thread_name, range(items), jobs))
+
     started = []
 
     def fail_first(i):
