@@ -2796,3 +2796,24 @@ def test_a_push_of_a_ref_that_names_no_manifest_is_refused_naming_the_object(tmp
         push(store, "nas")
     assert str(exc.value) == f"object {note[:12]} is not a manifest"
     assert remote_files(remote, "refs") == {}
+
+
+def test_parallel_raises_the_failure_that_came_first_once_the_running_transfers_have_ended():
+    """transfer.parallel 31 (the first failure in time, not the first item in order, is raised), 33, 37 (the
+    transfers already running end before it is raised: none is left writing behind the caller's back)."""
+    import time
+
+    from artifacts.remotes.transfer import parallel
+
+    finished = []
+
+    def work(i):
+        if i == 0:
+            time.sleep(1.0)  # long enough that the other item has failed first, even on a busy machine
+            finished.append(i)
+            raise ValueError("a later failure")
+        raise KeyError("the first failure")
+
+    with pytest.raises(KeyError, match="the first failure"):
+        parallel(work, range(2), 2)
+    assert finished == [0]
