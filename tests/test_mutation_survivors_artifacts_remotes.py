@@ -301,7 +301,7 @@ def test_a_store_whose_id_another_store_pushed_a_log_under_is_refused_in_one_exa
         push(store, "nas")
     assert str(exc.value) == (
         f"remote nas: another store pushed an audit log with this store's id {sid[:12]} (a copied store?); "
-        "nothing was sent; run `accrue remote rekey` in the copy, then push again"
+        "no ref was moved; run `accrue remote rekey` in the copy, then push again"
     )
     twin.close()
     store.close()
@@ -2701,7 +2701,7 @@ def test_a_push_that_loses_its_log_pointer_to_another_store_moves_no_ref(tmp_pat
     sid = store_id(store)
     assert str(exc.value) == (
         f"remote nas: another store pushed an audit log with this store's id {sid[:12]} (a copied store?); "
-        "nothing was sent; run `accrue remote rekey` in the copy, then push again"
+        "no ref was moved; run `accrue remote rekey` in the copy, then push again"
     )
     assert remote_files(remote, "refs") == {}
 

@@ -92,7 +92,7 @@ def _local_closure(store: Store, roots: list[str], stop: set[str]) -> _Plan:
 def _same_id(remote: str, sid: str) -> str:
     return (
         f"remote {remote}: another store pushed an audit log with this store's id {sid[:12]} (a copied "
-        "store?); nothing was sent; run `accrue remote rekey` in the copy, then push again"
+        "store?); no ref was moved; run `accrue remote rekey` in the copy, then push again"
     )
 
 
