@@ -40,7 +40,11 @@ def run_tests(where: Path, tests: list[str], mutant: str | None, timeout: float)
     except subprocess.TimeoutExpired:
         return "timeout"
     if done.returncode == 1:  # -x: the one failure is the test that killed it (a triage line names one test)
-        failed = [line[7:].split(" - ")[0] for line in done.stdout.splitlines() if line.startswith("FAILED ")]
+        failed = [
+            line.removeprefix("FAILED ").split(" - ")[0]
+            for line in done.stdout.splitlines()
+            if line.startswith("FAILED ")
+        ]
         return "\t".join(["killed", *failed[:1]])
     return {0: "survived"}.get(done.returncode, f"error rc={done.returncode}")
 
