@@ -55,6 +55,7 @@ from auditlog_support import write_old_log  # noqa: E402
 from reliability_support import remount, small_fs  # noqa: E402
 
 DAY = 86400.0
+REPAIR_HINT = "`accrue verify` shows the damage, `accrue verify --repair` seals it"  # ends each damaged-log line
 
 
 @pytest.fixture
@@ -1010,8 +1011,7 @@ def test_a_damaged_head_is_one_problem_naming_it(store):
 
     three_events(store)
     head_path(store).write_text("not a head")
-    hint = "`accrue verify` shows the damage, `accrue verify --repair` seals it"
-    assert log_problems(store) == [(f"{head_path(store)} is damaged (not a log head); {hint}", None)]
+    assert log_problems(store) == [(f"{head_path(store)} is damaged (not a log head); {REPAIR_HINT}", None)]
 
 
 def test_a_lost_head_beside_a_log_that_had_one_is_named(store):
@@ -1038,8 +1038,7 @@ def test_an_anchor_just_past_the_log_is_not_held_and_a_malformed_one_anchors_not
 
 # ----------------------------------------------------------------------------- auditlog: the next append's tail
 def damaged(reason: str, store: Store) -> str:
-    hint = "`accrue verify` shows the damage, `accrue verify --repair` seals it"
-    return f"audit log {store.log_path}: {reason}; nothing was written ({hint})"
+    return f"audit log {store.log_path}: {reason}; nothing was written ({REPAIR_HINT})"
 
 
 def spaced_events(store: Store, count: int) -> list[bytes]:
@@ -1298,14 +1297,13 @@ def test_a_head_that_is_unreadable_or_damaged_is_named_in_one_line(store):
     good = json.loads(head_path(store).read_bytes())
     assert read_head(store) == Head(0, good["hash"], 0, good["end"])
     path = head_path(store)
-    hint = "`accrue verify` shows the damage, `accrue verify --repair` seals it"
     for change in ({"hash": "abc"}, {"start": 5, "end": 5}, {"start": -1}, {"seq": -1}, {"end": None}, {}):
         head = good | change if change else {"seq": 0}
         path.unlink()
         path.write_bytes(canonical_json(head) + b"\n")
         with pytest.raises(StoreError) as exc:
             read_head(store)
-        assert str(exc.value) == f"{path} is damaged (not a log head); {hint}", change
+        assert str(exc.value) == f"{path} is damaged (not a log head); {REPAIR_HINT}", change
     path.unlink()
     path.mkdir()
     with pytest.raises(StoreError) as exc:

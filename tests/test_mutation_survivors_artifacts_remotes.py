@@ -21,9 +21,10 @@ import pytest
 import artifacts.store
 from artifacts.errors import StoreError
 from artifacts.hashing import hash_bytes
-from artifacts.remotes.backends import RefMoved
+from artifacts.remotes.backends import RefMoved, object_key
 from artifacts.remotes.config import parse_url
 from artifacts.remotes.directory import DirBackend
+from artifacts.remotes.pointers import local_refs
 from artifacts.store import Store, add_missing_fetcher
 
 KEY = "refs/team/handoff"
@@ -175,25 +176,17 @@ def test_an_s3_connection_failure_is_explained_as_cannot_reach_the_endpoint(phra
 def pushed_store(tmp_path: Path) -> tuple[Store, Path, dict[str, str]]:
     """A store with three file artifacts (500, 200 and 0 bytes) pushed to directory remote nas; returns
     the store, the remote's root and each artifact's content id."""
-    from artifacts.ingest import add_path
-    from artifacts.refs import read_ref
-    from artifacts.remotes.config import add_remote
     from artifacts.remotes.push import push
 
-    store, _ = Store.init(tmp_path / "store")
-    contents = {}
-    for name, data in (("a", b"alpha" * 100), ("b", b"beta" * 50), ("e", b"")):
-        (tmp_path / f"{name}.bin").write_bytes(data)
-        add_path(store, tmp_path / f"{name}.bin", "replay", ref=f"team/{name}")
-        contents[name] = store.read_json(read_ref(store, f"team/{name}"))["content"]
-    add_remote(store, "nas", str(tmp_path / "remote"))
+    files = {"a": b"alpha" * 100, "b": b"beta" * 50, "e": b""}
+    store = store_pushing_to(tmp_path, "store", tmp_path / "remote", {f"team/{n}": d for n, d in files.items()})
     push(store, "nas")
-    return store, tmp_path / "remote", contents
+    return store, tmp_path / "remote", {name: hash_bytes(data) for name, data in files.items()}
 
 
 def lose_on_remote(remote: Path, oids) -> None:
     for oid in oids:
-        (remote / "objects" / "blake3" / oid[:2] / oid[2:]).unlink()
+        (remote / object_key(oid)).unlink()
 
 
 class RecordingMeter:
@@ -2203,10 +2196,8 @@ def remote_object_sizes(remote: Path) -> dict[str, int]:
     return {key.replace("/", ""): len(data) for key, data in remote_files(remote, "objects/blake3").items()}
 
 
-def user_refs(store: Store) -> dict[str, str]:
-    from artifacts.remotes.pointers import local_refs
-
-    return local_refs(store)
+def remote_manifest(remote: Path, oid: str) -> dict:
+    return json.loads((remote / object_key(oid)).read_bytes())
 
 
 def remote_state(store: Store, name: str) -> dict:
@@ -2257,7 +2248,7 @@ def test_a_first_push_sends_every_object_once_and_leaves_its_bookkeeping(tmp_pat
 
     remote = tmp_path / "remote"
     store = store_pushing_to(tmp_path, "a", remote, {"team/a": b"alpha" * 100, "team/b": b"beta" * 50, "team/e": b""})
-    refs, local_objects = user_refs(store), set(store.iter_object_ids())
+    refs, local_objects = local_refs(store), set(store.iter_object_ids())
     calls, meter = BackendCalls(monkeypatch), RecordingMeter()
     log_before = store.log_path.read_bytes()
     events_before = len(list(iter_events(store)))
@@ -2267,7 +2258,7 @@ def test_a_first_push_sends_every_object_once_and_leaves_its_bookkeeping(tmp_pat
     sid, log_state = store_id(store), remote_state(store, "log.json")
     segment = log_state["manifest"]
     sent = remote_object_sizes(remote)
-    segment_data = json.loads((remote / "objects" / "blake3" / segment[:2] / segment[2:]).read_bytes())["content"]
+    segment_data = remote_manifest(remote, segment)["content"]
     assert set(sent) == local_objects | {segment, segment_data}
     assert log_state == {"manifest": segment, "end": len(log_before)}
     assert report.as_dict() == {
@@ -2315,7 +2306,7 @@ def test_later_pushes_send_only_what_is_new_and_chain_the_log_segments(tmp_path,
     store = store_pushing_to(tmp_path, "a", remote, {"team/a": b"alpha" * 100, "team/b": b"beta" * 50})
     push(store, "nas")
     first = remote_state(store, "log.json")
-    refs, old_objects = user_refs(store), set(store.iter_object_ids())
+    refs, old_objects = local_refs(store), set(store.iter_object_ids())
 
     (tmp_path / "c.bin").write_bytes(b"gamma" * 30)
     add_path(store, tmp_path / "c.bin", "replay", ref="team/c")
@@ -2325,9 +2316,9 @@ def test_later_pushes_send_only_what_is_new_and_chain_the_log_segments(tmp_path,
     report = push(store, "nas")
 
     second = remote_state(store, "log.json")
-    segment = json.loads((remote / "objects" / "blake3" / second["manifest"][:2] / second["manifest"][2:]).read_bytes())
+    segment = remote_manifest(remote, second["manifest"])
     new_objects = set(store.iter_object_ids()) - old_objects
-    now = user_refs(store)
+    now = local_refs(store)
     assert report.moved == {n: [refs.get(n), now[n]] for n in now if now[n] != refs.get(n)}
     assert set(report.moved) == {"team/a", "team/c", *[n for n in now if n.startswith("ingested/") and n not in refs]}
     assert report.up_to_date == [n for n in now if n not in report.moved]
@@ -2377,7 +2368,7 @@ def test_a_push_behind_the_remote_in_conflict_with_it_and_forced_over_it(tmp_pat
     b, _ = Store.init(tmp_path / "b")
     add_remote(b, "nas", str(remote))
     pull(b, "nas")
-    ids = user_refs(a)
+    ids = local_refs(a)
     x1, y, z = ids["team/x"], ids["team/y"], ids["team/z"]
 
     set_ref(a, "team/x", y)
@@ -2410,7 +2401,7 @@ def test_a_ref_the_remote_moves_during_the_push_is_a_conflict_and_the_rest_still
     remote = tmp_path / "remote"
     store = store_pushing_to(tmp_path, "a", remote, {"team/a": b"alpha" * 100, "team/b": b"beta" * 50})
     push(store, "nas")
-    before = user_refs(store)
+    before = local_refs(store)
     (tmp_path / "c.bin").write_bytes(b"gamma" * 30)
     other = add_path(store, tmp_path / "c.bin", "replay")[0]
     set_ref(store, "team/a", before["team/b"])
@@ -2451,7 +2442,7 @@ def test_a_partial_clone_pushes_what_the_remote_has_but_not_what_no_one_has(tmp_
     pull(b, "nas", only={"handoff"})
     absent = set(a.iter_object_ids()) - set(b.iter_object_ids())
     assert absent
-    set_ref(b, "team/copy", user_refs(a)["team/a"])
+    set_ref(b, "team/copy", local_refs(a)["team/a"])
     assert set(push(b, "nas", ["team/copy"]).moved) == {"team/copy"}  # the remote has the data: fine
 
     add_remote(b, "other", str(tmp_path / "other"))
@@ -2718,7 +2709,7 @@ def test_a_push_decides_by_what_it_last_agreed_on_not_by_a_later_fetch(tmp_path)
     remote = tmp_path / "remote"
     b = store_pushing_to(tmp_path, "b", remote, {"team/x": b"x1" * 40, "team/y": b"y" * 40})
     push(b, "nas")
-    x1, y = user_refs(b)["team/x"], user_refs(b)["team/y"]
+    x1, y = local_refs(b)["team/x"], local_refs(b)["team/y"]
     a, _ = Store.init(tmp_path / "a")
     add_remote(a, "nas", str(remote))
     pull(a, "nas")
@@ -2743,7 +2734,7 @@ def test_a_store_that_lost_its_log_position_starts_its_log_chain_again_from_the_
     (state_dir(store, "nas") / "log.json").unlink()
     report = push(store, "nas")
     oid = report.log_segment
-    segment = json.loads((remote / "objects" / "blake3" / oid[:2] / oid[2:]).read_bytes())
+    segment = remote_manifest(remote, oid)
     assert segment["inputs"] == {} and segment["meta"]["first_seq"] == 0
     assert segment["producer"]["store"] == store_id(store)
 
@@ -2758,12 +2749,12 @@ def test_a_wiped_remote_gets_the_whole_log_again_as_a_new_chain_and_every_ref(tm
     store = store_pushing_to(tmp_path, "a", remote, {"team/a": b"alpha" * 100})
     push(store, "nas")
     shutil.rmtree(remote)
-    refs = user_refs(store)
+    refs = local_refs(store)
     report = push(store, "nas")
     assert report.moved == {name: [None, oid] for name, oid in refs.items()}
     assert set(remote_object_sizes(remote)) >= set(store.iter_object_ids())
     oid = report.log_segment
-    segment = json.loads((remote / "objects" / "blake3" / oid[:2] / oid[2:]).read_bytes())
+    segment = remote_manifest(remote, oid)
     assert segment["inputs"] == {} and segment["meta"]["first_seq"] == 0
 
 
@@ -2774,7 +2765,7 @@ def test_a_push_reads_each_manifest_once_however_many_refs_reach_it(tmp_path, mo
 
     remote = tmp_path / "remote"
     store = store_pushing_to(tmp_path, "a", remote, {"team/a": b"alpha" * 100})
-    aid = user_refs(store)["team/a"]
+    aid = local_refs(store)["team/a"]
     for n in range(5):
         set_ref(store, f"team/copy{n}", aid, log=False)
     reads = []
