@@ -1582,7 +1582,8 @@ def test_a_folders_content_is_a_sorted_tree_of_its_files_stored_the_way_asked(st
 
 def test_content_that_is_not_regular_files_and_folders_is_refused_in_one_line(store, tmp_path):
     """store_content 3-30 (a symlink, a missing path, a name that is not UTF-8), put_tree (a symlinked folder,
-    a symlinked file or a FIFO inside), _walk_error (a folder that cannot be listed)."""
+    a symlinked file or a FIFO inside, a file inside whose name is not UTF-8: put_tree 36 named no path),
+    _walk_error (a folder that cannot be listed)."""
     from artifacts.manifests import put_tree, store_content
 
     target = tmp_path / "target.bin"
@@ -1612,6 +1613,11 @@ def test_content_that_is_not_regular_files_and_folders_is_refused_in_one_line(st
             else "only regular files can be stored (symlinks and devices are refused)"
         )
         cases.append((folder, f"{inside}: {why}"))
+    named_inside = tmp_path / "named_inside"
+    (named_inside / "sub").mkdir(parents=True)
+    Path(os.fsdecode(str(named_inside).encode() + b"/sub/caf\xe9.bin")).write_bytes(b"z")
+    message = f"{named_inside}/sub/caf\\udce9.bin: file name is not valid UTF-8; rename it to store it"
+    cases.append((named_inside, message))
     for path, message in cases:
         with pytest.raises(StoreError) as exc:
             store_content(store, path)
