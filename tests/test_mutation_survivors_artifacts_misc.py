@@ -1388,9 +1388,9 @@ def test_large_inputs_are_hashed_on_all_cores_and_small_ones_on_one(monkeypatch)
 
 
 def test_a_full_id_is_exactly_64_lowercase_hex_digits():
-    """hashing.is_full_id 1-6."""
+    """hashing.is_full_id 1-6 (5: a letter added to the digits allowed)."""
     from artifacts.hashing import is_full_id
 
     assert is_full_id("0123456789abcdef" * 4)
-    for text in ("0123456789abcdef" * 4 + "0", ("0123456789abcdef" * 4)[:-1], "A" * 64, "g" * 64, ""):
+    for text in ("0123456789abcdef" * 4 + "0", ("0123456789abcdef" * 4)[:-1], "A" * 64, "X" * 64, "g" * 64, ""):
         assert not is_full_id(text)
