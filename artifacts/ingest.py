@@ -25,7 +25,8 @@ def add_path(store: Store, path: Path, kind: str, ref: str | None = None) -> tup
     if existing is not None and read_artifact(store, existing).get("content") == content["content"]:
         artifact_id, created = existing, False
     else:
-        artifact_id = write_manifest(store, content, kind, producer={"step": "add", "source": source})
+        # the source path goes to the log, never the manifest: the id is a function of the content alone
+        artifact_id = write_manifest(store, content, kind, producer={"step": "add"})
         append_event(store, "artifact-written", artifact=artifact_id, kind=kind, source=source)
         set_ref(store, index_ref, artifact_id)
         created = True

@@ -80,7 +80,7 @@ def _move(store: Store, name: str, path: Path, oid: str, log: bool) -> str | Non
                 raise StoreError(f"ref {name} conflicts with existing refs under {name}/")
             if log:
                 ensure_appendable(store)  # a move the log cannot record is not made
-            write_replace(path, (oid + "\n").encode(), tmp_dir=path.parent if path.parent.exists() else None)
+            write_replace(path, (oid + "\n").encode())
             if log:
                 append_event(store, "ref-moved", ref=name, old=old, new=oid)
     return old
