@@ -281,7 +281,7 @@ def budget(
     store: StoreOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
-    """Issue 18's budget rule on a Single-task-only spec (workflows/bench/contact-budget.yaml): per ordering,
+    """The per-stage budget rule on a Single-task-only spec (workflows/bench/contact-budget.yaml): per ordering,
     the smallest per-stage budget whose stage-end success is within --tolerance of every larger one's."""
     from stages.bench.budget import AGAINST, choose_budgets
     from stages.bench.spec import load_spec
