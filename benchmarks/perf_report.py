@@ -373,7 +373,7 @@ def row_grid(args) -> dict:
 
 
 ROWS = {"finetune": row_finetune, "cell": row_cell, "update": row_update, "eval": row_eval, "grid": row_grid}
-README = ROOT / "README.md"
+README = ROOT / "docs" / "benchmark" / "speed.md"  # the page whose speed table --doc rewrites
 MARKERS = ("<!-- perf-table:start -->", "<!-- perf-table:end -->")
 
 
@@ -442,7 +442,7 @@ def why_not_met(results: dict, row: str, figure: float | None, goal: float, high
 
 
 def readme_table(results: dict) -> str:
-    """The README's speed table, from perf.json: issue 19's figure before, the measured one, its goal, met or
+    """The docs' speed table, from perf.json: the figure before the speed work, the measured one, its goal, met or
     the measured reason it is not, and its command."""
 
     def cmd(row: str) -> str:
@@ -503,11 +503,11 @@ def readme_table(results: dict) -> str:
             "not measured",
             "not measured (no GPU lent)",
             "≥ 1.5×",
-            "no GPU was lent to this project's sessions; the script runs on CPU in CI",
+            "not measured on a GPU yet; the script runs on CPU in CI",
             "`python benchmarks/gpu_path.py`",
         ),
         (
-            "the fair benchmark's full grid (issue 18) on this machine",
+            "the benchmark's full contact grid on this machine",
             "~30 h (projection)",
             f"{_figure(results, 'grid', 'full_grid_h', ' h')} projected for {grid.get('cells', '?')} cells from "
             f"{grid.get('cells_measured', '?')} run ({grid.get('measured_core_h', '?')} core-h)"
@@ -522,10 +522,10 @@ def readme_table(results: dict) -> str:
     lines = [
         f"Measured on a {ft.get('machine_before', {}).get('cores', 2)}-core machine **shared with other jobs** "
         f"(1-min load average {loads[0] if loads else '?'}–{loads[-1] if loads else '?'} at the rows' starts), "
-        "so every figure is an upper bound on an idle machine's; written by `python benchmarks/perf_report.py --readme` "
+        "so every figure is an upper bound on an idle machine's; written by `python benchmarks/perf_report.py --doc` "
         f"from `benchmarks/results/perf.json`; {software_line(results)}.",
         "",
-        "| measure | issue 19 | measured | goal | met, or the measured reason not | command |",
+        "| measure | before | measured | goal | met, or the measured reason not | command |",
         "|---|---|---|---|---|---|",
         *(f"| {' | '.join(r)} |" for r in rows),
     ]
@@ -539,14 +539,14 @@ def write_readme(results: dict) -> None:
 
 
 def _measuring_args(argv: list[str]) -> list[str]:
-    """argv without what does not change a figure (--note TEXT, --out FILE, --readme)."""
+    """argv without what does not change a figure (--note TEXT, --out FILE, --doc)."""
     kept, skip = [], False
     for a in argv:
         if skip:
             skip = False
         elif a in ("--note", "--out"):
             skip = True
-        elif not (a.startswith(("--note=", "--out=")) or a == "--readme"):
+        elif not (a.startswith(("--note=", "--out=")) or a in ("--doc", "--readme")):
             kept.append(a)
     return kept
 
@@ -554,7 +554,9 @@ def _measuring_args(argv: list[str]) -> list[str]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--row", choices=[*ROWS, "all"], help="measure this row (or all) and store it")
-    ap.add_argument("--readme", action="store_true", help="rewrite the README's speed table from the stored rows")
+    ap.add_argument(
+        "--doc", "--readme", dest="readme", action="store_true", help="rewrite the speed table in docs/benchmark/speed.md"
+    )
     ap.add_argument("--steps", type=int, default=800, help="finetune: gradient steps (quickstart: 800)")
     ap.add_argument("--budget", type=float, default=1.0, help="cell: the workflows' --budget (1.0 = the quickstart)")
     ap.add_argument("--episodes", type=int, default=64, help="eval: episodes per measurement")
@@ -564,7 +566,7 @@ def main() -> None:
     args = ap.parse_args()
     results = json.loads(args.out.read_text()) if args.out.is_file() else {}
     if args.row is None and not args.readme:
-        ap.error("give --row and/or --readme")
+        ap.error("give --row and/or --doc")
     every = [r for r in ROWS if r != "grid" or args.store is not None]  # `all` includes grid given a store
     for name in [] if args.row is None else every if args.row == "all" else [args.row]:
         before = machine()

@@ -1,16 +1,18 @@
 """Write the Markdown tables of bench specs (per method and per ordering, with bootstrap CIs, the
-command, seeds and orderings that made them), so README tables are generated, never typed.
+command, seeds and orderings that made them), so the documentation's tables are generated, never typed.
 
     python scripts/bench_tables.py workflows/bench/nist-small.yaml [more specs] [--store PATH]
-    python scripts/bench_tables.py workflows/bench/nist-small.yaml --readme README.md
+    python scripts/bench_tables.py workflows/bench/nist-small.yaml --doc docs/benchmark/nist.md
     python scripts/bench_tables.py workflows/bench/contact-headline.yaml --records-root benchmarks/results/bench
 
 With --records-root ROOT, cells the store has not done come from their records in ROOT/<spec name>/cells
 (stages/bench/records.py), and a record is written there for every cell the store has done.
 
-With --readme, each spec's tables replace what lies between the markers
+With --doc FILE, each spec's tables replace what lies between the markers
     <!-- bench:<spec name> -->  and  <!-- /bench:<spec name> -->
-in that file (add the two marker lines where the table goes); without it they go to stdout.
+in that file (add the two marker lines where the table goes); without it they go to stdout. The benchmark
+pages are docs/benchmark/contact.md (contact-*, bias-control) and docs/benchmark/nist.md (nist-*, retained-n).
+--readme is the same option under its earlier name.
 Exit 2 with one line on a bad spec, a missing store, a bad record or missing markers.
 """
 
@@ -55,7 +57,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("specs", nargs="+", type=Path, help="bench spec YAML files")
     ap.add_argument("--store", type=Path, default=None, help="store (default $ACCRUE_STORE or ./.accrue)")
-    ap.add_argument("--readme", type=Path, default=None, help="replace the marked blocks in this file")
+    ap.add_argument(
+        "--doc", "--readme", dest="readme", type=Path, default=None, help="replace the marked blocks in this file"
+    )
     ap.add_argument(
         "--records-root",
         type=Path,

@@ -1,8 +1,8 @@
 """The quickstart over several seeds: run what is missing, then tabulate mean and range per task, the
 stage-start figures (the inherited actor at env step 0 next to the base policy alone), and the paper's
-metrics. The README's quickstart table is this script's output, not typed.
+metrics. The quickstart table in docs/benchmark/quickstart.md is this script's output, not typed.
 
-    .venv/bin/python scripts/quickstart_table.py --seeds 0 1 2 --readme
+    .venv/bin/python scripts/quickstart_table.py --seeds 0 1 2 --doc   # into docs/benchmark/quickstart.md
     .venv/bin/python scripts/quickstart_table.py --seeds 0 1 2 --variant old-norm \
         --set learner.obs_norm_update=every-stage --set learner.obs_norm_min_std=0 --set learner.obs_norm_clip=0
 
@@ -155,7 +155,13 @@ def main() -> None:
         help="workflow override, dotted path, YAML value (repeatable)",
     )
     ap.add_argument("--no-run", action="store_true", help="only tabulate what the store already has")
-    ap.add_argument("--readme", action="store_true", help="rewrite the README's quickstart table")
+    ap.add_argument(
+        "--doc",
+        "--readme",
+        dest="readme",
+        action="store_true",
+        help="rewrite the table in docs/benchmark/quickstart.md",
+    )
     ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args()
 
@@ -186,10 +192,10 @@ def main() -> None:
     table = markdown(result)
     print(table)
     if args.readme:
-        readme = ROOT / "README.md"
+        readme = ROOT / "docs" / "benchmark" / "quickstart.md"
         text = readme.read_text()
         if START not in text or END not in text:
-            sys.exit(f"error: README.md has no {START} ... {END} block")
+            sys.exit(f"error: {readme.relative_to(ROOT)} has no {START} ... {END} block")
         head, rest = text.split(START, 1)
         readme.write_text(head + START + "\n" + table + "\n" + END + rest.split(END, 1)[1])
 
