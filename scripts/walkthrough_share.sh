@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Runs README's "Sharing a store" walk-through exactly as written: the ```bash blocks between
+# Runs the walk-through of docs/sharing.md ("Sharing a store") exactly as written: the ```bash blocks between
 # <!-- walkthrough:share:start --> and <!-- walkthrough:share:end -->, each in the clone of the
 # machine its first line names (# robot PC, # workstation, # auditor). Every machine is a fresh
 # `git clone` of this repository's HEAD (committed work only) with this checkout's .venv linked in,
@@ -15,9 +15,9 @@
 # WALKTHROUGH_DIR=DIR keeps the clones, stores and logs there (default: a new temp directory).
 set -euo pipefail
 REPO=$(cd "$(dirname "$0")/.." && pwd)
-README=$REPO/README.md
+PAGE=$REPO/docs/sharing.md
 
-# README's walk-through blocks as "machine<TAB>command" lines (comments and blank lines dropped).
+# The page's walk-through blocks as "machine<TAB>command" lines (comments and blank lines dropped).
 extract() {
   awk '
     /<!-- walkthrough:share:start -->/ { inside = 1; next }
@@ -30,7 +30,7 @@ extract() {
                              machine = substr($0, 3); next }
     block && /^[[:space:]]*(#|$)/ { next }
     block { print machine "\t" $0 }
-  ' "$README"
+  ' "$PAGE"
 }
 
 # The summary line of `accrue run` must say it ran nothing and took at least one step from the cache.
@@ -60,13 +60,13 @@ esac
 
 [ -x "$REPO/.venv/bin/accrue" ] || { echo "error: no $REPO/.venv; run bash scripts/setup.sh first" >&2; exit 2; }
 COMMANDS=$(extract)
-[ -n "$COMMANDS" ] || { echo "error: no walk-through blocks in $README" >&2; exit 2; }
+[ -n "$COMMANDS" ] || { echo "error: no walk-through blocks in $PAGE" >&2; exit 2; }
 WORK=${WALKTHROUGH_DIR:-$(mktemp -d /tmp/accrue-walkthrough.XXXXXX)}
 mkdir -p "$WORK"
 unset ACCRUE_STORE
 export COLUMNS=200 # rich wraps at 80 when piped; keep each summary on one line
 
-echo "# README 'Sharing a store' walk-through, remote kind: $KIND"
+echo "# docs/sharing.md walk-through, remote kind: $KIND"
 echo "# command: bash scripts/walkthrough_share.sh $KIND"
 echo "# commit:  $(git -C "$REPO" rev-parse HEAD) ($(git -C "$REPO" log -1 --format=%cd --date=iso))"
 echo "# date:    $(date -u '+%Y-%m-%d %H:%M:%S UTC')"
@@ -142,7 +142,7 @@ while IFS=$'\t' read -r machine cmd; do
     checked=$((checked + 1))
   fi
 done <<<"$COMMANDS"
-# a README that renamed the machine or dropped its run must not pass unchecked
+# a page that renamed the machine or dropped its run must not pass unchecked
 [ "$checked" -gt 0 ] || { echo "error: the walk-through has no workstation 'accrue run' to check for cache hits" >&2; exit 1; }
 
 total=$(awk -v a="$total_start" -v b="$(date +%s.%N)" 'BEGIN { printf "%.1f", b - a }')

@@ -1,4 +1,4 @@
-"""README's "Sharing a store" walk-through, without running it (scripts/walkthrough_share.sh does,
+"""The "Sharing a store" walk-through of docs/sharing.md, without running it (scripts/walkthrough_share.sh does,
 in minutes): its blocks extract through the script's own extractor, every command parses against
 the real CLI (subcommands, flags and arguments), and the script's cache-hit check fails on a run
 that executed a step."""
@@ -55,7 +55,8 @@ def test_a_block_without_its_machine_is_refused(tmp_path):
     scripts = tmp_path / "scripts"
     scripts.mkdir()
     (scripts / SCRIPT.name).write_text(SCRIPT.read_text())
-    (tmp_path / "README.md").write_text(
+    (tmp_path / "docs").mkdir()
+    (tmp_path / "docs" / "sharing.md").write_text(
         "<!-- walkthrough:share:start -->\n```bash\naccrue init\n```\n<!-- walkthrough:share:end -->\n"
     )
     done = subprocess.run(["bash", str(scripts / SCRIPT.name), "--list"], capture_output=True, text=True)
@@ -145,11 +146,12 @@ def test_the_check_on_the_real_runs_of_a_transcript(tmp_path, kind):
 
 
 def run_in_repo(tmp_path, block: str) -> subprocess.CompletedProcess:
-    """The script on a throwaway repository whose README walk-through is `block`."""
+    """The script on a throwaway repository whose docs/sharing.md walk-through is `block`."""
     repo = tmp_path / "repo"
     (repo / "scripts").mkdir(parents=True)
     (repo / "scripts" / SCRIPT.name).write_text(SCRIPT.read_text())
-    (repo / "README.md").write_text(
+    (repo / "docs").mkdir()
+    (repo / "docs" / "sharing.md").write_text(
         f"<!-- walkthrough:share:start -->\n```bash\n{block}```\n<!-- walkthrough:share:end -->\n"
     )
     (repo / ".venv").symlink_to(ROOT / ".venv")
