@@ -4,9 +4,13 @@ lerobot discovers third-party policies only from installed distributions named `
 accrue's policy package before lerobot parses its arguments registers `accrue_chunk_mlp` the same way.
 """
 
-from lerobot.scripts.lerobot_train import main
+from accrue.policy.video_backend import use_pyav
 
-import accrue.policy.chunk_mlp  # noqa: F401 - registers the accrue_chunk_mlp config with lerobot
+use_pyav()  # before lerobot's configs are imported: its default decoder is pyav, no torchcodec probe
+
+from lerobot.scripts.lerobot_train import main  # noqa: E402
+
+import accrue.policy.chunk_mlp  # noqa: E402, F401 - registers the accrue_chunk_mlp config with lerobot
 
 if __name__ == "__main__":
     main()

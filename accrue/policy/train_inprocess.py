@@ -43,6 +43,9 @@ def _process_state(threads: int | None) -> Iterator[None]:
 
 def parse_train_config(args: list[str]):
     """A validated TrainPipelineConfig from lerobot-train's command-line flags, parsed by lerobot itself."""
+    from accrue.policy.video_backend import use_pyav
+
+    use_pyav()  # before draccus computes DatasetConfig's default decoder (lerobot's torchcodec probe)
     from lerobot.configs import parser
     from lerobot.configs.train import TrainPipelineConfig
 

@@ -84,6 +84,8 @@ def build_training_set(
     import datasets as hf_datasets
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+    from accrue.policy.video_backend import VIDEO_BACKEND
+
     hf_datasets.disable_progress_bars()  # one "Map" bar per saved episode otherwise
     writer = LeRobotDataset.create(
         repo_id=TRAINING_REPO_ID,
@@ -91,6 +93,7 @@ def build_training_set(
         fps=sources[0].fps,
         features=_features(sources[0], embedding_dim, image_keys),
         use_videos=False,
+        video_backend=VIDEO_BACKEND,  # named: lerobot's default is found by a torchcodec probe (video_backend.py)
     )
     summary = TrainingSetSummary(root=str(out_root), image_keys=image_keys, embedding_dim=embedding_dim)
     last = len(sources) - 1

@@ -95,6 +95,8 @@ def write_so101_demos(
     import datasets
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
+    from accrue.policy.video_backend import VIDEO_BACKEND
+
     bars_were_on = not datasets.are_progress_bars_disabled()
     datasets.disable_progress_bars()
     robot.connect()
@@ -102,7 +104,12 @@ def write_so101_demos(
     try:
         with staged_dataset(out_dir) as staging:
             ds = LeRobotDataset.create(
-                repo_id=repo_id_for(tid), root=staging, fps=int(CONTROL_HZ), features=features, use_videos=False
+                repo_id=repo_id_for(tid),
+                root=staging,
+                fps=int(CONTROL_HZ),
+                features=features,
+                use_videos=False,
+                video_backend=VIDEO_BACKEND,  # named: lerobot's default is a torchcodec probe
             )
             try:
                 while written < episodes and attempts < max_attempts:

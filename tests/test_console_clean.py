@@ -1,0 +1,67 @@
+"""A console a person can read: no traceback from a dependency's warning in a normal run.
+
+lerobot finds its default video decoder by importing torchcodec; where FFmpeg's libraries are absent it
+logs the failed import's tracebacks as a warning, at every fine-tune. accrue decodes with pyav, so that
+probe must never run (accrue.policy.video_backend)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_policy_helpers import write_synthetic_demos  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# a fine-tune in a fresh process, with every import of torchcodec's own modules recorded (running its
+# __init__ looks them up; a find_spec of the top name alone, as HF datasets' config does, imports nothing)
+FINETUNE = """
+import json, sys
+asked = []
+
+class Spy:
+    def find_spec(self, name, path=None, target=None):
+        if name.startswith("torchcodec."):
+            asked.append(name)
+        return None
+
+sys.meta_path.insert(0, Spy())
+from accrue.policy.finetune import FinetuneSettings, finetune
+
+finetune("embedded-mlp", [sys.argv[1]], sys.argv[2], FinetuneSettings(steps=2, batch_size=4, num_workers=0))
+print(json.dumps(asked))
+"""
+
+
+def test_a_fine_tune_never_probes_torchcodec_and_prints_no_traceback(tmp_path):
+    demos = write_synthetic_demos(tmp_path / "demos", "insert the round peg", 1.0, episodes=2, length=6)
+    proc = subprocess.run(
+        [sys.executable, "-c", FINETUNE, str(demos), str(tmp_path / "out")],
+        cwd=tmp_path,
+        env={**os.environ, "PYTHONPATH": str(ROOT), "HF_HUB_OFFLINE": "1", "HF_DATASETS_OFFLINE": "1"},
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert json.loads(proc.stdout.strip().splitlines()[-1]) == []  # torchcodec never looked up
+    assert "Traceback" not in proc.stderr and "torchcodec" not in proc.stderr
+    assert (tmp_path / "out" / "model.safetensors").is_file()
+
+
+def test_use_pyav_makes_lerobots_default_pyav_in_modules_that_bound_the_probe():
+    import dataclasses
+
+    import lerobot.configs.default as default
+    import lerobot.datasets.lerobot_dataset as lerobot_dataset
+
+    from accrue.policy.video_backend import default_video_backend, use_pyav
+
+    use_pyav()  # after lerobot bound its probe by name: each binding is replaced (the real probe says pyav too)
+    assert lerobot_dataset.get_safe_default_video_backend is default_video_backend
+    field = {f.name: f for f in dataclasses.fields(default.DatasetConfig)}["video_backend"]
+    assert field.default_factory is default_video_backend and field.default_factory() == "pyav"
