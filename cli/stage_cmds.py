@@ -147,12 +147,9 @@ def _when(stamp: str | None) -> str:
 
 
 def _took(seconds: float | None) -> str:
-    if seconds is None:
-        return ""
-    if seconds < 60:
-        return f"{seconds:.1f} s"
-    minutes, secs = divmod(round(seconds), 60)
-    return f"{minutes} min {secs:02d} s" if minutes < 60 else f"{minutes // 60} h {minutes % 60:02d} min"
+    from stages.steps.common import took_text
+
+    return "" if seconds is None else took_text(seconds)
 
 
 def register(app: typer.Typer) -> None:

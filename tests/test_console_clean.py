@@ -65,3 +65,57 @@ def test_use_pyav_makes_lerobots_default_pyav_in_modules_that_bound_the_probe():
     assert lerobot_dataset.get_safe_default_video_backend is default_video_backend
     field = {f.name: f for f in dataclasses.fields(default.DatasetConfig)}["video_backend"]
     assert field.default_factory is default_video_backend and field.default_factory() == "pyav"
+
+
+def test_finetune_base_prints_each_count_once_with_its_rate_and_time_left(tmp_path):
+    """`finetune-base: step 10/10` was printed twice (at the last step, then again once saved), and no
+    line said how fast it went or how long was left."""
+    import dataclasses
+    import io
+
+    from rich.console import Console
+
+    from artifacts.ingest import add_path
+    from artifacts.store import Store
+    from stages.runner import Runner
+    from stages.runner_types import StepInvocation
+    from stages.steps import finetune_base
+
+    demos = write_synthetic_demos(tmp_path / "demos", "insert the round peg", 1.0, episodes=2, length=6)
+    store = Store.init(tmp_path / "store")[0]
+    console = Console(file=io.StringIO(), width=200, record=True)
+    config = {
+        "stage": 1,
+        "tasks": ["insert the round peg"],
+        "init": "embedded-mlp",
+        "finetune": True,
+        "steps": 10,
+        "batch_size": 4,
+        "lr": 1e-3,
+        "seed": 0,
+        "retention": 1.0,
+        "chunk_size": 4,
+    }
+    step = dataclasses.replace(finetune_base.STEP, inputs=finetune_base.demo_roles(1))
+    Runner(store, console=console).run(
+        StepInvocation(step=step, config=config, inputs={"demos-1": add_path(store, demos, "demos")[0]})
+    )
+    lines = [line for line in console.export_text().splitlines() if line.startswith("finetune-base: step")]
+    assert [line.split(" (")[0] for line in lines] == [f"finetune-base: step {n}/10" for n in (2, 4, 6, 8, 10)]
+    assert all(" steps/s, " in line for line in lines)
+    assert all(line.endswith(" left)") for line in lines[:-1]) and lines[-1].endswith(", done)")
+
+
+def test_progress_says_the_rate_and_the_time_left():
+    from stages.steps.common import Progress, took_text
+
+    said: list[str] = []
+    progress = Progress(said.append, "warmup", unit="episode", parts=2)
+    progress.started -= 10.0  # 10 s ago
+    progress(1, 4)  # a quarter: under half, nothing yet
+    progress(2, 4)
+    progress(2, 4)  # the same count again: nothing
+    progress(4, 4)
+    assert said[0].startswith("warmup: episode 2/4 (0.2") and said[0].endswith(" episodes/s, 10.0 s left)")
+    assert said[1].startswith("warmup: episode 4/4 (") and said[1].endswith(", done)") and len(said) == 2
+    assert [took_text(s) for s in (4.25, 185, 7620)] == ["4.2 s", "3 min 05 s", "2 h 07 min"]

@@ -98,3 +98,33 @@ def copy_tree(src: Path, dst: Path) -> None:
             p = Path(root) / name
             p.chmod(p.stat().st_mode | 0o200)
     Path(dst).chmod(Path(dst).stat().st_mode | 0o200)
+
+
+def took_text(seconds: float) -> str:
+    """A duration as a person reads it: 4.2 s, 3 min 05 s, 2 h 07 min."""
+    if seconds < 60:
+        return f"{seconds:.1f} s"
+    minutes, secs = divmod(round(seconds), 60)
+    return f"{minutes} min {secs:02d} s" if minutes < 60 else f"{minutes // 60} h {minutes % 60:02d} min"
+
+
+class Progress:
+    """The progress line of a long step: `name: step 4/10 (2.1 steps/s, 3.0 s left)`, printed when a fifth
+    of the work more is done and once at the end (a report of the same count again prints nothing)."""
+
+    def __init__(self, print_line, name: str, unit: str = "step", parts: int = 5):
+        import time
+
+        self.print_line, self.name, self.unit, self.parts = print_line, name, unit, parts
+        self.started, self.shown = time.monotonic(), 0
+
+    def __call__(self, done: int, total: int) -> None:
+        import time
+
+        if done <= self.shown or (done - self.shown < max(1, total // self.parts) and done < total):
+            return
+        self.shown = done
+        elapsed = max(time.monotonic() - self.started, 1e-9)
+        rate = done / elapsed
+        tail = "done" if done >= total else f"{took_text((total - done) / rate)} left"
+        self.print_line(f"{self.name}: {self.unit} {done}/{total} ({rate:.3g} {self.unit}s/s, {tail})")

@@ -18,7 +18,7 @@ from artifacts.refs import read_ref, set_ref
 from stages.errors import StageError
 from stages.runner_context import StepContext
 from stages.runner_types import StepDef
-from stages.steps.common import copy_tree, write_json
+from stages.steps.common import Progress, copy_tree, write_json
 
 SCRIPTED_FILE = "scripted_reference.json"
 TRAINING_SET_REFS = "cache/training-set"
@@ -100,12 +100,7 @@ def run(ctx: StepContext) -> None:
         chunk_size=c["chunk_size"],
         device="cuda" if torch.cuda.is_available() else "cpu",
     )
-    last = [0]
-
-    def progress(step: int, total: int) -> None:
-        if step - last[0] >= max(1, total // 5) or step == total:
-            last[0] = step
-            ctx.console.print(f"finetune-base: step {step}/{total}")
+    progress = Progress(ctx.console.print, "finetune-base")  # a line per fifth, with its rate and time left
 
     # the record names inputs by role, not by this attempt's paths: the step record maps roles to
     # artifact ids, and the bytes stay the same on every machine (content ids would not: recorded demos
