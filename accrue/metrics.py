@@ -1,6 +1,8 @@
 """The paper's continual metrics (Sec. V-A) from success curves, plus seed means and bootstrap CIs.
 
-Input: c[i][j][e] = success rate of task j evaluated at grid point e of stage i (0-based, j ≤ i).
+Input: c[i][j][e] = success rate of task j evaluated at grid point e of stage i (0-based, j ≤ i); an
+earlier task's (j < i) entries may be None except at e_i*, the only point the metrics read of it (runs
+that score earlier tasks at the chosen checkpoint alone: accrue.rl_loop.LoopSettings.full_curves).
     c_{i,i}   = max_e c[i][i][e]
     e_i*      = the earliest e attaining that maximum (ties → earliest)
     c_{i,j}   = c[i][j][e_i*]                         (j < i: prior task at stage i's chosen checkpoint)
@@ -68,6 +70,8 @@ def _check_curves(curves) -> list[list[list[float]]]:
             if len(curve) != n_points:
                 raise AccrueError(f"curves[{i}][{j}]: has {len(curve)} evaluation points, expected {n_points}")
             for e, v in enumerate(curve):
+                if v is None and j < i:  # not scored there; success_matrix checks e_i* has a value
+                    continue
                 if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0.0 <= v <= 1.0:
                     raise AccrueError(f"curves[{i}][{j}][{e}]: success rate must be a number in [0, 1], got {v!r}")
     return curves
@@ -86,6 +90,10 @@ def success_matrix(curves, report=None) -> tuple[np.ndarray, list[int]]:
         e_star = int(np.argmax(own))  # argmax returns the first maximum: the earliest checkpoint
         best.append(e_star)
         for j in range(i + 1):
+            if values[i][j][e_star] is None:
+                raise AccrueError(
+                    f"curves[{i}][{j}]: no success rate at stage {i}'s chosen checkpoint (point {e_star})"
+                )
             c[i, j] = values[i][j][e_star]
     return c, best
 

@@ -22,6 +22,7 @@ train step uses two full episodes of every env), so that most episodes still run
 
 from __future__ import annotations
 
+import copy
 import time
 from dataclasses import dataclass, field
 from typing import Callable
@@ -219,6 +220,7 @@ class LoopSettings:
     eval_every: int  # E: evaluation grid spacing in env steps
     checkpoint_every: int  # env steps between checkpoints (0 = at every evaluation point)
     min_checkpoint_gap: int = 0  # never closer: every checkpoint restarts the envs' episodes
+    full_curves: bool = False  # score earlier tasks at every grid point too (retention curves), not only at e*
 
     def grid(self) -> list[int]:
         points = list(range(0, self.env_steps, self.eval_every)) + [self.env_steps]
@@ -244,9 +246,13 @@ class LoopState:
     report_curve: dict[str, list[float]] = field(default_factory=dict)  # the same points on the report set
     grid_done: list[int] = field(default_factory=list)
     checkpoints_done: list[int] = field(default_factory=list)
+    chosen: int = -1  # e*: index of the current task's earliest best point so far on the selection set
+    chosen_scored: bool = False  # earlier tasks have been scored at e* (the stage's last act)
+    # the deployed actor at e* (a module, saved beside the checkpoint by its caller, never in the JSON)
+    chosen_actor: object = field(default=None, repr=False, compare=False)
 
     def to_json(self) -> dict:
-        return dict(self.__dict__)
+        return {k: v for k, v in self.__dict__.items() if k != "chosen_actor"}
 
     @classmethod
     def from_json(cls, data: dict) -> "LoopState":
@@ -267,7 +273,11 @@ def train_loop(
     on_progress: Callable[[LoopState, dict], None] | None = None,
     on_update: Callable[[LoopState, dict], None] | None = None,
 ) -> LoopState:
-    """Algorithm 1 lines 4-10 with an evaluation on tasks 1..k at every grid point.
+    """Algorithm 1 lines 4-10 with an evaluation grid: the current task at every grid point (selection and
+    report sets); earlier tasks once, at the stage's chosen checkpoint e* (the earliest best point of the
+    current task on the selection set), from a snapshot of the actor deployed there, which is all the
+    continual metrics read of them (accrue.metrics). settings.full_curves scores every task at every
+    point instead (retention curves for the plots); both give the same metrics on the same episodes.
 
     on_update(state, info) follows every learner update with its losses (tracking; it must not touch
     the learner, the buffer or any random stream).
@@ -280,29 +290,53 @@ def train_loop(
     grid, ckpt_points = settings.grid(), settings.checkpoint_points()
     started, info = time.monotonic(), {}
 
+    current, earlier = settings.task_ids[-1], settings.task_ids[:-1]
+    report = getattr(evaluator, "report", None)  # a stand-in evaluator may have no report set
+
     def evaluate_due() -> None:
-        """One evaluation on tasks 1..k covers every grid point reached and not yet evaluated, each task
-        scored with the actor the method would deploy for it now."""
+        """One evaluation covers every grid point reached and not yet evaluated. The current task is scored
+        on both sets at every point; earlier tasks only with full_curves (the metrics read them at e* alone,
+        which score_chosen fills in at the end). Each task is scored with the actor the method would
+        deploy for it now."""
         due = [g for g in grid if g <= state.env_steps and g not in state.grid_done]
         if not due:
             return
         deployed = actor_act(learner)
         acts = {t: (frozen_acts or {}).get(t, deployed) for t in settings.task_ids}
-        rates = {t: evaluator.success_rate(t, acts[t]) for t in settings.task_ids}
-        report = getattr(evaluator, "report", None)  # a stand-in evaluator may have no report set
-        report_rates = {t: report.success_rate(t, acts[t]) for t in settings.task_ids} if report else {}
+        scored = settings.task_ids if settings.full_curves else [current]
+        rates = {t: evaluator.success_rate(t, acts[t]) for t in scored}
+        report_rates = {t: report.success_rate(t, acts[t]) for t in scored} if report else {}
+        own = state.curve.get(current, [])
+        if not own or rates[current] > max(own):  # a new earliest maximum: e* moves here
+            state.chosen = len(own)
+            if not settings.full_curves and earlier:
+                state.chosen_actor = copy.deepcopy(learner.deployed_actor())
         for g in due:
             state.grid_done.append(g)
-            for t, r in rates.items():
-                state.curve.setdefault(t, []).append(r)
-            for t, r in report_rates.items():
-                state.report_curve.setdefault(t, []).append(r)
+            for t in settings.task_ids:
+                state.curve.setdefault(t, []).append(rates.get(t))
+                if report:
+                    state.report_curve.setdefault(t, []).append(report_rates.get(t))
         if on_progress:
             on_progress(state, {**info, "eval": rates, "elapsed": time.monotonic() - started})
+
+    def score_chosen() -> None:
+        """Earlier tasks at e* only, on the set the metrics read (report when there is one): c_{k,j} = c[k][j][e*]."""
+        if settings.full_curves or not earlier or state.chosen_scored:
+            return
+        deployed = state.chosen_actor
+        acts = {
+            t: (frozen_acts or {}).get(t, lambda s, ref, fresh: learner.act_with(deployed, s, ref)) for t in earlier
+        }
+        values, curves = (report, state.report_curve) if report else (evaluator, state.curve)
+        for t in earlier:
+            curves[t][state.chosen] = values.success_rate(t, acts[t])
+        state.chosen_scored = True
 
     while True:
         evaluate_due()
         if state.env_steps >= settings.env_steps:
+            score_chosen()
             break
         # lines 5-7: fresh reference chunks ã_t, the actor refines them (with exploration), store in B^k
         stats = collector.step(lambda s, ref, fresh: learner.act(s, ref, explore=True, reset_mask=fresh))

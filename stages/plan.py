@@ -187,6 +187,7 @@ def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
 
     # the disjoint report set enters train's and evaluate-all's keys only when used (old runs keep theirs)
     report = {"report_episodes": b.report_episodes} if b.report_episodes else {}
+    curves = {"curves": "full"} if b.full_curves else {}  # in train's key only when asked for
     train_inputs = {"base-policy": FromStep("finetune-base", "base-policy"), "replay": FromStep("warmup", "replay")}
     if previous_handoff is not None:
         train_inputs["handoff"] = previous_handoff
@@ -204,6 +205,7 @@ def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
             "eval_episodes": b.eval_episodes,
             "checkpoint_every": b.checkpoint_every,
             **report,
+            **curves,
             **env,
         },
         train_inputs,

@@ -69,6 +69,9 @@ class Budgets(_Strict):
     eval_every: int = Field(gt=0)
     eval_episodes: int = Field(10, gt=0)  # the selection set: each stage's best checkpoint is chosen on it
     report_episodes: int = Field(0, ge=0)  # a disjoint set the chosen checkpoint is reported on (0 = none)
+    # True: score every earlier task at every grid point (retention curves in the plots); False: only at
+    # each stage's chosen checkpoint, which is all the continual metrics read (the same metrics, fewer episodes)
+    full_curves: bool = False
     warmup_episodes: int = Field(2, ge=0)
     num_envs: int = Field(8, gt=0)
     retained_episodes: int = Field(20, ge=0)  # N: episodes per task kept in B^{<k+1} at handoff

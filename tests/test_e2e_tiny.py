@@ -107,10 +107,13 @@ def test_artifacts_follow_the_report_format(tiny, tmp_path):
     curve = json.loads((artifact_dir(store, "workflow/tiny/stage/2/train:curve", tmp_path) / "curve.json").read_text())
     assert curve["stage"] == 2 and curve["task_ids"] == ["nist/rect_peg", "nist/gear"]
     assert curve["grid"] == [0, 80, 160] and curve["method"] == "accrue" and curve["seed"] == 3
-    assert curve["episodes_per_point"] == 2
-    for task in curve["task_ids"]:
-        assert len(curve["success"][task]) == 3
-        assert all(v in (0.0, 0.5, 1.0) for v in curve["success"][task])
+    assert curve["episodes_per_point"] == 2 and curve["curves"] == "chosen"
+    current, earlier = curve["success"]["nist/gear"], curve["success"]["nist/rect_peg"]
+    assert len(current) == 3 and all(v in (0.0, 0.5, 1.0) for v in current)
+    # the earlier task is scored once, at the stage's chosen checkpoint (no report set here: on this one)
+    e = curve["chosen"]
+    assert e == current.index(max(current)) and earlier[e] in (0.0, 0.5, 1.0)
+    assert [v for i, v in enumerate(earlier) if i != e] == [None, None]
     ev = json.loads(
         (artifact_dir(store, "workflow/tiny/stage/2/evaluate-all:eval", tmp_path) / "eval.json").read_text()
     )

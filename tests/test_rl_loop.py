@@ -178,3 +178,110 @@ def test_scripted_reference_holds_one_expert_action_and_misses_by_the_unknown_bi
     np.testing.assert_allclose(knowing[:, 0], make_expert(TASK, 1.0, seed=0).act(obs["state"]), atol=1e-6)
     assert np.all(blind[:, 1:, [0, 1, 3, 4, 5]] == 0) and np.all(blind[:, 1:, 2] == blind[:, :1, 2])
     assert not np.allclose(blind[:, 0, :2], knowing[:, 0, :2])  # aims at the biased estimate
+
+
+EARLIER = "nist/round_peg"
+
+
+class CountingEvaluator(rl_loop.Evaluator):
+    """Counts the episodes it scores, per task."""
+
+    def __init__(self, *args, **kw):
+        super().__init__(*args, **kw)
+        self.scored: dict[str, int] = {}
+
+    def success_rate(self, task_id, act=None):
+        self.scored[task_id] = self.scored.get(task_id, 0) + self.episodes
+        return super().success_rate(task_id, act)
+
+
+def two_task_loop(full_curves: bool, crash_after=None, resume_dir=None, tmp_path=None):
+    """Stage 2 of [EARLIER, TASK] with selection and report sets; checkpoints save the e* actor snapshot as
+    the train step does (stages.steps.sim_env)."""
+    from accrue.scripted_reference import ScriptedReference
+    from accrue.sim import get_task
+    from stages.steps.sim_env import CHOSEN_ACTOR_FILE, load_actor_snapshot
+
+    tasks = [EARLIER, TASK]
+    settings = rl_loop.LoopSettings(tasks, 240, 80, 120, full_curves=full_curves)
+    scripted = ScriptedReference(0.5)  # succeeds sometimes, so the actor's changes move the curves
+    references = {t: (lambda obs, i=get_task(t).instruction: scripted.reference_chunk(obs, i, H)) for t in tasks}
+
+    def evaluator(seed, episodes, report=None):
+        make = lambda t, n: make_vec_env(t, n, seed=seed + tasks.index(t))  # noqa: E731
+        return CountingEvaluator(make, references, state_features, episodes, N, H, 0.99, report)
+
+    report = evaluator(500, 4)
+    ev = evaluator(99, 2, report)
+    torch.manual_seed(0)
+    if resume_dir is None:
+        buf = ReplayBuffer(STATE_DIM, H)
+        col = make_collector(buf)
+        col.restart()
+        rl_loop.warmup(col, 2)
+        learner, state = small_learner(), rl_loop.LoopState(next_episode=col.next_episode)
+        col = make_collector(buf, state.next_episode)
+        col.restart()
+    else:
+        buf = ReplayBuffer.load(resume_dir / "replay")
+        learner = load_learner(resume_dir / "learner")
+        state = rl_loop.LoopState.from_json(json.loads((resume_dir / "loop.json").read_text()))
+        if (resume_dir / CHOSEN_ACTOR_FILE).exists():
+            state.chosen_actor = load_actor_snapshot(learner, resume_dir / CHOSEN_ACTOR_FILE)
+        col = make_collector(buf, state.next_episode)
+        rl_loop.restore_collector(col, state)
+    saved = []
+
+    def on_checkpoint(st):
+        d = tmp_path / f"ckpt-{len(saved)}"
+        save_learner(learner, d / "learner")
+        buf.save_new_shards(d / "replay")
+        (d / "loop.json").write_text(json.dumps(st.to_json()))
+        if st.chosen_actor is not None:
+            torch.save(st.chosen_actor.state_dict(), d / CHOSEN_ACTOR_FILE)
+        saved.append(d)
+        if crash_after is not None and len(saved) == crash_after:
+            raise KeyboardInterrupt
+
+    try:
+        state = rl_loop.train_loop(learner, col, ev, settings, state=state, on_checkpoint=on_checkpoint)
+    except KeyboardInterrupt:
+        return None, ev, saved
+    return state, ev, saved
+
+
+def stage_metrics(state: rl_loop.LoopState):
+    """The continual metrics of a two-stage run whose stage 2 is this loop (stage 1 a fixed curve)."""
+    from accrue.metrics import continual_metrics
+
+    stage1 = [0.2, 0.6, 0.5, 0.4]
+    curves = [[stage1], [state.curve[EARLIER], state.curve[TASK]]]
+    report = [[stage1], [state.report_curve[EARLIER], state.report_curve[TASK]]]
+    return continual_metrics(curves, report)
+
+
+def test_scoring_earlier_tasks_at_the_chosen_checkpoint_only_gives_the_same_metrics(tmp_path):
+    full, full_ev, _ = two_task_loop(True, tmp_path=tmp_path / "full")
+    chosen, chosen_ev, _ = two_task_loop(False, tmp_path=tmp_path / "chosen")
+    # the current task is scored at every point either way, identically (evaluation leaves training alone)
+    assert chosen.curve[TASK] == full.curve[TASK] and chosen.report_curve[TASK] == full.report_curve[TASK]
+    assert chosen.chosen == full.chosen == int(np.argmax(full.curve[TASK]))
+    assert 0 < full.chosen < 3  # e* is neither the start nor the end: the snapshot is what gets scored
+    # the earlier task: once, on the report set, at e*, with the actor deployed there
+    e = chosen.chosen
+    assert chosen.report_curve[EARLIER][e] == full.report_curve[EARLIER][e]
+    assert [v for i, v in enumerate(chosen.report_curve[EARLIER]) if i != e] == [None] * 3
+    assert chosen.curve[EARLIER] == [None] * 4
+    assert stage_metrics(chosen) == stage_metrics(full)
+    # what it saves: the earlier task's selection episodes at every point, its report episodes at all but e*
+    assert full_ev.scored[EARLIER] == 4 * 2 and full_ev.report.scored[EARLIER] == 4 * 4
+    assert EARLIER not in chosen_ev.scored and chosen_ev.report.scored[EARLIER] == 4
+    assert chosen_ev.scored[TASK] == full_ev.scored[TASK]
+
+
+def test_a_resumed_loop_scores_the_chosen_checkpoint_it_had_saved(tmp_path):
+    whole, _, _ = two_task_loop(False, tmp_path=tmp_path / "a")
+    crashed, _, saved = two_task_loop(False, crash_after=1, tmp_path=tmp_path / "b")
+    assert crashed is None and (saved[0] / "chosen_actor.pt").exists()
+    resumed, _, _ = two_task_loop(False, resume_dir=saved[0], tmp_path=tmp_path / "c")
+    assert resumed.to_json() == whole.to_json()

@@ -65,14 +65,15 @@ def default_out_dir(spec: BenchSpec) -> Path:
 
 def _stage_curves(run) -> list[dict]:
     """Per stage k: its grid, the success of the task learned in k, and the mean over earlier tasks (on the
-    disjoint report set when the run has one)."""
+    disjoint report set when the run has one; None unless they were scored at every point: full_curves)."""
     out = []
     for sc in run.curves:
         success = sc.report if sc.report is not None else sc.success
         current = success[sc.task_ids[-1]]
         earlier = sc.task_ids[:-1]
+        scored = earlier and all(v is not None for t in earlier for v in success[t])  # full_curves runs only
         mean_earlier = (
-            [sum(success[t][e] for t in earlier) / len(earlier) for e in range(len(sc.grid))] if earlier else None
+            [sum(success[t][e] for t in earlier) / len(earlier) for e in range(len(sc.grid))] if scored else None
         )
         out.append({"grid": sc.grid, "current": current, "earlier": mean_earlier})
     return out

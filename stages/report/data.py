@@ -182,7 +182,9 @@ def parse_curves(data: dict, k: int, wf: Workflow, where: str, record: str, arti
     return StageCurves(k, tasks, grid, success, episodes, record, artifact, report, report_episodes)
 
 
-def _curves_of(data: dict, key: str, tasks: list[str], grid: list[int], where: str) -> dict[str, list[float]]:
+def _curves_of(data: dict, key: str, tasks: list[str], grid: list[int], where: str) -> dict[str, list]:
+    """Per task, one success rate per grid point; an earlier task's points may be null (a run that scored
+    earlier tasks only at the chosen checkpoint: rl_loop.LoopSettings.full_curves), the current task's not."""
     rates = _rates_of(data, key, tasks, where)
     out = {}
     for t in tasks:
@@ -192,7 +194,8 @@ def _curves_of(data: dict, key: str, tasks: list[str], grid: list[int], where: s
                 f"{where}: {key}[{t}]: expected {len(grid)} values, one per grid point "
                 f"(got {len(curve) if isinstance(curve, list) else type(curve).__name__})"
             )
-        out[t] = [_rate(v, f"{where}: {key}[{t}][{e}]") for e, v in enumerate(curve)]
+        earlier = t != tasks[-1]
+        out[t] = [None if v is None and earlier else _rate(v, f"{where}: {key}[{t}][{e}]") for e, v in enumerate(curve)]
     return out
 
 

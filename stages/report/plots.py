@@ -64,8 +64,13 @@ def plot_curves(run: RunData, summary: dict, path: Path) -> Path:
             ax.set_xticks([])
             continue
         sc = run.curves[k - 1]
+        chosen = summary["best_checkpoint"][k - 1]["index"]
         for task in sc.task_ids:
             new = task == wf.tasks[k - 1]
+            if None in sc.success[task]:  # an earlier task scored at e* alone (no full_curves): one mark there
+                at_chosen = (sc.report or sc.success)[task][chosen]
+                ax.plot([sc.grid[chosen]], [at_chosen], color=colours[task], marker="D", ms=6, ls="", zorder=4)
+                continue
             ax.plot(
                 sc.grid,
                 sc.success[task],
@@ -83,7 +88,8 @@ def plot_curves(run: RunData, summary: dict, path: Path) -> Path:
     tasks = [Line2D([], [], color=colours[t], lw=2, label=t) for t in wf.tasks[: run.stages_done]]
     styles = [
         Line2D([], [], color="0.3", lw=2.4, marker="o", ms=3.5, label="task learned in this stage"),
-        Line2D([], [], color="0.3", lw=1.4, ls="--", label="earlier task (retention)"),
+        Line2D([], [], color="0.3", lw=1.4, ls="--", label="earlier task (retention, with full_curves)"),
+        Line2D([], [], color="0.3", marker="D", ms=6, ls="", label="earlier task at e*"),
         Line2D([], [], color="0.35", lw=1.2, ls=":", label="e*: earliest best checkpoint"),
     ]
     legend_rows = math.ceil(len(tasks) / 6) + 1
@@ -95,7 +101,7 @@ def plot_curves(run: RunData, summary: dict, path: Path) -> Path:
         frameon=False,
         bbox_to_anchor=(0.5, 0.045 / nrows),
     )
-    fig.legend(handles=styles, loc="lower center", ncol=3, fontsize=8.5, frameon=False, bbox_to_anchor=(0.5, 0.0))
+    fig.legend(handles=styles, loc="lower center", ncol=4, fontsize=8.5, frameon=False, bbox_to_anchor=(0.5, 0.0))
     episodes = run.curves[0].episodes_per_point
     fig.suptitle(f"{wf.name} ({wf.method}): success during each stage, {episodes} episodes per point", fontsize=12)
     fig.tight_layout(rect=(0, 0.06 * legend_rows / nrows, 1, 1))

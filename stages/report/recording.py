@@ -46,7 +46,9 @@ def write_recording(run: RunData, path: Path) -> Path:
             rl.text("log", f"stage {sc.stage}: learning {wf.tasks[sc.stage - 1]}")
             rl.curve("stage", steps, [float(sc.stage)] * len(steps), name="stage")
             for task in sc.task_ids:
-                rl.curve(f"success/{entity_part(task)}", steps, sc.success[task], name=task)
+                scored = [(x, v) for x, v in zip(steps, sc.success[task]) if v is not None]  # see full_curves
+                if scored:
+                    rl.curve(f"success/{entity_part(task)}", [x for x, _ in scored], [v for _, v in scored], name=task)
             ev = run.evals.get(sc.stage)
             if ev is not None:
                 rl.set_step(steps[-1])

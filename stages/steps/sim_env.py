@@ -25,6 +25,7 @@ from stages.steps.stage_io import (
 )
 
 REPLAY_DIR, LOOP_FILE = "replay", "loop.json"  # train's intra-step checkpoints only
+CHOSEN_ACTOR_FILE = "chosen_actor.pt"  # the actor deployed at the stage's best point so far (rl_loop.LoopState)
 EVAL_RESULT_FILE = "evaluation.json"  # evaluate-all's checkpoint: the success rates, before the episode logs
 
 
@@ -62,6 +63,17 @@ def loss_tracking(tracker, start_updates: int):
         tracker.scalars(values, st.env_steps)
 
     return on_update
+
+
+def load_actor_snapshot(learner, path):
+    """A deployed-actor snapshot (LoopState.chosen_actor) saved as a state dict, as a module again."""
+    import copy
+
+    import torch
+
+    actor = copy.deepcopy(learner.deployed_actor())
+    actor.load_state_dict(torch.load(path, map_location=learner.device, weights_only=True))
+    return actor
 
 
 class SimEnvironment:
@@ -106,6 +118,8 @@ class SimEnvironment:
     ) -> TrainResult:
         import time
 
+        import torch
+
         from accrue import rl_loop, stage_rl
         from accrue.learner import ReplayBuffer, load_learner, save_learner
         from accrue.sim import get_task
@@ -124,7 +138,10 @@ class SimEnvironment:
             ck, _ = checkpoint
             buffer = ReplayBuffer.load(ck / REPLAY_DIR)
             loop_state = rl_loop.LoopState.from_json(read_json(ck / LOOP_FILE))
-            resume = (load_learner(ck / LEARNER_DIR, device=dev), loop_state)
+            resumed = load_learner(ck / LEARNER_DIR, device=dev)
+            if (ck / CHOSEN_ACTOR_FILE).exists():
+                loop_state.chosen_actor = load_actor_snapshot(resumed, ck / CHOSEN_ACTOR_FILE)
+            resume = (resumed, loop_state)
             next_episode = loop_state.next_episode
             ctx.console.print(f"train: resumed at env step {loop_state.env_steps} ({loop_state.updates} updates)")
 
@@ -150,7 +167,12 @@ class SimEnvironment:
         evaluator = evaluator_on("eval", c["eval_episodes"], report_set)
         episode_span = c["num_envs"] * get_task(task).max_steps  # env steps for every env to run one episode
         loop = rl_loop.LoopSettings(
-            tasks, c["env_steps"], c["eval_every"], c["checkpoint_every"], min_checkpoint_gap=2 * episode_span
+            tasks,
+            c["env_steps"],
+            c["eval_every"],
+            c["checkpoint_every"],
+            min_checkpoint_gap=2 * episode_span,
+            full_curves=c.get("curves") == "full",
         )
 
         staging = ctx.scratch_dir("checkpoint")
@@ -159,6 +181,8 @@ class SimEnvironment:
             save_learner(learner, staging / LEARNER_DIR)
             buffer.save_new_shards(staging / REPLAY_DIR)  # only the shards appended since the last one
             write_json(staging / LOOP_FILE, st.to_json())
+            if st.chosen_actor is not None:
+                torch.save(st.chosen_actor.state_dict(), staging / CHOSEN_ACTOR_FILE)
             ctx.save_checkpoint(staging, {"env_steps": st.env_steps, "updates": st.updates})
 
         clock = {"t": time.monotonic(), "updates": resume[1].updates if resume else 0}
@@ -176,7 +200,9 @@ class SimEnvironment:
             ctx.console.print(line, soft_wrap=True)
             if "eval" in info and st.grid_done:  # success on tasks 1..k at this grid point
                 values = {f"eval/success/{t}": r for t, r in info["eval"].items()}
-                values.update({f"eval/report_success/{t}": curve[-1] for t, curve in st.report_curve.items() if curve})
+                values.update(
+                    {f"eval/report_success/{t}": c[-1] for t, c in st.report_curve.items() if c and c[-1] is not None}
+                )
                 tracker.scalars(values, st.grid_done[-1])
 
         # event files beside the store's audit log, never in an artifact (docs/TRACKING.md)
@@ -201,6 +227,9 @@ class SimEnvironment:
             "grid": sorted(state.grid_done),
             "success": {t: state.curve[t] for t in tasks},
             "episodes_per_point": c["eval_episodes"],
+            # earlier tasks are null except at the chosen checkpoint unless budgets.full_curves
+            "curves": "full" if loop.full_curves else "chosen",
+            "chosen": state.chosen,
             **(
                 {"report_success": {t: state.report_curve[t] for t in tasks}, "report_episodes": c["report_episodes"]}
                 if report_set is not None
