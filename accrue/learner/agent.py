@@ -47,6 +47,7 @@ class ChunkLearner:
         self.gen = torch.Generator(device=self.device)
         self.gen.manual_seed(cfg.seed)
         self.noise_std = torch.zeros(0, device=self.device)  # per-env exploration std (FastTD3)
+        self.noise_state = torch.zeros(0, device=self.device)  # per-env OU state (exploration "ou")
         self.counters = {"updates": 0, "actor_updates": 0, "merges": 0}
         self.stage = 0
         # continual-rule state (continual.py fills these at stage start)
@@ -76,6 +77,7 @@ class ChunkLearner:
             obs_norm_min_std=c.obs_norm_min_std,
             obs_norm_clip=c.obs_norm_clip,
             obs_norm_fixed_tail=c.obs_norm_fixed_tail,
+            delta_bound=c.delta_bound,
         )
 
     def _make_actor(self) -> Actor:

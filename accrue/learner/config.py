@@ -23,6 +23,7 @@ DISTILL_INPUTS = ("stored", "fresh", "both")
 # When the observation normaliser's statistics move: during the learner's first stage only (then frozen,
 # so teacher, student, EWC anchor and RETAIN's θ_prev read s through one fixed map), or every stage
 OBS_NORM_UPDATES = ("first-stage", "every-stage")
+EXPLORATIONS = ("white", "ou")  # FastTD3's per-step noise; noise correlated over `noise_steps` control steps
 
 
 @dataclass
@@ -39,6 +40,8 @@ class LearnerConfig:
     layer_norm: bool = True
     actor_residual: bool = True  # a = tanh(atanh(ã) + δ): start at the reference (see networks.py)
     actor_init_scale: float = 0.01  # last actor layer init scale (FastTD3), so δ ≈ 0 at start
+    # |δ| ≤ delta_bound per action dimension in pre-tanh space (δ = b·tanh(δ_raw / b)); 0 = unbounded (the paper)
+    delta_bound: float = 0.0
     ref_dropout: float = 0.1  # fraction p of each batch whose ã is replaced by zeros
 
     # categorical critic (C51, Eq. 2)
@@ -70,6 +73,11 @@ class LearnerConfig:
     # exploration
     std_min: float = 0.001  # FastTD3: per-env noise std drawn in [std_min, std_max]
     std_max: float = 0.2
+    # "white": a fresh Gaussian every control step (FastTD3); "ou": an Ornstein-Uhlenbeck process per env
+    # and action dimension with time constant noise_steps control steps, carried across chunks, restarted
+    # from its stationary law when the env resets (the same per-env std scales it)
+    exploration: str = "white"
+    noise_steps: float = 16.0
     policy_noise: float = 0.001  # FastTD3 target-policy smoothing
     noise_clip: float = 0.5
     alpha_init: float = 0.01  # FastSAC temperature
@@ -143,8 +151,9 @@ class LearnerConfig:
             got = got if len(got) <= 200 else got[:199] + "…"
             return AccrueError(f"learner.{name}: {why} (got {got})")
 
-        for name in ("algo", "method", "ablation", "distill_inputs", "obs_norm_update"):
+        for name in ("algo", "method", "ablation", "distill_inputs", "obs_norm_update", "exploration"):
             allowed = {
+                "exploration": EXPLORATIONS,
                 "algo": ALGOS,
                 "method": METHODS,
                 "ablation": ABLATIONS,
@@ -153,6 +162,8 @@ class LearnerConfig:
             }[name]
             if getattr(self, name) not in allowed:
                 raise bad(name, f"must be one of {', '.join(allowed)}")
+        if self.exploration == "ou" and self.algo != "fasttd3":
+            raise bad("exploration", "'ou' is FastTD3's (fastsac samples from its own Gaussian policy)")
         if self.ablation != "none" and self.method != "accrue":
             raise bad("ablation", "ablations apply to method 'accrue' only")
         for name in ("actor_hidden", "critic_hidden"):
@@ -188,6 +199,8 @@ class LearnerConfig:
             "max_grad_norm",
             "std_min",
             "std_max",
+            "noise_steps",
+            "delta_bound",
             "policy_noise",
             "noise_clip",
             "alpha_init",
@@ -238,9 +251,12 @@ class LearnerConfig:
             "ewc_lambda",
             "obs_norm_min_std",
             "obs_norm_clip",
+            "delta_bound",
         ):
             if getattr(self, name) < 0:
                 raise bad(name, "must be non-negative")
+        if self.noise_steps < 1:
+            raise bad("noise_steps", "must be at least 1 control step")
         if self.std_max < self.std_min:
             raise bad("std_max", "must be >= std_min")
         if self.log_std_max <= self.log_std_min:

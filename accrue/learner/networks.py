@@ -120,9 +120,11 @@ class Actor(nn.Module):
         obs_norm_min_std: float = 0.0,
         obs_norm_clip: float = 0.0,
         obs_norm_fixed_tail: int = 0,
+        delta_bound: float = 0.0,
     ):
         super().__init__()
         self.horizon, self.action_dim, self.residual = horizon, action_dim, residual
+        self.delta_bound = delta_bound
         chunk = horizon * action_dim
         self.obs_norm = RunningNorm(
             state_dim,
@@ -146,6 +148,8 @@ class Actor(nn.Module):
     def pre_tanh_mean(self, state: torch.Tensor, ref: torch.Tensor, out: torch.Tensor | None = None):
         out = self.features(state, ref) if out is None else out
         delta = out[:, : self.horizon * self.action_dim]
+        if self.delta_bound > 0:  # a soft box: with nothing anchoring it (β = 0) δ still cannot run off
+            delta = self.delta_bound * torch.tanh(delta / self.delta_bound)
         return pre_tanh(ref.flatten(1)) + delta if self.residual else delta
 
     def forward(self, state: torch.Tensor, ref: torch.Tensor) -> torch.Tensor:

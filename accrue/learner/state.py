@@ -63,6 +63,8 @@ def training_state(learner: ChunkLearner) -> tuple[dict[str, torch.Tensor], dict
     if hasattr(learner, "log_alpha"):
         tensors["log_alpha"] = learner.log_alpha.detach()
     tensors["noise_std"] = learner.noise_std
+    if learner.cfg.exploration == "ou":  # only then: the saved bytes of every other learner stay as they were
+        tensors["noise_state"] = learner.noise_state
     tensors["rng/learner"] = learner.gen.get_state()
     tensors["rng/torch"] = torch.get_rng_state()
     for group, values in (
@@ -111,6 +113,8 @@ def load_training_state_into(learner: ChunkLearner, tensors: dict[str, torch.Ten
     for name, opt in learner.optimizers().items():
         opt.load_state_dict(_unflatten_optimizer(f"optim/{name}", meta["optim"][name], tensors))
     learner.noise_std = tensors["noise_std"].to(dev)
+    if "noise_state" in tensors:
+        learner.noise_state = tensors["noise_state"].to(dev)
     learner.gen.set_state(tensors["rng/learner"].cpu())
     torch.set_rng_state(tensors["rng/torch"].cpu())
     for group in ("ewc_fisher", "ewc_anchor", "retain_prev"):
