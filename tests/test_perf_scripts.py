@@ -33,6 +33,23 @@ def test_gpu_path_runs_on_cpu_and_says_what_it_could_not_run(tmp_path):
         assert "physics_steps_per_s" in row["warp"] or row["warp"]["not_run"]
 
 
+def test_paper_stage_accounts_for_its_time_part_by_part(tmp_path):
+    out = tmp_path / "stage.json"
+    _run(
+        "benchmarks/paper_stage.py",
+        *("--device", "cpu", "--small", "--task", "nist/rect_peg", "--env-steps", "1024", "--num-envs", "4"),
+        *("--batch", "64", "--eval-every", "512", "--eval-episodes", "4", "--warmup-episodes", "4", "--out", str(out)),
+    )
+    report = json.loads(out.read_text())
+    assert report["env_steps"] >= 1024 and report["horizon"] == 16 and report["updates"] > 0
+    assert report["learner"]["algo"] == "fastsac" and report["learner"]["batch_size"] == 64
+    parts = report["seconds"]
+    assert {"physics", "reference", "act", "store", "update", "evaluate", "other"} <= set(parts)
+    assert all(parts[k] > 0 for k in ("physics", "update", "evaluate"))
+    assert abs(sum(parts.values()) - report["total_s"]) < 0.05  # every second is in one part
+    assert len(report["eval_curve"]) == 3  # points 0, 512, 1024
+
+
 def test_perf_report_eval_row_keeps_other_rows_and_records_its_command(tmp_path):
     out = tmp_path / "perf.json"
     out.write_text(json.dumps({"finetune": {"kept": True}}))
