@@ -218,7 +218,7 @@ def test_records_from_a_file_that_is_not_a_report_is_one_line(tmp_path, capsys):
 
 
 def test_a_store_record_names_the_cpu_it_was_measured_on(recorded_bench, tmp_path):
-    """The same cell differs between CPUs (README: cell records), so a store record must say which CPU."""
+    """The same cell differs between CPUs (docs/benchmark/index.md: cell records), so a store record must say which CPU."""
     spec, _, _, records = recorded_bench
     provenance = json.loads(one_record(records, spec).read_text())["provenance"]
     assert provenance["cpu"] == cpu_description()

@@ -1,6 +1,6 @@
 """The bench report and status on a store holding known cell results (written through the runner by
 stand-in steps, so no RL runs): aggregates equal a hand computation, missing cells are listed, never
-dropped, and scripts/bench_tables.py writes the tables into marked README blocks."""
+dropped, and scripts/bench_tables.py writes the tables into marked blocks of a documentation page."""
 
 from __future__ import annotations
 
@@ -201,17 +201,17 @@ def test_a_method_with_no_finished_run_keeps_its_row(bench, tmp_path):
     assert sum(m["method"] == "ewc" for m in report["missing"]) == 4
 
 
-def test_bench_tables_script_fills_marked_readme_blocks(bench, tmp_path, capsys):
+def test_bench_tables_script_fills_marked_blocks_of_a_page(bench, tmp_path, capsys):
     spec, store, path = bench
-    readme = tmp_path / "README.md"
-    readme.write_text("intro\n<!-- bench:known -->\nold table\n<!-- /bench:known -->\noutro\n")
-    assert bench_tables.main([str(path), "--store", str(store.root), "--readme", str(readme)]) == 0
-    text = readme.read_text()
+    page = tmp_path / "nist.md"
+    page.write_text("intro\n<!-- bench:known -->\nold table\n<!-- /bench:known -->\noutro\n")
+    assert bench_tables.main([str(path), "--store", str(store.root), "--doc", str(page)]) == 0
+    text = page.read_text()
     assert "old table" not in text and text.startswith("intro\n<!-- bench:known -->\n### bench `known`")
     assert text.endswith("<!-- /bench:known -->\noutro\n") and "| accrue | 3 of 4 |" in text
     assert f"python scripts/bench_tables.py {path} --store" in text
-    readme.write_text("no markers\n")
-    assert bench_tables.main([str(path), "--store", str(store.root), "--readme", str(readme)]) == 2
+    page.write_text("no markers\n")
+    assert bench_tables.main([str(path), "--store", str(store.root), "--doc", str(page)]) == 2
     assert "no <!-- bench:known -->" in capsys.readouterr().err
 
 

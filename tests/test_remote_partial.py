@@ -99,7 +99,7 @@ def test_a_lazy_fetch_refuses_a_corrupt_object_and_without_the_remote_it_is_miss
 
 
 def test_the_readme_flow_robot_learner_auditor(tmp_path):
-    """README "Sharing a store", with a directory remote and a tiny plan standing in for `accrue run`."""
+    """docs/sharing.md's walk-through, with a directory remote and a tiny plan standing in for `accrue run`."""
     from rich.console import Console
 
     from stages.runner import Runner
@@ -110,7 +110,8 @@ def test_the_readme_flow_robot_learner_auditor(tmp_path):
     robot, learner, laptop = tmp_path / "robot", tmp_path / "learner", tmp_path / "laptop"
     for store in (robot, learner, laptop):
         cli(store, "init")
-        assert cli(store, "remote", "add", "origin", str(nas / "accrue")).returncode == 0
+        made = ["--create"] if store == robot else []  # the robot makes the remote; the others find it
+        assert cli(store, "remote", "add", "origin", str(nas / "accrue"), *made).returncode == 0
     day = tmp_path / "episodes" / "2026-12-01"
     day.mkdir(parents=True)
     (day / "seed.txt").write_text("4")
