@@ -555,7 +555,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--row", choices=[*ROWS, "all"], help="measure this row (or all) and store it")
     ap.add_argument(
-        "--doc", "--readme", dest="readme", action="store_true", help="rewrite the speed table in docs/benchmark/speed.md"
+        "--doc",
+        "--readme",
+        dest="readme",
+        action="store_true",
+        help="rewrite the speed table in docs/benchmark/speed.md",
     )
     ap.add_argument("--steps", type=int, default=800, help="finetune: gradient steps (quickstart: 800)")
     ap.add_argument("--budget", type=float, default=1.0, help="cell: the workflows' --budget (1.0 = the quickstart)")

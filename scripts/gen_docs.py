@@ -129,6 +129,7 @@ LEARNER_MEANINGS = {
     "gamma": "discount per control step",
     "critic_lr": "the critic's learning rate",
     "std_max": "upper end of that range",
+    "noise_steps": "time constant of the `ou` exploration noise, in control steps (see `exploration`)",
     "noise_clip": "clip of the target-policy smoothing noise",
     "alpha_lr": "learning rate of the FastSAC temperature",
     "target_entropy_per_dim": "FastSAC's target entropy per action dimension",
