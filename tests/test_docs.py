@@ -26,8 +26,8 @@ import gen_docs  # noqa: E402
 TRACKER = re.compile(r"\b(issues?[- ]\d+|session \d+)", re.I)
 # the developer's pages (the nav's Development section) keep their record of the work
 DEVELOPER_PAGES = {"development.md", "INTERFACES.md", "MUTATION.md"}
-# tracker numbers this checkout still has in a page a user reads, each removed by the page's owner
-KNOWN = {"DEPARTURES.md"}
+# pages a user reads that may still carry tracker numbers (none now)
+KNOWN: set[str] = set()
 
 
 def nav_pages(nav) -> list[str]:
