@@ -50,6 +50,10 @@ def run(
     wf = apply_budget(load_workflow(workflow), budget)
     first, last = parse_stages(stages, wf.num_stages)
     st = open_store(store)
+    if wf.robot is not None:  # the robot, its keys, the base policy's inputs, the learner: before any step
+        from stages.steps.robot_preflight import preflight
+
+        preflight(wf, str(workflow), st, (1, last))
     out = console()
     runner = Runner(st, console=out if not as_json else None, wait=wait)
     started, summary = time.monotonic(), []

@@ -87,6 +87,10 @@ def run(
     wf = load_workflow(workflow)
     wf.check_stage(stage)
     st = open_store(store)
+    if wf.robot is not None:  # the robot, its keys, the base policy's inputs, the learner: before any step
+        from stages.steps.robot_preflight import preflight
+
+        preflight(wf, str(workflow), st, (1, stage))
     plan_stage = load_plan_function()
     plan = plan_stage(wf, stage, st)
     runner = Runner(st, console=console() if not as_json else None, wait=wait)

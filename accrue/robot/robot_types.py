@@ -149,11 +149,76 @@ def decode_config(cls: type, config: dict[str, Any], where: str):
         raise AccrueError(f"{where}: not a valid {cls.__name__} ({first})") from None
 
 
+_REGISTER_ANY = re.compile(r"""(\w*)\.register_subclass\(\s*["']([A-Za-z0-9_\-]+)["']""")
+_PLUGIN_PREFIXES = {"robot": ("lerobot_robot_", "lerobot-robot-"), "teleoperator": ("lerobot_teleoperator_",)}
+
+
+def _source_names(files) -> dict[str, str]:
+    """{registered name: the config class it is registered on} in the Python source `files` (read, not run)."""
+    out: dict[str, str] = {}
+    for py in files:
+        try:
+            text = Path(py).read_text(encoding="utf-8", errors="replace")
+        except OSError:
+            continue
+        for owner, name in _REGISTER_ANY.findall(text):
+            out.setdefault(name, owner)
+    return out
+
+
+def _package_files(module: str) -> list[Path] | None:
+    """The .py files of the top-level package of `module`, found without importing anything; None when
+    that package is not installed (the import then says so itself)."""
+    import importlib.util
+
+    try:
+        spec = importlib.util.find_spec(module.split(".")[0])
+    except (ImportError, ValueError):
+        return None
+    if spec is None:
+        return None
+    roots = list(spec.submodule_search_locations or [])
+    if not roots:
+        return [Path(spec.origin)] if spec.origin else []
+    return [py for root in roots for py in Path(root).rglob("*.py")]
+
+
+def written_type_names(kind: str, imports: tuple[str, ...]) -> tuple[set[str], set[str]] | None:
+    """(every name any register_subclass call registers, those of `kind`'s own config class) in the source of
+    lerobot's own `kind`s, accrue's simulated ones, the `imports` packages and installed lerobot_{kind}_*
+    plugins: found in well under a second, where importing them takes tens (torch). None when a package to
+    read is not installed: then only the import can say."""
+    import importlib.metadata
+
+    package = "robots" if kind == "robot" else "teleoperators"
+    files = _package_files("lerobot")
+    if files is None:
+        return None
+    files = [py for py in files if f"{Path('lerobot') / package}" in str(py)]
+    files += list((Path(__file__).parent / "sim_robot").glob("*.py"))
+    for module in imports:
+        found = _package_files(module)
+        if found is None:
+            return None
+        files += found
+    for dist in importlib.metadata.distributions():
+        name = str(dist.metadata.get("Name") or "")
+        if name.lower().startswith(_PLUGIN_PREFIXES[kind]):
+            files += [dist.locate_file(f) for f in dist.files or () if str(f).endswith(".py")]
+    names = _source_names(files)
+    owner = "Robot" if kind == "robot" else "Teleoperator"
+    return set(names), {n for n, cls in names.items() if cls.endswith(owner + "Config")}
+
+
 def config_class(kind: str, type_name: str, imports: tuple[str, ...], *, where: str, type_key: str) -> type:
     """The lerobot config class of `kind` ("robot" or "teleoperator") `type_name`, found as lerobot_factory
     finds it: the `imports` first, then lerobot's own types, then installed plugins (one AccrueError line
-    for an unknown type or a module that cannot be imported)."""
+    for an unknown type or a module that cannot be imported). A name no installed source registers (a
+    typo) is refused first, from the source alone (written_type_names), before the slow imports."""
     field = f"{where}.{type_key}"
+    written = written_type_names(kind, imports)
+    if written is not None and type_name not in written[0]:
+        raise unknown_type(kind, type_name, written[1], where, type_key)
     for name in ("accrue.robot.sim_robot", *imports):
         import_robot_module(name, f"{where}.imports")
     registry, _, builtin = _lerobot_kind(kind)
@@ -165,9 +230,17 @@ def config_class(kind: str, type_name: str, imports: tuple[str, ...], *, where: 
 
         register_third_party_plugins()  # imports every installed lerobot_{robot,teleoperator,...}_* distribution
     if type_name not in registry.get_known_choices():
-        known = sorted(set(registry.get_known_choices()) | set(builtin))
-        raise AccrueError(
-            f"{field}: unknown lerobot {kind} type {type_name!r} (known: {', '.join(known)}; "
-            f"a third-party {kind}'s module goes in {where}.imports)"
-        )
+        raise unknown_type(kind, type_name, set(registry.get_known_choices()) | set(builtin), where, type_key)
     return registry.get_choice_class(type_name)
+
+
+def unknown_type(kind: str, type_name: str, known: set[str], where: str, type_key: str) -> AccrueError:
+    """`robot.type: unknown lerobot robot type 'so101_evn' (did you mean 'so101_env'? known: ...)`."""
+    import difflib
+
+    close = difflib.get_close_matches(type_name, sorted(known), n=1)
+    hint = f"did you mean {close[0]!r}? " if close else ""
+    return AccrueError(
+        f"{where}.{type_key}: unknown lerobot {kind} type {type_name!r} ({hint}known: {', '.join(sorted(known))}; "
+        f"a third-party {kind}'s module goes in {where}.imports)"
+    )
