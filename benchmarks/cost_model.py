@@ -216,10 +216,11 @@ def physics_of(coef: dict, task: str, config: dict) -> tuple[str, dict]:
 
 
 def step_work(inv, plan, coef: dict, protocol: str) -> dict:
-    """What one step runs: control steps per physics coefficient, actor calls per learner coefficient,
-    gradient updates per learner coefficient and phase, fine-tuning seconds, env builds, and one step."""
+    """What one step runs: control steps per physics coefficient, π_base chunks, actor chunks per learner
+    coefficient, gradient updates per learner coefficient and phase, fixed seconds, env builds, one step."""
     c, name = inv.config, inv.step.name
-    w: dict = {"control_steps": {}, "actor_chunks": {}, "updates": {}, "finetune_s": 0.0, "env_builds": 0, "steps": 1}
+    w: dict = {"control_steps": {}, "actor_chunks": {}, "updates": {}, "reference_chunks": 0, "fixed_s": {}}
+    w.update(env_builds=0, steps=1)
 
     def add(part: str, key: str, n: float) -> None:
         w[part][key] = w[part].get(key, 0) + n
@@ -227,23 +228,26 @@ def step_work(inv, plan, coef: dict, protocol: str) -> dict:
     def episodes(task: str, n: int, actor: str | None) -> None:
         key, p = physics_of(coef, task, c)
         add("control_steps", key, n * p["mean_episode_steps"])
+        chunks = eval_chunks(n, c["num_envs"], tuple(p["episode_chunks"]))
+        w["reference_chunks"] += chunks
         if actor:
-            add("actor_chunks", actor, eval_chunks(n, c["num_envs"], tuple(p["episode_chunks"])))
+            add("actor_chunks", actor, chunks)
 
     if name == "record-demos":  # successful demos only: demos / success attempts (at most 10x demos)
         key, p = physics_of(coef, c["task"], c)
         success = coef["demo_success"].get(c["task"], p["demo_success"])
         attempts = min(10 * c["episodes"], math.ceil(c["episodes"] / max(success, 1e-3)))
-        add("control_steps", key, attempts * p["mean_episode_steps"])  # expert every step: a lower bound
+        add("control_steps", key, attempts * p["mean_episode_steps"])
+        add("fixed_s", "record-demos", coef["base_policy"]["record_demos_fixed_s"])
         w["env_builds"] = 1
     elif name == "finetune-base":
         ft = coef["finetune"]
-        w["finetune_s"] = ft["seconds_per_stage"] * c["steps"] / ft["steps"]
+        add("fixed_s", "finetune", ft["seconds_per_stage"] * c["steps"] / ft["steps"])
     elif name == "warmup":
         key, p = physics_of(coef, c["task"], c)
         chunks = warmup_chunks(c["episodes"], c["num_envs"], tuple(p["episode_chunks"]))
         add("control_steps", key, chunks * c["num_envs"] * p["steps_per_env_chunk"])
-        w["env_builds"] = 1
+        w["reference_chunks"], w["env_builds"] = chunks, 1
     elif name == "train":
         task, lk, learner = c["task_ids"][-1], learner_key(c), c["learner"]
         key, p = physics_of(coef, task, c)
@@ -255,6 +259,7 @@ def step_work(inv, plan, coef: dict, protocol: str) -> dict:
         add("updates", f"{lk}|{phase}", learner.get("utd", 1) * max(0, chunk_steps - first + 1))
         add("control_steps", key, c["env_steps"])
         add("actor_chunks", lk, chunk_steps)
+        w["reference_chunks"] += chunk_steps
         calls = train_eval_calls(c, protocol)
         for t, n, per in calls:
             for _ in range(n):
@@ -280,10 +285,13 @@ def price(w: dict, coef: dict) -> dict[str, float]:
 
     return {
         "physics": sum(n / phys[k]["control_steps_per_s"] for k, n in w["control_steps"].items()),
-        "actor": sum(n * learners.get(k, {"act_s": mean_act})["act_s"] for k, n in w["actor_chunks"].items()),
+        "policy": w["reference_chunks"] * coef["base_policy"]["reference_s"]
+        + sum(n * learners.get(k, {"act_s": mean_act})["act_s"] for k, n in w["actor_chunks"].items()),
         "updates": sum(n * update_s(k) for k, n in w["updates"].items()),
-        "finetune": w["finetune_s"],
-        "overhead": w["steps"] * over["step_s"] + w["env_builds"] * over["env_build_s"],
+        "finetune": w["fixed_s"].get("finetune", 0.0),
+        "overhead": w["steps"] * over["step_s"]
+        + w["env_builds"] * over["env_build_s"]
+        + w["fixed_s"].get("record-demos", 0.0),
     }
 
 
@@ -308,7 +316,7 @@ def project(cells: list, coef: dict, cores: tuple[int, ...] = CORES) -> dict:
     """Cell minutes (from scratch), core-hours, and the grid's wall hours on `cores` cores, per protocol."""
     totals: dict[str, list[float]] = {p: [] for p in PROTOCOLS}
     unique: dict[str, dict[str, float]] = {}
-    parts = {p: dict.fromkeys(("physics", "actor", "updates", "finetune", "overhead"), 0.0) for p in PROTOCOLS}
+    parts = {p: dict.fromkeys(("physics", "policy", "updates", "finetune", "overhead"), 0.0) for p in PROTOCOLS}
     for cell in cells:
         steps = cell_steps(cell.workflow, coef)
         for p in PROTOCOLS:
@@ -373,53 +381,98 @@ def features_for(config: dict, task: str):
     return per_task_features(config, [task])[task]
 
 
-def measure_physics(config: dict, episodes: int) -> dict:
-    """The evaluation setting on one core: num_envs envs, the limited demonstrator held as H-step chunks."""
+def demonstrator_loop(config: dict, episodes: int, horizon: int) -> dict:
+    """Seconds of MuJoCo (batch.step), of env.step_chunk, of env.reset and of the learner state, on num_envs
+    envs (one MuJoCo thread) run by the limited demonstrator: acting every control step (horizon 1) or held
+    for `horizon` steps."""
     import numpy as np
 
     from accrue import rl_loop
     from accrue.sim import make_expert, make_vec_env
 
-    task, n, horizon = config["task"], config["num_envs"], config["horizon"]
-    before = load()
+    task, n = config["task"], config["num_envs"]
     t0 = time.perf_counter()
     env = make_vec_env(task, n, seed=rl_loop.env_seed(0, 1, "eval", 0), nthread=1)
     obs = env.reset()
-    build_s = time.perf_counter() - t0
+    out = {"build_s": time.perf_counter() - t0, "mujoco_s": 0.0, "step_s": 0.0, "reset_s": 0.0, "features_s": 0.0}
+    step = env.batch.step
+
+    def timed_step(*a, **kw):
+        t = time.perf_counter()
+        try:
+            return step(*a, **kw)
+        finally:
+            out["mujoco_s"] += time.perf_counter() - t
+
+    env.batch.step = timed_step
     features, expert = features_for(config, task), make_expert(task, search=False, bias_known=0.75)
-    steps, chunks = np.zeros(n, int), np.zeros(n, int)
-    lengths, chunk_counts, successes, physics_s = [], [], 0, 0.0
-    start = time.perf_counter()
-    while len(lengths) < episodes:
+    # every env's first `per_env` episodes (the first `episodes` to end would favour the short ones)
+    per_env, ended = math.ceil(episodes / n), [[] for _ in range(n)]
+    calls, running = 0, np.zeros(n, int)
+    while min(map(len, ended)) < per_env:
+        t = time.perf_counter()
         features(obs)  # the learner state, as the Evaluator computes it every chunk
+        out["features_s"] += time.perf_counter() - t
         chunk = np.repeat(np.asarray(expert.act(obs["state"]), np.float32)[:, None], horizon, axis=1)
         t = time.perf_counter()
         res = env.step_chunk(chunk, 0.99)
-        physics_s += time.perf_counter() - t
-        steps += res.steps
-        chunks += 1
+        out["step_s"] += time.perf_counter() - t
+        calls, running = calls + 1, running + res.steps
         done = res.terminated | res.truncated
         for i in np.flatnonzero(done):
-            lengths.append(int(steps[i]))
-            chunk_counts.append(int(chunks[i]))
-            successes += int(res.success[i])
-        steps[done], chunks[done] = 0, 0
+            ended[i].append((int(running[i]), bool(res.success[i])))
+        running[done] = 0
+        t = time.perf_counter()
         obs = env.reset(done) if done.any() else res.obs
-    elapsed = time.perf_counter() - start
+        out["reset_s"] += time.perf_counter() - t
     env.close()
-    executed = int(sum(lengths) + steps.sum())
+    kept = [e for runs in ended for e in runs[:per_env]]
+    steps = sum(x for runs in ended for x, _ in runs) + int(running.sum())
+    lengths = [x for x, _ in kept]
+    return {**out, "calls": calls, "steps": steps, "lengths": lengths, "success": sum(ok for _, ok in kept) / len(kept)}
+
+
+def measure_physics(config: dict, episodes: int) -> dict:
+    """Control steps/s of the evaluation setting on one core, from two runs of the limited demonstrator.
+
+    Held for H steps (the chunked setting) the demonstrator never reaches the contact its own per-step
+    actions make (success 0, MuJoCo 3-7x cheaper than with a policy that inserts), so MuJoCo's seconds per
+    control step and the episode lengths come from the demonstrator acting every control step, as the base
+    policy that imitates it does; the env's Python around MuJoCo (per control step, per step_chunk call)
+    from both runs; resets per episode and the learner state per call as measured."""
+    horizon, before = config["horizon"], load()
+    t0 = time.perf_counter()
+    contact = demonstrator_loop(config, episodes, 1)
+    held = demonstrator_loop(config, max(config["num_envs"], episodes // 2), horizon)
+    # the env's Python: per_call * calls + per_step * steps, in both runs
+    (c1, s1, o1), (c2, s2, o2) = [(r["calls"], r["steps"], r["step_s"] - r["mujoco_s"]) for r in (contact, held)]
+    det = c1 * s2 - c2 * s1
+    per_call = max(0.0, (o1 * s2 - o2 * s1) / det) if det else 0.0
+    per_step = max(0.0, (o2 - per_call * c2) / s2)
+    lengths = contact["lengths"]
+    chunks = [math.ceil(x / horizon) for x in lengths]
+    mean_len = statistics.mean(lengths)
+    per_control_step = (
+        contact["mujoco_s"] / contact["steps"]
+        + per_step
+        + (per_call + held["features_s"] / held["calls"]) * statistics.mean(chunks) / mean_len
+        + contact["reset_s"] / len(lengths) / mean_len
+    )
     return {
-        "num_envs": n,
+        "num_envs": config["num_envs"],
         "horizon": horizon,
-        "control_steps_per_s": round(executed / elapsed, 1),
-        "physics_share": round(physics_s / elapsed, 3),
-        "mean_episode_steps": round(statistics.mean(lengths), 2),
-        "steps_per_env_chunk": round(sum(lengths) / sum(chunk_counts), 3),
-        "episode_chunks": chunk_counts,
-        "demo_success": round(successes / len(lengths), 3),
-        "env_build_s": round(build_s, 3),
+        "control_steps_per_s": round(1 / per_control_step, 1),
+        "mujoco_steps_per_s": round(contact["steps"] / contact["mujoco_s"], 1),
+        "held_chunk_mujoco_steps_per_s": round(held["steps"] / held["mujoco_s"], 1),
+        "env_python_s": {"per_step": round(per_step, 7), "per_call": round(per_call, 7)},
+        "mean_episode_steps": round(mean_len, 2),
+        "steps_per_env_chunk": round(sum(lengths) / sum(chunks), 3),
+        "episode_chunks": chunks,
+        "demo_success": round(contact["success"], 3),
+        "held_chunk_success": round(held["success"], 3),
+        "env_build_s": round(contact["build_s"], 3),
         "episodes": len(lengths),
-        "seconds": round(elapsed, 2),
+        "seconds": round(time.perf_counter() - t0, 2),
         "load_avg_1min": before,
     }
 
@@ -449,18 +502,10 @@ def synthetic_replay(state_dim: int, horizon: int, rows: int, task: int, seed: i
     return buffer
 
 
-def timed_updates(learner, buffer, prior, teacher, fresh, updates: int) -> float:
-    """Seconds per gradient update of learner.train_step (one warm-up call first)."""
-    learner.train_step(buffer, prior, teacher, fresh)
-    calls = max(1, math.ceil(updates / learner.cfg.utd))
-    t = time.perf_counter()
-    for _ in range(calls):
-        learner.train_step(buffer, prior, teacher, fresh)
-    return (time.perf_counter() - t) / (calls * learner.cfg.utd)
-
-
-def measure_learner(config: dict, updates: int) -> dict:
-    """Seconds per update at stage 1 and (where it costs more) at stage 2; one actor call on num_envs rows."""
+def prepare_learner(config: dict) -> tuple[dict, dict]:
+    """A learner at this train step's settings on a synthetic replay: its row (state dim, one actor call on
+    num_envs rows) and one train_step per phase (stage 1; a later stage where the method samples B^{<k} or
+    anchors to θ^{k-1}: its previous learner, retained memory, Eq. 3 targets or Fisher as begin_stage gets them)."""
     import numpy as np
     import torch
 
@@ -470,17 +515,14 @@ def measure_learner(config: dict, updates: int) -> dict:
     from stages.steps.common import learner_config
 
     torch.set_num_threads(1)
-    before = load()
     task, horizon, n = config["task_ids"][-1], config["horizon"], config["num_envs"]
     env = make_vec_env(task, 1, seed=0, nthread=1)
     d = features_for(config, task)(env.reset()).shape[1]
     env.close()
-    settings = {**config["learner"], "device": "cpu", "compile": config["learner"].get("compile", False)}
-    cfg = learner_config(settings)
+    cfg = learner_config({**config["learner"], "device": "cpu"})
     buffer = synthetic_replay(d, horizon, max(2048, cfg.learning_starts + 64), task=1, seed=0)
     first = begin_stage(None, cfg, d, horizon)
-    row = {"label": learner_key(config).split(" ")[0], "state_dim": d, "settings": config["learner"]}
-    row["first_update_s"] = round(timed_updates(first, buffer, None, None, None, updates), 5)
+    row = {"label": learner_key(config).split(" ")[0], "state_dim": d, "utd": cfg.utd, "settings": config["learner"]}
     rng = np.random.default_rng(0)
     s, ref = rng.standard_normal((n, d)).astype(np.float32), rng.uniform(-1, 1, (n, horizon, 6)).astype(np.float32)
     t = time.perf_counter()
@@ -488,19 +530,81 @@ def measure_learner(config: dict, updates: int) -> dict:
         first.act(s, ref, explore=True, reset_mask=np.zeros(n, bool))
         first.act_with(first.deployed_actor(), s, ref)
     row["act_s"] = round((time.perf_counter() - t) / 40, 6)
+    steps = {"first": lambda: first.train_step(buffer)}
     if later_phase(config["learner"], 2):
         memory = synthetic_replay(d, horizon, 1024, task=0, seed=1)
-        teacher = (
-            compute_teacher_targets(first, memory.column("state"), memory.column("ref")) if cfg.rules.distill else None
-        )
+        teacher = None
+        if cfg.rules.distill:
+            teacher = compute_teacher_targets(first, memory.column("state"), memory.column("ref"))
         fresh = teacher.clone() if teacher is not None and cfg.distill_inputs != "stored" else None
         fisher = fisher_batch(memory, 0, cfg.ewc_samples) if cfg.rules.ewc_penalty else None
         later = begin_stage(end_stage(first), cfg, d, horizon, fisher_batch=fisher)
-        row["later_update_s"] = round(timed_updates(later, buffer, memory, teacher, fresh, updates), 5)
-    else:
-        row["later_update_s"] = row["first_update_s"]
-    row["load_avg_1min"] = before
-    return row
+        steps["later"] = lambda: later.train_step(buffer, memory, teacher, fresh)
+    for step in steps.values():
+        step()  # warm-up
+    return row, steps
+
+
+def measure_learners(needed: dict, updates: int, rounds: int = 3) -> dict:
+    """Seconds per gradient update of every learner setting, timed in interleaved rounds (a busy machine
+    slows them alike), the median round kept; stage 1 and, where it costs more, a later stage."""
+    rows, steps = {}, {}
+    for key, config in needed.items():
+        rows[key], phases = prepare_learner(config)
+        steps.update({(key, phase): fn for phase, fn in phases.items()})
+    times: dict[tuple[str, str], list[float]] = {k: [] for k in steps}
+    for _ in range(rounds):
+        for (key, phase), fn in steps.items():
+            utd = rows[key]["utd"]
+            calls = max(1, math.ceil(updates / rounds / utd))
+            t = time.perf_counter()
+            for _ in range(calls):
+                fn()
+            times[(key, phase)].append((time.perf_counter() - t) / (calls * utd))
+    for key, row in rows.items():
+        row["first_update_s"] = round(statistics.median(times[(key, "first")]), 5)
+        row["later_update_s"] = round(statistics.median(times.get((key, "later"), times[(key, "first")])), 5)
+        row["load_avg_1min"] = load()
+    return rows
+
+
+def measure_base_policy(physics_needs: dict) -> dict:
+    """π_base's chunk for num_envs envs (an embedded-mlp fine-tuned for 2 steps on 2 demos: the same network
+    and processors as the workflows'), and record-demos' cost besides physics (imports, the lerobot dataset),
+    from writing those 2 demos."""
+    import tempfile
+
+    from accrue.policy import EMBEDDED_DEFAULT, FinetuneSettings, finetune
+    from accrue.sim import make_vec_env
+    from accrue.sim.demos import write_demos
+    from stages.steps.common import load_base_policy, reference_fn
+
+    before = load()
+    horizon = max(c["horizon"] for c in physics_needs.values())
+    with tempfile.TemporaryDirectory(prefix="cost-model-") as tmp:
+        demos, t = Path(tmp) / "demos", time.perf_counter()
+        write_demos("nist/rect_peg", 2, demos, seed=0, num_envs=2, progress=False)
+        record_s = time.perf_counter() - t
+        settings = FinetuneSettings(steps=2, batch_size=8, lr=1e-3, chunk_size=horizon)
+        policy = load_base_policy(finetune(EMBEDDED_DEFAULT, [demos], Path(tmp) / "policy", settings), 0)
+        seconds = []
+        for c in physics_needs.values():
+            env = make_vec_env(c["task"], c["num_envs"], seed=0, nthread=1)
+            obs, reference = env.reset(), reference_fn(policy, c["task"], c["horizon"])
+            reference(obs)
+            t = time.perf_counter()
+            for _ in range(30):
+                reference(obs)
+            seconds.append((time.perf_counter() - t) / 30)
+            env.close()
+    return {
+        "reference_s": round(statistics.mean(seconds), 6),
+        "record_demos_fixed_s": round(record_s, 2),
+        "what": "reference_s: BasePolicy.reference_chunk on num_envs envs' observations (embedded-mlp), mean over "
+        "the tasks; record_demos_fixed_s: write_demos of 2 searching-expert demos of nist/rect_peg in a fresh "
+        "process's first call (imports and the lerobot dataset; its physics is a few hundred control steps)",
+        "load_avg_1min": before,
+    }
 
 
 def finetune_coefficient(seconds: float | None) -> dict:
@@ -541,7 +645,7 @@ def demo_success() -> dict:
 
 def measure(workflows: list, episodes: int, updates: int, finetune_s: float | None) -> dict:
     physics_needs, learner_needs = needs(workflows)
-    physics, learners = {}, {}
+    physics = {}
     for key, config in physics_needs.items():
         physics[key] = measure_physics(config, episodes)
         p = physics[key]
@@ -550,17 +654,21 @@ def measure(workflows: list, episodes: int, updates: int, finetune_s: float | No
             f"episode ({p['seconds']} s, load {p['load_avg_1min']})",
             flush=True,
         )
-    for key, config in learner_needs.items():
-        learners[key] = measure_learner(config, updates)
-        r = learners[key]
+    learners = measure_learners(learner_needs, updates)
+    for key, r in learners.items():
         print(
             f"learner {key}: {r['first_update_s'] * 1e3:.1f} / {r['later_update_s'] * 1e3:.1f} ms an update "
             f"(stage 1 / later), load {r['load_avg_1min']}",
             flush=True,
         )
+    base = measure_base_policy(physics_needs)
+    print(
+        f"base policy: {base['reference_s'] * 1e3:.2f} ms a chunk; record-demos fixed {base['record_demos_fixed_s']} s"
+    )
     return {
         "physics": physics,
         "learner": learners,
+        "base_policy": base,
         "finetune": finetune_coefficient(finetune_s),
         "overhead": overhead_coefficient(physics),
         "demo_success": demo_success(),
@@ -710,8 +818,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--measure", action="store_true", help="measure the coefficients (else: read them from --out)")
     ap.add_argument("--specs", nargs="+", default=list(SPECS), help="bench specs (workflows/bench/NAME.yaml)")
-    ap.add_argument("--episodes", type=int, default=24, help="measure: demonstrator episodes per task")
-    ap.add_argument("--updates", type=int, default=24, help="measure: timed gradient updates per learner setting")
+    ap.add_argument("--episodes", type=int, default=32, help="measure: demonstrator episodes per task")
+    ap.add_argument("--updates", type=int, default=48, help="measure: timed gradient updates per learner setting")
     ap.add_argument("--finetune-s", type=float, help="finetune-base seconds a stage (800 steps), not perf.json's")
     ap.add_argument("--no-validation", action="store_true", help="skip the comparison with measured stages")
     ap.add_argument("--markdown", action="store_true", help="print the projection as a markdown table")
