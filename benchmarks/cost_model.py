@@ -272,22 +272,29 @@ def step_work(inv, plan, coef: dict, protocol: str) -> dict:
     return w
 
 
+def learner_coefficient(coef: dict, key: str) -> dict:
+    """A learner's coefficient; a setting measured for no cell yet (a spec changed since) borrows the first
+    measured one of the same method and ablation (project() lists which)."""
+    learners = coef["learner"]
+    if key in learners:
+        return learners[key]
+    same = [v for k, v in learners.items() if k.split(" ")[0] == key.split(" ")[0]]
+    if not same:
+        raise SystemExit(f"error: no learner coefficient for {key}: run with --measure")
+    return same[0]
+
+
 def price(w: dict, coef: dict) -> dict[str, float]:
     """Seconds of a step's work, by part."""
-    phys, learners, over = coef["physics"], coef["learner"], coef["overhead"]
-    mean_act = statistics.mean(v["act_s"] for v in learners.values())
-
-    def update_s(key: str) -> float:
-        lk, phase = key.split("|")
-        if lk not in learners:
-            raise SystemExit(f"error: no learner coefficient for {lk}: run with --measure")
-        return learners[lk][f"{phase}_update_s"]
-
+    phys, over = coef["physics"], coef["overhead"]
+    mean_act = statistics.mean(v["act_s"] for v in coef["learner"].values())
+    act = lambda k: learner_coefficient(coef, k)["act_s"] if " " in k else mean_act  # noqa: E731
+    update = lambda k: learner_coefficient(coef, k.split("|")[0])[f"{k.split('|')[1]}_update_s"]  # noqa: E731
     return {
         "physics": sum(n / phys[k]["control_steps_per_s"] for k, n in w["control_steps"].items()),
         "policy": w["reference_chunks"] * coef["base_policy"]["reference_s"]
-        + sum(n * learners.get(k, {"act_s": mean_act})["act_s"] for k, n in w["actor_chunks"].items()),
-        "updates": sum(n * update_s(k) for k, n in w["updates"].items()),
+        + sum(n * act(k) for k, n in w["actor_chunks"].items()),
+        "updates": sum(n * update(k) for k, n in w["updates"].items()),
         "finetune": w["fixed_s"].get("finetune", 0.0),
         "overhead": w["steps"] * over["step_s"]
         + w["env_builds"] * over["env_build_s"]
@@ -305,6 +312,7 @@ def cell_steps(wf, coef: dict) -> list[dict]:
             "stage": plan.stage,
             "step": inv.step.name,
             "key": keys[(plan.stage, inv.step.name)],
+            "learner": learner_key(inv.config) if inv.step.name == "train" else None,
             "parts": {p: price(step_work(inv, plan, coef, p), coef) for p in PROTOCOLS},
         }
         for plan in plans
@@ -312,13 +320,19 @@ def cell_steps(wf, coef: dict) -> list[dict]:
     ]
 
 
-def project(cells: list, coef: dict, cores: tuple[int, ...] = CORES) -> dict:
-    """Cell minutes (from scratch), core-hours, and the grid's wall hours on `cores` cores, per protocol."""
+def project(cells: list, coef: dict, cores: tuple[int, ...] = CORES, memo: dict | None = None) -> dict:
+    """Cell minutes (from scratch), core-hours, and the grid's wall hours on `cores` cores, per protocol.
+    memo: cell name -> its cell_steps, shared between calls on the same coefficients."""
     totals: dict[str, list[float]] = {p: [] for p in PROTOCOLS}
     unique: dict[str, dict[str, float]] = {}
     parts = {p: dict.fromkeys(("physics", "policy", "updates", "finetune", "overhead"), 0.0) for p in PROTOCOLS}
+    memo = {} if memo is None else memo
+    borrowed = {s["learner"] for c in cells for s in memo.get(c.name, [])}
     for cell in cells:
-        steps = cell_steps(cell.workflow, coef)
+        if cell.name not in memo:
+            memo[cell.name] = cell_steps(cell.workflow, coef)
+        steps = memo[cell.name]
+        borrowed |= {s["learner"] for s in steps if s.get("learner") and s["learner"] not in coef["learner"]}
         for p in PROTOCOLS:
             totals[p].append(sum(sum(s["parts"][p].values()) for s in steps))
             for s in steps:
@@ -328,6 +342,7 @@ def project(cells: list, coef: dict, cores: tuple[int, ...] = CORES) -> dict:
             unique.setdefault(s["key"], {p: sum(s["parts"][p].values()) for p in PROTOCOLS})
     out = {
         "cells": len(cells),
+        "learner_settings_not_measured": sorted(k for k in borrowed if k and k not in coef["learner"]),
         "cell_min": {
             p: {"mean": round(statistics.mean(t) / 60, 1), "min": round(min(t) / 60, 1), "max": round(max(t) / 60, 1)}
             for p, t in totals.items()
@@ -350,14 +365,18 @@ def spec_cells(name: str) -> list:
 
 
 def projections(specs: list[str], coef: dict) -> dict:
-    out = {}
+    """Per spec, and for the full grid (issue 18's specs among `specs`, sharing the step cache)."""
+    out, memo, cells = {}, {}, {name: spec_cells(name) for name in specs}
     for name in specs:
-        cells = spec_cells(name)
-        counts = episode_counts(cells[0].workflow)
-        out[name] = {"stages": len(cells[0].workflow.tasks), "episodes_per_cell": counts, **project(cells, coef)}
+        first = cells[name][0].workflow
+        out[name] = {
+            "stages": len(first.tasks),
+            "episodes_per_cell": episode_counts(first),
+            **project(cells[name], coef, memo=memo),
+        }
     grid = [s for s in GRID_SPECS if s in specs]
     if len(grid) > 1:
-        out["full grid"] = {"specs": grid, **project([c for s in grid for c in spec_cells(s)], coef)}
+        out["full grid"] = {"specs": grid, **project([c for s in grid for c in cells[s]], coef, memo=memo)}
     return out
 
 
@@ -824,9 +843,11 @@ def main() -> None:
     ap.add_argument("--no-validation", action="store_true", help="skip the comparison with measured stages")
     ap.add_argument("--markdown", action="store_true", help="print the projection as a markdown table")
     ap.add_argument("--note", default=SHARED)
+    ap.add_argument("--coefficients", type=Path, help="without --measure: read them from this JSON (default: --out)")
     ap.add_argument("--out", type=Path, default=OUT)
     args = ap.parse_args()
-    previous = json.loads(args.out.read_text()) if args.out.is_file() else {}
+    source = args.coefficients or args.out
+    previous = json.loads(source.read_text()) if source.is_file() else {}
     before, started = machine(), time.perf_counter()
     if args.measure:
         from stages.workflow import load_workflow
@@ -842,7 +863,7 @@ def main() -> None:
         coef = previous["coefficients"]
         dated = {k: previous[k] for k in ("coefficients_date", "coefficients_software")}
     else:
-        raise SystemExit(f"error: no coefficients in {args.out}: run with --measure")
+        raise SystemExit(f"error: no coefficients in {source}: run with --measure")
     result = {
         "what": "bench cells and grids projected from measured coefficients (benchmarks/cost_model.py's docstring)",
         "command": shlex.join(["python", "benchmarks/cost_model.py", *_measuring_args(sys.argv[1:])]),
