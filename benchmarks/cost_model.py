@@ -1,40 +1,45 @@
 """A bench cell's and a whole grid's wall time, projected from measured coefficients (issue 48, item 4).
 
-    .venv/bin/python benchmarks/cost_model.py --measure              # re-measure the coefficients (~3 min)
+    .venv/bin/python benchmarks/cost_model.py --measure              # re-measure the coefficients (~2-3 min)
     .venv/bin/python benchmarks/cost_model.py                        # project from the committed coefficients
     .venv/bin/python benchmarks/cost_model.py --markdown             # ... and print the docs' table
+    .venv/bin/python benchmarks/perf_report.py --row model           # the grid's row of perf.json, from them
 
-Coefficients (each stored with the machine's 1-min load average when it was measured; on a shared machine a
-figure only ever gets slower, so a projection from loaded coefficients is an upper bound):
+Coefficients, each measured by this script on one core (torch and MuJoCo one thread each) and stored with
+the machine's 1-min load average at the time (on a shared machine a figure only ever gets slower: a
+projection from loaded coefficients is an upper bound on an idle machine's):
 
-    physics   per task, control steps/s of a vec env of num_envs envs (one MuJoCo thread) stepping the limited
-              demonstrator (make_expert(search=False)) held as H-step chunks, the learner state s computed
-              every chunk as the Evaluator does: the evaluation setting, π_base's inference stood in for by the
-              demonstrator's; and the episode lengths it ran (control steps and chunks per episode)
-    learner   per distinct learner setting of the specs' cells: seconds per gradient update of
-              learner.train_step on a synthetic replay (CPU, 1 torch thread), at stage 1 and, where the method
-              samples B^{<k} or anchors to θ^{k-1}, at a later stage; and one actor call on num_envs rows
-    finetune  finetune-base seconds per stage: benchmarks/results/perf.json's finetune row (training set built),
-              else --finetune-s
-    overhead  seconds of a step that does nothing (perf.json's cell row: cache-teacher and handoff), and of
-              building one env
+    physics      per task, control steps/s of the evaluation setting: a vec env of num_envs envs, H-step
+                 chunks, the learner state computed every chunk, env resets; MuJoCo's seconds per control step
+                 and the episode lengths from the limited demonstrator (make_expert(search=False)) acting every
+                 control step, as the base policy that imitates it does (held for H steps it never reaches the
+                 contact a policy that inserts makes: MuJoCo 3-7x cheaper, success 0: both are stored), the env's
+                 Python per control step and per step_chunk call from both runs
+    learner      per distinct learner setting of the specs' cells: seconds per gradient update of
+                 learner.train_step on a synthetic replay, at stage 1 and, where the method samples B^{<k} or
+                 anchors to θ^{k-1}, at a later stage (interleaved rounds, the median); one actor call
+    base_policy  π_base's chunk on num_envs envs (embedded-mlp), and record-demos' fixed cost (write_demos)
+    finetune     finetune-base seconds a stage: benchmarks/results/perf.json's finetune row (training set
+                 built), else --finetune-s
+    overhead     a step that does nothing (perf.json's cell row: cache-teacher, handoff); one env build
 
-A cell is planned stage by stage exactly as `accrue bench` runs it (stages.bench.spec.load_spec, then
-stages.plan.plan_stage); each step's work is counted from its config and priced with the coefficients:
+A cell is planned stage by stage as `accrue bench` runs it (stages.bench.spec.load_spec, stages.plan.plan_stage)
+and each step's work is counted from its config, then priced:
 
-    record-demos   demos / the demonstrator's success rate (benchmarks/results/contact_experts.json) attempts
-    finetune-base  the finetune coefficient (× steps / the measured row's steps)
-    warmup         π_base^k's episodes (at least warmup_episodes, all envs running)
-    train          env_steps of physics; utd updates per chunk step once B^k holds learning_starts rows;
-                   the evaluation grid under the OLD protocol (every task at every point, selection + report
-                   sets) or the NEW one (the current task at every point on both sets, earlier tasks once at
-                   the chosen checkpoint on the report set, or the selection set when there is none)
+    record-demos   demos / the demonstrator's success (benchmarks/results/contact_experts.json) attempts
+    finetune-base  the finetune coefficient (x steps / the measured row's steps)
+    warmup         π_base^k's episodes (at least warmup_episodes, every env running)
+    train          env_steps of physics, a π_base and an actor chunk per chunk step, utd updates per chunk step
+                   once B^k holds learning_starts rows, and the evaluation grid under the OLD protocol (every
+                   task at every point, selection + report sets) or the NEW one (the current task at every point
+                   on both sets, earlier tasks once, at the chosen checkpoint, on the report set, else selection)
     evaluate-all   every task 1..k, the actor and the base policy alone, on the report set (else selection)
     cache-teacher, handoff   the fixed step overhead
 
-Grid hours: cells run one core each, `cores` at a time; steps that several cells share through the step cache
-(record-demos, finetune-base and warmup of one ordering prefix and seed; the ablations' `accrue` row is the
-headline's cells) are paid once: wall = max(unique work / cores, the longest cell).
+Grid hours: cells one core each, `cores` at a time; a step that cells share through the step cache (same
+content key: record-demos, finetune-base and warmup of one ordering prefix and seed; the ablations' `accrue`
+row is the headline's cells) is paid once: wall = max(unique work / cores, the longest cell). Validation
+compares the model with perf.json's cell row and with committed steps in bench logs (runs/bench/*/logs).
 """
 
 from __future__ import annotations
@@ -820,6 +825,14 @@ def markdown(result: dict) -> str:
     return "\n".join(lines)
 
 
+def committed(path: Path = OUT) -> tuple[dict, dict]:
+    """The coefficients a cost_model.json holds, and when and on what they were measured."""
+    previous = json.loads(path.read_text()) if path.is_file() else {}
+    if "coefficients" not in previous:
+        raise SystemExit(f"error: no coefficients in {path}: run benchmarks/cost_model.py --measure")
+    return previous["coefficients"], {k: previous[k] for k in ("coefficients_date", "coefficients_software")}
+
+
 def _measuring_args(argv: list[str]) -> list[str]:
     """argv without what changes no figure (--out FILE, --markdown, --note TEXT)."""
     kept, skip = [], False
@@ -847,7 +860,6 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=OUT)
     args = ap.parse_args()
     source = args.coefficients or args.out
-    previous = json.loads(source.read_text()) if source.is_file() else {}
     before, started = machine(), time.perf_counter()
     if args.measure:
         from stages.workflow import load_workflow
@@ -859,11 +871,8 @@ def main() -> None:
             "coefficients_date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
             "coefficients_software": software(),
         }
-    elif "coefficients" in previous:
-        coef = previous["coefficients"]
-        dated = {k: previous[k] for k in ("coefficients_date", "coefficients_software")}
     else:
-        raise SystemExit(f"error: no coefficients in {source}: run with --measure")
+        coef, dated = committed(source)
     result = {
         "what": "bench cells and grids projected from measured coefficients (benchmarks/cost_model.py's docstring)",
         "command": shlex.join(["python", "benchmarks/cost_model.py", *_measuring_args(sys.argv[1:])]),

@@ -5,6 +5,7 @@
     .venv/bin/python benchmarks/perf_report.py --row update     # ACCRUE update vs the plain FastTD3 reference
     .venv/bin/python benchmarks/perf_report.py --row eval       # evaluation episodes/s vs raw env stepping
     .venv/bin/python benchmarks/perf_report.py --row grid --store S   # issue 18's grid, projected from store S
+    .venv/bin/python benchmarks/perf_report.py --row model   # the same grid from benchmarks/cost_model.py's coefficients
     .venv/bin/python benchmarks/perf_report.py --row all
 
 Each row is stored with the command that made it, the machine's core count and load average before and
@@ -372,7 +373,38 @@ def row_grid(args) -> dict:
     }
 
 
-ROWS = {"finetune": row_finetune, "cell": row_cell, "update": row_update, "eval": row_eval, "grid": row_grid}
+# --------------------------------------------------------------------------- model
+def row_model(args) -> dict:
+    """Issue 18's grid projected by issue 48's cost model (benchmarks/cost_model.py) from its committed
+    coefficients, under the old and the new evaluation protocol; `python benchmarks/cost_model.py --measure`
+    re-measures them."""
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import cost_model
+
+    coef, dated = cost_model.committed(cost_model.OUT)
+    proj = cost_model.projections(list(GRID_SPECS), coef)
+    loads = [v["load_avg_1min"] for part in ("physics", "learner") for v in coef[part].values()]
+    return {
+        "what": f"issue 18's grid ({', '.join(GRID_SPECS)}) projected from benchmarks/results/cost_model.json's "
+        "coefficients (physics, learner updates, finetune, overhead): cells one core each, steps shared through "
+        "the step cache paid once; old protocol = every task at every grid point, new = earlier tasks once",
+        **dated,
+        "coefficients_load_avg_1min": [min(loads), max(loads)],
+        "cell_min": {name: p["cell_min"] for name, p in proj.items()},
+        "full_grid_h": proj["full grid"]["grid_h"],
+        "core_h": proj["full grid"]["core_h_cache_shared"],
+        "goal_h": 10.0,
+    }
+
+
+ROWS = {
+    "finetune": row_finetune,
+    "cell": row_cell,
+    "update": row_update,
+    "eval": row_eval,
+    "grid": row_grid,
+    "model": row_model,
+}
 README = ROOT / "docs" / "benchmark" / "speed.md"  # the page whose speed table --doc rewrites
 MARKERS = ("<!-- perf-table:start -->", "<!-- perf-table:end -->")
 
