@@ -86,15 +86,17 @@ def _move(store: Store, name: str, path: Path, oid: str, log: bool) -> str | Non
     return old
 
 
-def delete_ref(store: Store, name: str, log: bool = True) -> str | None:
-    """Remove a ref (what it named stays until gc finds nothing else reaches it). Returns its id."""
+def delete_ref(store: Store, name: str, log: bool = True, expect: str | None = None) -> str | None:
+    """Remove a ref (what it named stays until gc finds nothing else reaches it). Returns its id.
+    With expect, only if it still names that id (compare-and-delete): else nothing changes and the
+    id it names now is returned."""
     from artifacts.auditlog import append_event, ensure_appendable
 
     path = _ref_path(store, name)
     with store_lock(store.locks_dir, "refs"):
         old = read_ref(store, name)
-        if old is None:
-            return None
+        if old is None or (expect is not None and old != expect):
+            return old
         if log:
             ensure_appendable(store)
         try:

@@ -1,5 +1,5 @@
-"""Remote commands: `accrue remote add/list/remove/set/rekey/prune/repair`, `accrue push` (and
-`push --delete`), `accrue fetch`, `accrue pull`.
+"""Remote commands: `accrue remote add/init/list/remove/set/rekey/prune/repair/unlock`, `accrue push`
+(and `push --delete`, `push --verify`), `accrue fetch`, `accrue pull` (both with `--prune`).
 
 Only typer/rich at module level; the store and obstore are imported inside each command.
 """
@@ -54,6 +54,14 @@ def _pick(store_path, words: Optional[List[str]]):
     return st, spec, refs
 
 
+def _named(store_path, name: Optional[str]):
+    """A command on one remote: the one named (which must exist), else the only one (or origin)."""
+    from artifacts.remotes.config import get_remote, pick_remote
+
+    st = open_store(store_path)
+    return st, (get_remote(st, name) if name else pick_remote(st, [])[0])
+
+
 def _fail_on(conflicts: list[str]) -> None:
     if conflicts:
         from artifacts.errors import StoreError
@@ -67,18 +75,58 @@ def _fail_on(conflicts: list[str]) -> None:
 def remote_add(
     name: Annotated[str, typer.Argument(help="Short name, e.g. origin or nas.")],
     url: Annotated[str, typer.Argument(help="s3://BUCKET/PREFIX, or a directory (NAS, USB disk).")],
+    create: Annotated[
+        bool,
+        typer.Option("--create", help="Also make it an empty remote (a directory: made; its parent must exist)."),
+    ] = False,
     store: StoreOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
     """Add a remote. S3 endpoint, region and credentials come from the usual AWS_* variables or profile,
-    or per remote from `accrue remote set NAME endpoint|profile|region VALUE`."""
-    from artifacts.remotes.config import add_remote
+    or per remote from `accrue remote set NAME endpoint|profile|region VALUE`. A directory remote's
+    directory must exist (`--create` makes it, as `accrue remote init NAME` does later)."""
+    from artifacts.remotes.config import add_remote, remove_remote_entry
 
-    spec = add_remote(open_store(store), name, url)
+    st = open_store(store)
+    spec = add_remote(st, name, url)
+    made = None
+    if create:
+        from artifacts.remotes.create import init_remote
+
+        try:
+            made = init_remote(st, spec.name)
+        except BaseException:
+            remove_remote_entry(st, spec.name)  # a remote that could not be made is not added either
+            raise
+    missing = spec.kind == "dir" and not spec.path.is_dir()
     if as_json:
-        print_json({"name": spec.name, "url": spec.url, "kind": spec.kind})
+        print_json({"name": spec.name, "url": spec.url, "kind": spec.kind, "created": made, "exists": not missing})
+        return
+    typer.echo(
+        f"remote {spec.name}: {spec.url} ({'S3' if spec.kind == 's3' else 'directory'})"
+        + ("; made an empty remote there" if made else "")
+        + (f"; {spec.path} does not exist yet: `accrue remote init {spec.name}` makes it" if missing else "")
+    )
+
+
+@remote_app.command("init")
+def remote_init(
+    name: Annotated[Optional[str], typer.Argument(help="The remote (optional when there is one).")] = None,
+    store: StoreOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """Make the remote an empty accrue remote (a directory: made, its parent must exist). Also how a
+    wiped remote starts afresh: this store forgets what it knew of it, so the next push sends everything."""
+    from artifacts.remotes.create import init_remote
+
+    st, spec = _named(store, name)
+    made = init_remote(st, spec.name)
+    if as_json:
+        print_json({"name": spec.name, "url": spec.url, "created": made})
     else:
-        typer.echo(f"remote {spec.name}: {spec.url} ({'S3' if spec.kind == 's3' else 'directory'})")
+        typer.echo(
+            f"remote {spec.name}: {'made an empty remote at' if made else 'already an accrue remote:'} {spec.url}"
+        )
 
 
 @remote_app.command("list")
@@ -176,6 +224,49 @@ def remote_prune(
         f"younger than {grace}"
         + ("; pass --yes to delete" if report.dry_run and (report.removed or report.uploads) else "")
     )
+    for lease in report.leases_taken_over:
+        typer.echo(f"  took over the lease of a push that is gone: {lease}")
+
+
+@remote_app.command("unlock")
+def remote_unlock(
+    name: Annotated[Optional[str], typer.Argument(help="The remote (optional when there is one).")] = None,
+    every: Annotated[
+        bool,
+        typer.Option(
+            "--all",
+            help="Remove every lease, live ones too (and a directory remote's ref lock files): only when "
+            "no push to this remote is running anywhere.",
+        ),
+    ] = False,
+    store: StoreOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """Remove the leases of pushes that are gone (stale: not renewed for 15 min, or their process on this
+    host has ended), which `remote prune` waits for; --all removes every lease."""
+    from artifacts.remotes.lease import unlock_remote
+
+    st, spec = _named(store, name)
+    dropped, kept, locks = unlock_remote(st, spec.name, every)
+    if as_json:
+        print_json(
+            {
+                "removed": [lease.describe() for lease in dropped],
+                "live": [lease.describe() for lease in kept],
+                "ref_locks_removed": locks,
+            }
+        )
+        return
+    for lease in dropped:
+        typer.echo(f"  removed {lease.state if not every else 'lease'}: {lease.describe()}")
+    for key in locks:
+        typer.echo(f"  removed ref lock {key}")
+    for lease in kept:
+        typer.echo(f"  kept live: {lease.describe()}")
+    typer.echo(
+        f"unlock {spec.name}: removed {len(dropped)} lease(s)"
+        + (f"; kept {len(kept)} live (`--all` removes them if no push is running)" if kept else "")
+    )
 
 
 @remote_app.command("repair")
@@ -223,17 +314,25 @@ def push(
         bool,
         typer.Option("--delete", help="Remove the named refs from the remote instead (if still where last seen)."),
     ] = False,
+    verify: Annotated[
+        bool,
+        typer.Option(
+            "--verify",
+            help="Also download and re-hash every object the refs reach on the remote, and send corrupt ones again.",
+        ),
+    ] = False,
     jobs: JobsOpt = None,
     store: StoreOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
-    """Upload what the refs reach and the remote lacks, then move the remote's refs (compare-and-swap)."""
+    """Make sure the remote holds every object the refs reach (sending what it lacks), then move the remote's
+    refs (compare-and-swap). A ref deleted there since this store last saw it is not made again."""
     from artifacts.remotes.push import push as do_push
 
     st, spec, refs = _pick(store, words)
     if delete:
         return _delete(st, spec.name, refs, as_json)
-    report = do_push(st, spec.name, refs, force=force, jobs=jobs, meter=_meter(as_json))
+    report = do_push(st, spec.name, refs, force=force, jobs=jobs, meter=_meter(as_json), verify=verify)
     if as_json:
         print_json(report.as_dict())
     else:  # plain echo, not rich: a no-op push should cost little more than start-up
@@ -241,12 +340,24 @@ def push(
             typer.echo(f"  {name}: {old[:12] if old else '(new)'} -> {new[:12]}")
         for name in report.behind:
             typer.echo(f"  {name}: the remote has moved on; `accrue pull {spec.name} {name}` to get it")
+        for name in report.gone_there:
+            typer.echo(
+                f"  {name}: deleted on {spec.name} since this store last saw it, not sent; "
+                f"`accrue pull --prune {spec.name} {name}` deletes it here, "
+                f"`accrue push --force {spec.name} {name}` puts it back there"
+            )
         for name, keep in report.displaced.items():
             typer.echo(f"  {name}: the remote's previous id is kept there as ref {keep}")
+        for lease in report.leases_taken_over:
+            typer.echo(f"  took over the lease of a push that is gone: {lease}")
+        healed = f" ({len(report.healed)} missing or damaged there although its refs reach them)"
         typer.echo(
-            f"push -> {spec.name}: sent {report.objects_sent} objects ({human_size(report.bytes_sent)}), "
-            f"moved {len(report.moved)} refs, {len(report.up_to_date)} up to date"
+            f"push -> {spec.name}: sent {report.objects_sent} objects ({human_size(report.bytes_sent)})"
+            + (healed if report.healed else "")
+            + f", moved {len(report.moved)} refs, {len(report.up_to_date)} up to date"
+            + (f", {len(report.gone_there)} deleted there" if report.gone_there else "")
             + (f", {len(report.conflicts)} refused" if report.conflicts else "")
+            + (f"; {report.objects_rehashed} objects re-hashed there" if verify else "")
         )
     _fail_on(report.conflicts)
 
@@ -274,24 +385,54 @@ def _print_fetch(report, verb: str, as_json: bool) -> None:
         typer.echo(f"  {name}: only this store moved it; `accrue push {report.remote} {name}` shares it")
     for name, keep in report.displaced.items():
         typer.echo(f"  {name}: this store's previous id is kept as ref {keep}")
+    for name in report.deleted_here:
+        typer.echo(
+            f"  {name}: deleted in this store, not taken again; `accrue push --delete {report.remote} {name}` "
+            f"deletes it there, `accrue pull --force {report.remote} {name}` brings it back"
+        )
+    for name, oid in report.deleted.items():
+        typer.echo(f"  {name}: deleted here, as on {report.remote} (was {oid[:12]})")
+    if not report.pruned and not report.deleted:
+        for name in sorted(n for n in report.gone if n not in report.deleted):
+            typer.echo(
+                f"  {name}: deleted on {report.remote}; `accrue {verb} --prune {report.remote} {name}` "
+                + ("deletes it here" if verb == "pull" else "drops its remote-tracking ref")
+            )
     tail = f"; {report.promised} objects left on the remote until needed" if report.promised else ""
     if report.steps_indexed:
         tail += f"; {report.steps_indexed} step records now in the step cache"
     moved = f", moved {len(report.moved)} local refs" if verb == "pull" else ""
+    if report.deleted or report.pruned:
+        moved += f", deleted {len(report.deleted) if verb == 'pull' else len(report.pruned)} gone there"
     typer.echo(
         f"{verb} <- {report.remote}: received {report.objects_received} objects "
         f"({human_size(report.bytes_received)}) for {len(report.refs)} refs{moved}{tail}"
     )
 
 
+PruneOpt = Annotated[
+    bool,
+    typer.Option(
+        "--prune",
+        help="Pass on refs the remote deleted: fetch drops their remote-tracking refs; pull also deletes each "
+        "local one not moved here since the two sides last agreed.",
+    ),
+]
+
+
 def fetch(
-    words: WordsArg = None, only: OnlyOpt = None, jobs: JobsOpt = None, store: StoreOpt = None, as_json: JsonOpt = False
+    words: WordsArg = None,
+    only: OnlyOpt = None,
+    prune: PruneOpt = False,
+    jobs: JobsOpt = None,
+    store: StoreOpt = None,
+    as_json: JsonOpt = False,
 ) -> None:
     """Download what the remote's refs reach (verified) and update the remote-tracking refs only."""
     from artifacts.remotes.pull import fetch as do_fetch
 
     st, spec, refs = _pick(store, words)
-    report = do_fetch(st, spec.name, refs, only=parse_kinds(only), jobs=jobs, meter=_meter(as_json))
+    report = do_fetch(st, spec.name, refs, only=parse_kinds(only), jobs=jobs, meter=_meter(as_json), prune=prune)
     _print_fetch(report, "fetch", as_json)
 
 
@@ -304,15 +445,19 @@ def pull(
             "--force", help="Take the remote's refs even over local changes (yours kept as displaced/REF/ID)."
         ),
     ] = False,
+    prune: PruneOpt = False,
     jobs: JobsOpt = None,
     store: StoreOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
-    """fetch, then fast-forward: take each ref only the remote moved since the two sides last agreed."""
+    """fetch, then fast-forward: take each ref only the remote moved since the two sides last agreed
+    (with --prune, delete each one only the remote deleted)."""
     from artifacts.remotes.pull import pull as do_pull
 
     st, spec, refs = _pick(store, words)
-    report = do_pull(st, spec.name, refs, only=parse_kinds(only), force=force, jobs=jobs, meter=_meter(as_json))
+    report = do_pull(
+        st, spec.name, refs, only=parse_kinds(only), force=force, jobs=jobs, meter=_meter(as_json), prune=prune
+    )
     _print_fetch(report, "pull", as_json)
     _fail_on(report.conflicts)
 

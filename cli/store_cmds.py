@@ -1,4 +1,4 @@
-"""Store commands: init, add, show, lineage, log, refs, verify, gc.
+"""Store commands: init, add, show, lineage, log, refs (and refs delete), verify, gc.
 
 Only typer/rich at module level; the store code is imported inside each command.
 """
@@ -8,7 +8,7 @@ from __future__ import annotations
 import json
 import re
 from pathlib import Path
-from typing import Annotated, Any, Optional
+from typing import Annotated, Any, List, Optional
 
 import typer
 
@@ -341,17 +341,30 @@ def _short(value: Any) -> str:
 
 
 def refs(
-    prefix: Annotated[str, typer.Argument(help="Only refs starting with this.")] = "",
+    words: Annotated[
+        Optional[List[str]],
+        typer.Argument(
+            metavar="[PREFIX] | delete NAME...",
+            help="Only refs starting with PREFIX; or `delete NAME...` to delete refs of this store.",
+            show_default=False,
+        ),
+    ] = None,
     store: StoreOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
-    """List refs (mutable names pointing at artifacts and step records)."""
+    """List refs (mutable names pointing at artifacts and step records), or delete some: `accrue refs delete NAME`."""
     from rich.table import Table
 
+    from artifacts.errors import StoreError
     from artifacts.refs import list_refs
 
+    words = list(words or [])
+    if words[:1] == ["delete"]:
+        return _delete_refs(words[1:], store, as_json)
+    if len(words) > 1:
+        raise StoreError("refs: give one PREFIX to list, or `accrue refs delete NAME...` to delete")
     problems: list[str] = []
-    found = list_refs(open_store(store), prefix, problems=problems)
+    found = list_refs(open_store(store), words[0] if words else "", problems=problems)
     for problem in problems:  # a foreign or damaged file under refs/: say so, list the rest
         typer.echo(f"warning: {problem}", err=True)
     if as_json:
@@ -363,6 +376,45 @@ def refs(
     for name, oid in found.items():
         table.add_row(name, oid[:16])
     console().print(table)
+
+
+def _delete_refs(names: list[str], store, as_json: bool) -> None:
+    """`accrue refs delete NAME...`: every name is checked before any ref goes."""
+    from artifacts.errors import StoreError
+    from artifacts.refs import check_ref_name, delete_ref, read_ref
+    from artifacts.remotes import RESERVED, TRACKING
+    from artifacts.remotes.config import list_remotes
+
+    if not names:
+        raise StoreError(
+            "refs delete: name the ref(s) to delete (e.g. `accrue refs delete workflow/old/stage/1/train`)"
+        )
+    st = open_store(store)
+    for name in names:
+        check_ref_name(name)
+        if name.startswith(RESERVED):
+            raise StoreError(
+                f"refs delete {name}: a remote-tracking ref; `accrue fetch --prune` drops those of refs the remote "
+                "deleted, `accrue remote remove` all of a remote's"
+            )
+        if read_ref(st, name) is None:
+            raise StoreError(f"refs delete: no ref {name!r} in this store (nothing was deleted)")
+    deleted = {}
+    for name in dict.fromkeys(names):
+        old = delete_ref(st, name)
+        if old is not None:
+            deleted[name] = old
+    remotes = list(list_remotes(st))
+    there = {name: [r for r in remotes if read_ref(st, f"{TRACKING}/{r}/{name}") is not None] for name in deleted}
+    if as_json:
+        print_json({"deleted": deleted, "on_remotes": there})
+        return
+    for name, oid in deleted.items():
+        typer.echo(
+            f"deleted ref {name} (was {oid[:12]}; what it named stays until `accrue gc` finds nothing else reaches it)"
+        )
+        for r in there[name]:
+            typer.echo(f"  remote {r} still has it: `accrue push --delete {r} {name}` deletes it there")
 
 
 def verify(
@@ -443,6 +495,13 @@ def _verify_remote(name: str, full: bool, store, as_json: bool) -> None:
             f"verify --remote {name}{' --full' if full else ''}: {status} — {report.reachable} objects "
             f"reachable from {report.refs} refs and logs are on the remote{what}"
         )
+        if report.heal:
+            lacking = len(report.lacking_here)
+            out.print(
+                f"to heal it: `{report.heal}`"
+                + (f" from a store that has them ({lacking} of them are not in this store)" if lacking else ""),
+                soft_wrap=True,
+            )
     if not report.ok:
         raise SystemExit(1)
 

@@ -61,7 +61,7 @@ def s3_client(endpoint: str):
 def remote_url(request, tmp_path):
     """A fresh remote of each kind: a directory, or a new bucket on the moto server."""
     if request.param == "dir":
-        (tmp_path / "nas").mkdir()  # the mounted disk; the remote's own directory is made on push
+        (tmp_path / "nas" / "accrue").mkdir(parents=True)  # the remote's directory, on the mounted disk
         return str(tmp_path / "nas" / "accrue")
     endpoint = request.getfixturevalue("s3_env")
     bucket = f"b-{uuid.uuid4().hex[:12]}"

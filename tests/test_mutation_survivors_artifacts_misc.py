@@ -377,7 +377,7 @@ def pushed(tmp_path: Path) -> tuple[Store, str, Path]:
     (the store, the artifact's id, the remote's directory)."""
     a, _ = Store.init(tmp_path / "a")
     aid = artifact(a, tmp_path, b"replay" * 100, "team/replay")
-    (tmp_path / "nas").mkdir()
+    (tmp_path / "nas" / "accrue").mkdir(parents=True)  # the remote's directory (`remote init` makes one)
     remote = tmp_path / "nas" / "accrue"
     add_remote(a, "origin", str(remote))
     push(a, "origin")
@@ -433,6 +433,7 @@ def test_remote_prune_is_a_dry_run_with_a_one_day_grace_by_default(tmp_path):
         "bytes": len(b"two days old") + len(b"a day and a quarter second old"),
         "young": 2,
         "uploads": [dead],
+        "leases_taken_over": [],
     }
     assert remote_objects(remote) == before and len(list((remote / "tmp").iterdir())) == 2
     assert not set(young) & set(report.removed)
@@ -485,14 +486,14 @@ def test_remote_prune_deletes_nothing_when_a_ref_moves_while_it_looks(tmp_path, 
     and its deletion (here the push runs when prune checks for leases)."""
     a, _, remote = pushed(tmp_path)
     old = leftover(remote, b"two days old", 2 * DAY)
-    real_leases = artifacts.remotes.prune._leases
+    real_leases = artifacts.remotes.prune.read_leases
 
     def a_push_lands_meanwhile(backend):
         artifact(a, tmp_path, b"newer replay", "team/replay")
         push(a, "origin")
         return real_leases(backend)
 
-    monkeypatch.setattr(artifacts.remotes.prune, "_leases", a_push_lands_meanwhile)
+    monkeypatch.setattr(artifacts.remotes.prune, "read_leases", a_push_lands_meanwhile)
     with pytest.raises(StoreError) as exc:
         prune_remote(a, "origin", dry_run=False)
     assert str(exc.value) == "remote origin: its refs moved while prune looked; nothing was deleted — run it again"
@@ -534,6 +535,8 @@ def test_remote_verify_json_is_its_counts_and_problems_without_the_walk(tmp_path
         "bytes_hashed": 0,
         "problems": [],
         "damaged": [],
+        "heal": None,
+        "lacking_here": [],
     }
 
 
@@ -548,7 +551,7 @@ def test_log_remote_summarises_each_store_by_its_id_host_and_first_and_last_even
     append_event(a, "note", n=2)
     time.sleep(0.005)
     append_event(a, "note", n=3)
-    (tmp_path / "nas").mkdir()
+    (tmp_path / "nas" / "accrue").mkdir(parents=True)
     add_remote(a, "origin", str(tmp_path / "nas" / "accrue"))
     push(a, "origin")
     b = another_store(tmp_path, tmp_path / "nas" / "accrue")

@@ -567,6 +567,7 @@ def test_overlapping_partial_pulls_note_each_promised_object_once(bare_store, tm
     from artifacts.remotes.forget import forget_remote
     from artifacts.remotes.lazy import add_promised, promised_path
 
+    (tmp_path / "remote").mkdir(exist_ok=True)
     add_remote(bare_store, "nas", str(tmp_path / "remote"))
     add_promised(bare_store, "nas", [P_B, P_A])
     add_promised(bare_store, "nas", [P_C, P_B])  # a later pull --only leaves P_B there again
@@ -1487,6 +1488,7 @@ def pushed_tree(tmp_path: Path) -> tuple[Store, Path, dict]:
     add_path(store, folder, "replay", ref="team/dir")
     tree_id = store.read_json(read_ref(store, "team/dir"))["content"]
     set_ref(store, "team/tree", tree_id)
+    (tmp_path / "remote").mkdir(exist_ok=True)
     add_remote(store, "nas", str(tmp_path / "remote"))
     push(store, "nas")
     return store, tmp_path / "remote", {"id": tree_id, **store.read_json(tree_id)}
@@ -1547,6 +1549,7 @@ def test_bytes_left_behind_for_one_artifact_but_wanted_by_another_are_pulled_not
     content = first.read_json(read_ref(first, "team/a"))["content"]
     tree = first.read_json(first.read_json(read_ref(first, "team/b"))["content"])
     assert [e["id"] for e in tree["entries"]] == [content]
+    (tmp_path / "remote").mkdir(exist_ok=True)
     add_remote(first, "nas", str(tmp_path / "remote"))
     push(first, "nas")
     second = second_store(tmp_path, tmp_path / "remote")
@@ -1573,6 +1576,7 @@ def test_an_input_that_names_a_bare_tree_is_pulled_whole_under_only(tmp_path):
     content = store_content(first, tmp_path / "weights.bin")
     checkpoint = write_manifest(first, content, "checkpoint", producer={}, inputs={"episodes": tree_id})
     set_ref(first, "team/ckpt", checkpoint)
+    (tmp_path / "remote").mkdir(exist_ok=True)
     add_remote(first, "nas", str(tmp_path / "remote"))
     push(first, "nas")
     second = second_store(tmp_path, tmp_path / "remote")
@@ -1652,6 +1656,7 @@ def test_an_only_kind_no_artifact_has_is_one_line_naming_the_kinds_there_unless_
 
         first, _ = Store.init(tmp_path / "store")
         remote = tmp_path / "remote"
+        remote.mkdir()
         add_remote(first, "nas", str(remote))
         push(first, "nas")
     second = second_store(tmp_path, remote)
@@ -1710,6 +1715,7 @@ def test_a_pull_refuses_an_object_shorter_than_its_manifest_says(tmp_path):
     (tmp_path / "w.bin").write_bytes(b"w" * 100)
     content = store_content(first, tmp_path / "w.bin")
     set_ref(first, "team/w", write_manifest(first, {**content, "size": 101}, "replay", producer={}))
+    (tmp_path / "remote").mkdir(exist_ok=True)
     add_remote(first, "nas", str(tmp_path / "remote"))
     push(first, "nas")
     second = second_store(tmp_path, tmp_path / "remote")
@@ -1925,8 +1931,19 @@ def test_a_remote_s_config_is_made_on_first_push_and_checked_on_every_use(tmp_pa
     assert (remote / "config").read_bytes() == b'{"format":1,"hash":"blake3","type":"accrue-remote"}\n'
     check_remote_config(backend, create=False)
     unmade = tmp_path / "second-remote"
-    check_remote_config(DirBackend(parse_url("usb", str(unmade))), create=True)  # a first push makes the folder
-    assert (unmade / "config").is_file()
+    with pytest.raises(StoreError) as exc:  # a push never makes a remote's directory: an unmounted disk's is missing
+        check_remote_config(DirBackend(parse_url("usb", str(unmade))), create=True)
+    assert str(exc.value) == (
+        f"remote usb ({unmade}): the directory does not exist (is the disk mounted?); nothing was written — "
+        "if it is a new remote, `accrue remote init usb` makes it one"
+    )
+    assert not unmade.exists()
+    (remote / "config").unlink()
+    with pytest.raises(StoreError) as exc:  # a store that used the remote before: not made again behind its back
+        check_remote_config(backend, create=True, known=True)
+    assert "holds no accrue store, but this store has used it before" in str(exc.value)
+    assert "`accrue remote init nas` makes it one" in str(exc.value) and not (remote / "config").exists()
+    check_remote_config(backend, create=True)
     check_remote_config(backend, create=True)  # there already: kept
     for raw, why in [
         (b"not json", "its config is not an accrue remote's"),
@@ -2018,37 +2035,47 @@ def test_merge_bases_are_recorded_once_per_change_and_fall_back_to_tracking_refs
     assert not t.is_alive() and pointers.merge_bases(bare_store, "nas")["team/a"] == b
 
 
-def test_which_objects_a_remote_holds_is_asked_one_head_each_up_to_256_else_by_one_listing(tmp_path, monkeypatch):
-    """pointers.present_on_remote: up to HEAD_MAX candidates one HEAD each (on `jobs` threads), more, or
-    `listing`, one listing; either way only the candidates held there (ids in the triage files of round 12)."""
-    import artifacts.remotes.pointers as pointers
+def test_a_big_remotes_presence_heads_only_what_was_not_confirmed_since_its_last_full_check(tmp_path, monkeypatch):
+    """present.Presence.check: a remote of more than LIST_SMALL objects is listed in full only when this store
+    has no full check of it, when the last is older than ACCRUE_REMOTE_RECHECK, when a prune deleted there
+    since, or when more than HEAD_MAX candidates are unconfirmed; else one HEAD per object not confirmed since."""
+    import artifacts.remotes.present as present
     from artifacts.remotes.config import get_remote
 
     store, remote, contents = pushed_store(tmp_path)
+    monkeypatch.setattr(present, "LIST_SMALL", 0)  # every remote counts as big
     backend = DirBackend(get_remote(store, "nas"))
-    heads, listings, jobs_seen = [], [], []
-    real_head, real_list, real_parallel = backend.head, backend.remote_object_ids, pointers.parallel
+    heads, listings = [], []
+    real_head, real_list = backend.head, backend.remote_object_ids
     monkeypatch.setattr(backend, "head", lambda key: heads.append(key) or real_head(key))
     monkeypatch.setattr(backend, "remote_object_ids", lambda: listings.append(1) or real_list())
-
-    def parallel(fn, items, jobs):
-        jobs_seen.append(jobs)
-        return real_parallel(fn, items, jobs)
-
-    monkeypatch.setattr(pointers, "parallel", parallel)
     held = [contents["a"], contents["b"]]
-    absent = [hash_bytes(f"absent {i}".encode()) for i in range(255)]
-    assert pointers.present_on_remote(backend, held[:1] + absent[:1], 3) == {held[0]}
-    assert sorted(heads) == sorted(f"objects/blake3/{o[:2]}/{o[2:]}" for o in held[:1] + absent[:1]) and listings == []
-    assert jobs_seen == [3]
+    sizes = remote_object_sizes(remote)
+    absent = [hash_bytes(f"absent {i}".encode()) for i in range(257)]
+
+    def check(oids):
+        return present.Presence(store, "nas").check(backend, oids, 2)
+
+    assert check(held + absent[:1]) == {o: sizes[o] for o in held}  # no full check yet: one listing
+    assert (len(heads), listings) == (0, [1])
+    assert check(held + absent[:1]) == {o: None for o in held}  # confirmed since: only the new one is asked
+    assert heads == [object_key(absent[0])] and listings == [1]
     heads.clear()
-    assert pointers.present_on_remote(backend, held[:1] + absent, 2) == {held[0]}  # 256: still HEADs
-    assert len(heads) == 256 and listings == []
-    heads.clear()
-    assert pointers.present_on_remote(backend, held + absent, 2) == set(held)  # 257: one listing
-    assert heads == [] and listings == [1]
-    assert pointers.present_on_remote(backend, held[1:], 2, listing=True) == {held[1]}
-    assert heads == [] and listings == [1, 1]
+    assert check(held + absent) == {o: sizes[o] for o in held}  # 257 unconfirmed: one listing, not 257 HEADs
+    assert (heads, listings) == ([], [1, 1])
+    lose_on_remote(remote, held[:1])
+    assert held[0] in check(held)  # trusted until the next full check
+    monkeypatch.setenv("ACCRUE_REMOTE_RECHECK", "0")
+    assert check(held) == {held[1]: sizes[held[1]]} and listings == [1, 1, 1]  # the last one is too old
+    monkeypatch.delenv("ACCRUE_REMOTE_RECHECK")
+    present.Presence(store, "nas").confirm(held[:1])  # (wrongly) confirmed again
+    assert held[0] in check(held) and listings == [1, 1, 1]
+    present.mark_pruned(backend, "a prune")
+    assert check(held) == {held[1]: sizes[held[1]]} and listings == [1, 1, 1, 1]  # a prune since: listed
+    assert held[0] not in check(held) and listings == [1, 1, 1, 1]  # the marker read is remembered
+    monkeypatch.setenv("ACCRUE_REMOTE_RECHECK", "soon")
+    with pytest.raises(StoreError, match="ACCRUE_REMOTE_RECHECK='soon': not a number of seconds"):
+        check(held)
 
 
 # ----------------------------------------------------------------------------- remotes.closure.bottom_up (round 12)
@@ -2187,6 +2214,7 @@ def store_pushing_to(tmp_path: Path, name: str, remote: Path, files: dict[str, b
         src = tmp_path / f"{name}-{ref.replace('/', '-')}.bin"
         src.write_bytes(data)
         add_path(store, src, "replay", ref=ref)
+    remote.mkdir(parents=True, exist_ok=True)  # a remote's directory is made by `remote init`, never by a push
     add_remote(store, "nas", str(remote))
     return store
 
@@ -2276,6 +2304,10 @@ def test_a_first_push_sends_every_object_once_and_leaves_its_bookkeeping(tmp_pat
         "bytes_sent": sum(sent.values()),
         "objects_checked": len(sent),
         "log_segment": segment,
+        "gone_there": [],
+        "healed": [],
+        "objects_rehashed": 0,
+        "leases_taken_over": [],
     }
     assert 0 in sent.values()
     local_bytes = sum(store.object_size(o) for o in local_objects)
@@ -2292,7 +2324,9 @@ def test_a_first_push_sends_every_object_once_and_leaves_its_bookkeeping(tmp_pat
     assert (pushed["event"], pushed["remote"], pushed["refs"]) == ("pushed", "nas", refs)
     [(lease, lease_bytes)] = calls.leases
     assert re.fullmatch(rf"pushes/{sid}-{os.getpid()}-[0-9a-f]{{8}}", lease)
-    assert lease_bytes == canonical_json({"host": socket.gethostname(), "pid": os.getpid()}) + b"\n"
+    lease_info = json.loads(lease_bytes)
+    assert (lease_info["host"], lease_info["pid"], lease_info["store"]) == (socket.gethostname(), os.getpid(), sid)
+    assert lease_bytes == canonical_json(lease_info) + b"\n"
     assert not (remote / "pushes").exists() or not any((remote / "pushes").iterdir())
 
 
@@ -2326,9 +2360,10 @@ def test_later_pushes_send_only_what_is_new_and_chain_the_log_segments(tmp_path,
     assert report.moved == {n: [refs.get(n), now[n]] for n in now if now[n] != refs.get(n)}
     assert set(report.moved) == {"team/a", "team/c", *[n for n in now if n.startswith("ingested/") and n not in refs]}
     assert report.up_to_date == [n for n in now if n not in report.moved]
-    assert report.objects_checked == len(new_objects) + 2
+    # every object the refs reach is checked (a small remote: in one listing), only the new ones sent
+    assert report.objects_checked == len(set(store.iter_object_ids())) + 2
     assert report.objects_sent == len(new_objects) + 2
-    assert calls.heads == len(new_objects) + 2 and calls.listings == 0
+    assert calls.heads == 0 and calls.listings == 1
     assert second == {"manifest": report.log_segment, "end": len(log_before)}
     assert segment["inputs"] == {"previous": first["manifest"]}
     first_new = json.loads(log_before[first["end"] :].splitlines()[0])["seq"]
@@ -2336,10 +2371,10 @@ def test_later_pushes_send_only_what_is_new_and_chain_the_log_segments(tmp_path,
     assert remote_files(remote, "refs")["team/a"] == f"{refs['team/b']}\n".encode()
 
     events = len(list(iter_events(store)))
-    push(store, "nas")  # the pushed event of the last push: a segment, nothing else
-    quiet = push(store, "nas")
-    assert (quiet.moved, quiet.objects_sent, quiet.objects_checked, quiet.log_segment) == ({}, 0, 0, None)
-    assert len(list(iter_events(store))) == events  # no ref changed: no pushed event either time
+    quiet = push(store, "nas")  # the pushed event of the last push waits for a push that moves a ref
+    assert (quiet.moved, quiet.objects_sent, quiet.log_segment) == ({}, 0, None)
+    assert quiet.objects_checked == report.objects_checked - 2  # what the refs reach, still checked
+    assert len(list(iter_events(store))) == events  # no ref changed: no pushed event
 
 
 def test_a_push_of_chosen_refs_moves_only_those_and_an_unknown_one_is_refused(tmp_path):
@@ -2449,6 +2484,7 @@ def test_a_partial_clone_pushes_what_the_remote_has_but_not_what_no_one_has(tmp_
     set_ref(b, "team/copy", local_refs(a)["team/a"])
     assert set(push(b, "nas", ["team/copy"]).moved) == {"team/copy"}  # the remote has the data: fine
 
+    (tmp_path / "other").mkdir()
     add_remote(b, "other", str(tmp_path / "other"))
     with pytest.raises(StoreError) as exc:
         push(b, "other")
@@ -2743,16 +2779,23 @@ def test_a_store_that_lost_its_log_position_starts_its_log_chain_again_from_the_
     assert segment["producer"]["store"] == store_id(store)
 
 
-def test_a_wiped_remote_gets_the_whole_log_again_as_a_new_chain_and_every_ref(tmp_path):
+def test_a_wiped_remote_is_refused_until_remote_init_then_gets_the_whole_log_again_and_every_ref(tmp_path):
     """_push 83 (no log on the remote is no other store's log), 38, 112 (the segment starts from the log's first
     line, not where the last push to the lost remote ended), 122-125 (refs this store tracked that the remote
-    no longer has are not proof it holds their objects)."""
+    no longer has are not proof it holds their objects); check_remote_config (a remote this store used is
+    never made again by a push); create.init_remote (what the store knew of the old remote is forgotten)."""
+    from artifacts.remotes.create import init_remote
     from artifacts.remotes.push import push
 
     remote = tmp_path / "remote"
     store = store_pushing_to(tmp_path, "a", remote, {"team/a": b"alpha" * 100})
     push(store, "nas")
     shutil.rmtree(remote)
+    remote.mkdir()  # emptied, as a wiped (or another, empty) disk would be
+    with pytest.raises(StoreError, match="holds no accrue store, but this store has used it before"):
+        push(store, "nas")
+    assert list(remote.iterdir()) == []
+    assert init_remote(store, "nas") is True and init_remote(store, "nas") is False
     refs = local_refs(store)
     report = push(store, "nas")
     assert report.moved == {name: [None, oid] for name, oid in refs.items()}

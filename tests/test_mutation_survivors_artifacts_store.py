@@ -376,6 +376,7 @@ def test_status_says_a_ref_deleted_on_the_remote_since_the_last_push_is_gone_the
     from artifacts.remotes.unshare import delete_remote_refs
 
     url = str(tmp_path / "nas")
+    (tmp_path / "nas").mkdir()
     a, _ = Store.init(tmp_path / "a")
     b, _ = Store.init(tmp_path / "b")
     try:

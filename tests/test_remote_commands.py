@@ -164,7 +164,8 @@ def test_remote_prune_dry_run_first_then_deletes_only_the_unreachable_and_waits_
         (Path(remote_url) / "pushes").mkdir(exist_ok=True)
         (Path(remote_url) / "pushes" / "other-store-1-abc").write_bytes(b"{}")
     line = one_line_error(cli(a, "remote", "prune", "--yes", "--grace", "0"))
-    assert "a push is running (pushes/other-store-1-abc); nothing was deleted" in line
+    assert "a push is running (pushes/other-store-1-abc (host ? pid ?, renewed " in line
+    assert "nothing was deleted" in line and "`accrue remote unlock origin --all` if no push is running" in line
     delete_remote_key(remote_url, "pushes/other-store-1-abc")
     done = json.loads(cli(a, "remote", "prune", "--yes", "--grace", "0", "--json").stdout)
     assert set(done["removed"]) == set(dry["removed"])
@@ -244,7 +245,7 @@ def test_remote_remove_counts_both_kinds_of_tracking_refs_and_forgets_a_never_us
     """Kills forget_remote 31, 32, 39, 41, 46."""
     a, b, url = tmp_path / "a", tmp_path / "b", str(tmp_path / "remote")
     make_store(a)
-    with_remote(a, url)
+    assert cli(a, "remote", "add", "origin", url, "--create").returncode == 0
     cli(a, "push")
     assert accrue("clone", url, str(b)).returncode == 0
     # a remote added and never fetched from has no remotes/<name>/ state yet

@@ -90,7 +90,7 @@ def test_remote_argument_mistakes(robot, args, pattern):
 
 def test_remote_add_list_remove_and_choosing_one(robot, tmp_path):
     (tmp_path / "nas").mkdir()
-    assert cli(robot, "remote", "add", "nas", str(tmp_path / "nas" / "a")).returncode == 0
+    assert cli(robot, "remote", "add", "nas", str(tmp_path / "nas" / "a"), "--create").returncode == 0
     assert "exists already" in one_line_error(cli(robot, "remote", "add", "nas", str(tmp_path / "b")))
     cli(robot, "remote", "add", "cloud", "s3://bucket-x/lab")
     listed = json.loads(cli(robot, "remote", "list", "--json").stdout)

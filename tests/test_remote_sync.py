@@ -34,10 +34,10 @@ def test_push_then_pull_into_an_empty_store_gives_the_same_refs(tmp_path, remote
     with_remote(a, remote_url)
     pushed = json.loads(cli(a, "push", "--json").stdout)
     assert pushed["conflicts"] == [] and pushed["objects_sent"] == len(list(store_a.iter_object_ids())) + 2
-    again = json.loads(cli(a, "push", "--json").stdout)  # only the log line of the push itself
-    assert again["objects_sent"] == 2 and again["moved"] == {} and again["log_segment"]
-    noop = json.loads(cli(a, "push", "--json").stdout)  # nothing new: nothing sent, nothing logged
-    assert noop["objects_sent"] == 0 and noop["moved"] == {} and noop["log_segment"] is None
+    # the log line of the push itself waits for the next push that moves a ref: a no-op push sends nothing
+    again = json.loads(cli(a, "push", "--json").stdout)
+    assert again["objects_sent"] == 0 and again["moved"] == {} and again["log_segment"] is None
+    assert again["objects_checked"] == pushed["objects_sent"] - 2  # everything its refs reach: still there
     assert [e["event"] for e in map(json.loads, (a / "log" / "events.jsonl").read_bytes().splitlines())][-1] == "pushed"
 
     b = tmp_path / "learner"
@@ -63,7 +63,9 @@ def test_push_then_pull_into_an_empty_store_gives_the_same_refs(tmp_path, remote
         assert segment["kind"] == "audit-log"
         parts.insert(0, Store.open(b).read_bytes(segment["content"]))
         segment_id = segment["inputs"].get("previous")
-    assert len(parts) == 2 and b"".join(parts) == (a / "log" / "events.jsonl").read_bytes()
+    log = (a / "log" / "events.jsonl").read_bytes()
+    assert len(parts) == 1 and log.startswith(parts[0])
+    assert [json.loads(line)["event"] for line in log[len(parts[0]) :].splitlines()] == ["pushed"]  # not sent yet
     # a second pull finds nothing to do
     assert json.loads(cli(b, "pull", "--json").stdout)["objects_received"] == 0
 
@@ -92,7 +94,7 @@ def test_a_later_push_sends_only_the_new_objects_and_a_chained_log_segment(tmp_p
     assert json.loads(first_line)["prev"] == hash_bytes(previous.splitlines()[-1])  # the chain crosses segments
 
 
-def test_fetch_moves_only_tracking_refs_and_a_wiped_remote_is_filled_again(tmp_path, remote_url):
+def test_fetch_moves_only_tracking_refs_and_refs_deleted_there_come_back_only_by_force(tmp_path, remote_url):
     a, b = tmp_path / "a", tmp_path / "b"
     make_store(a)
     with_remote(a, remote_url)
@@ -106,5 +108,7 @@ def test_fetch_moves_only_tracking_refs_and_a_wiped_remote_is_filled_again(tmp_p
     assert cli(b, "verify", "--full").returncode == 0  # tracking refs keep what they reach
     for key in remote_file_keys(remote_url, "refs/"):
         delete_remote_key(remote_url, key)
-    again = json.loads(cli(a, "push", "--json").stdout)
-    assert sorted(again["moved"]) == sorted(user_refs(a)) and again["objects_sent"] == 2  # a log segment
+    again = json.loads(cli(a, "push", "--json").stdout)  # deleted there since a last saw them: not made again
+    assert again["moved"] == {} and sorted(again["gone_there"]) == sorted(user_refs(a)) and again["objects_sent"] == 0
+    forced = json.loads(cli(a, "push", "--force", "--json").stdout)
+    assert sorted(forced["moved"]) == sorted(user_refs(a)) and forced["objects_sent"] == 2  # a log segment

@@ -10,6 +10,7 @@ from artifacts.links import children
 from artifacts.remotes.config import get_remote
 from artifacts.remotes.connect import open_backend
 from artifacts.remotes.pointers import check_remote_config, read_pointers
+from artifacts.remotes.present import Presence, prune_marker
 from artifacts.remotes.transfer import Meter, default_jobs, download_manifest, parallel
 from artifacts.store import Store
 
@@ -27,13 +28,21 @@ class RemoteVerifyReport:
     manifests: set[str] = field(default_factory=set, repr=False)  # those of them that are manifests
     pointers: dict[str, str] = field(default_factory=dict, repr=False)  # "ref NAME" / "log SID" -> id
 
+    lacking_here: list[str] = field(default_factory=list)  # of the damaged: not in this store either
+
     @property
     def ok(self) -> bool:
         return not self.problems
 
+    @property
+    def heal(self) -> str | None:
+        """The command that heals what was found, run in a store that has the objects."""
+        return None if self.ok else f"accrue remote repair {self.remote}{' --full' if self.full else ''}"
+
     def as_dict(self) -> dict:
         return {
             "ok": self.ok,
+            "heal": self.heal,
             **{k: v for k, v in self.__dict__.items() if k not in ("reached", "manifests", "pointers")},
         }
 
@@ -51,6 +60,7 @@ def verify_remote(
     jobs, meter = jobs or default_jobs(), meter or Meter()
     report = RemoteVerifyReport(remote=spec.name, full=full)
     check_remote_config(backend, create=False)
+    marker = prune_marker(backend)  # read before the listing (present.py)
     held = backend.remote_object_ids()
     pointers = [(f"ref {n}", v[0]) for n, v in read_pointers(store, spec, backend, "refs").items()]
     pointers += [(f"log of store {s[:12]}", v[0]) for s, v in read_pointers(store, spec, backend, "logs").items()]
@@ -114,4 +124,7 @@ def verify_remote(
         report.problems += [p for p in found if p]
         report.damaged += [o for o, p in zip(todo, found) if p and o not in report.damaged]
         report.bytes_hashed = sum(held[o] for o in todo)
+    report.lacking_here = [o for o in report.damaged if not store.has_object(o)]
+    bad = set(report.damaged)
+    Presence(store, spec.name).listed({o: n for o, n in held.items() if o not in bad}, marker)
     return report

@@ -103,15 +103,19 @@ def _outside_store(store: Store, spec: RemoteSpec) -> None:
         )
 
 
-def set_setting(store: Store, name: str, key: str, value: str | None) -> RemoteSpec:
-    """Per-remote S3 settings (over the AWS_* environment): endpoint, profile, region; None unsets."""
-    spec = get_remote(store, name)
+def check_setting(spec: RemoteSpec, key: str, value: str | None) -> None:
     if key not in SETTINGS:
         raise StoreError(f"unknown remote setting {key!r} (settings: {', '.join(SETTINGS)})")
     if spec.kind != "s3":
         raise StoreError(f"remote {spec.name} is a directory; {key} applies to S3 remotes only")
     if key == "endpoint" and value is not None and not re.match(r"^https?://[^/\s]+", value):
         raise StoreError(f"endpoint {value!r} is not an http(s) URL (e.g. http://minio.lab:9000)")
+
+
+def set_setting(store: Store, name: str, key: str, value: str | None) -> RemoteSpec:
+    """Per-remote S3 settings (over the AWS_* environment): endpoint, profile, region; None unsets."""
+    spec = get_remote(store, name)
+    check_setting(spec, key, value)
 
     def change(cfg: dict) -> None:
         entry = cfg["remotes"][spec.name]

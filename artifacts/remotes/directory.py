@@ -28,7 +28,37 @@ class DirBackend(Backend):
     def _path(self, key: str) -> Path:
         return self.root / key
 
+    def _missing(self) -> StoreError:
+        return StoreError(f"{self.describe()}: the directory does not exist (is the disk mounted?)")
+
+    def _mkdirs(self, path: Path) -> None:
+        """Make path and its missing parents below the root (each new one synced into its parent),
+        never the root itself: a remote whose directory vanished (an unmounted disk) is refused, not
+        made again on the local disk."""
+        if path == self.root:
+            if not self.root.is_dir():
+                raise self._missing()
+            return
+        try:
+            path.mkdir()
+        except FileExistsError:
+            if path.is_dir():
+                return
+            raise
+        except FileNotFoundError:
+            if self.root not in path.parents:
+                raise
+            self._mkdirs(path.parent)
+            try:
+                path.mkdir()
+            except FileExistsError:
+                return  # another push made it meanwhile
+            except FileNotFoundError:  # the root went meanwhile
+                raise self._missing() from None
+        fsync_dir(path.parent)
+
     def _ensure_root(self) -> None:
+        """Make the remote's directory (`accrue remote init`, `remote add --create` only)."""
         if not self.root.is_dir():
             if not self.root.parent.is_dir():
                 raise StoreError(f"{self.describe()}: {self.root.parent} does not exist (is the disk mounted?)")
@@ -41,7 +71,7 @@ class DirBackend(Backend):
         if create:
             self._ensure_root()
         elif not self.root.is_dir():
-            raise StoreError(f"{self.describe()}: the directory does not exist (is the disk mounted?)")
+            raise self._missing()
 
     def get_bytes(self, key: str) -> bytes | None:
         try:
@@ -57,11 +87,11 @@ class DirBackend(Backend):
 
     def _write_new(self, final: Path, data: bytes) -> None:
         tmp_dir = self.root / "tmp"
-        tmp_dir.mkdir(parents=True, exist_ok=True)
+        self._mkdirs(tmp_dir)
         tmp = temp_name(tmp_dir)
         try:
             write_new_fsynced(tmp, data)
-            final.parent.mkdir(parents=True, exist_ok=True)
+            self._mkdirs(final.parent)
             os.replace(tmp, final)
         except BaseException:
             tmp.unlink(missing_ok=True)  # a refused write leaves nothing for prune to find later
@@ -69,7 +99,6 @@ class DirBackend(Backend):
         fsync_dir(final.parent)
 
     def put_bytes(self, key: str, data: bytes) -> None:
-        self._ensure_root()
         try:
             self._write_new(self._path(key), data)
         except OSError as exc:
@@ -102,7 +131,7 @@ class DirBackend(Backend):
 
     def list_aged(self, prefix: str) -> dict[str, tuple[int, float]]:
         if not self.root.is_dir():
-            raise StoreError(f"{self.describe()}: the directory does not exist (is the disk mounted?)")
+            raise self._missing()
         out = {}
         for key, path in self._walk(prefix):
             try:
@@ -115,7 +144,7 @@ class DirBackend(Backend):
     def _take_lock(self, key: str) -> tuple[Path, int]:
         """Create the key's O_EXCL lock file (waiting up to LOCK_WAIT_S): its path and an fd on it."""
         lock = self.root / "locks" / (key + ".lock")
-        lock.parent.mkdir(parents=True, exist_ok=True)
+        self._mkdirs(lock.parent)
         deadline = time.monotonic() + self.LOCK_WAIT_S
         while True:
             try:
@@ -139,7 +168,6 @@ class DirBackend(Backend):
             lock.unlink(missing_ok=True)
 
     def _swap(self, key: str, data: bytes, expect: str | None) -> str:
-        self._ensure_root()
         target = self._path(key)
         lock, fd = self._take_lock(key)
         try:
@@ -151,7 +179,7 @@ class DirBackend(Backend):
             current = self.read_versioned(key)
             if (current[1] if current else None) != expect:
                 raise RefMoved(key)
-            target.parent.mkdir(parents=True, exist_ok=True)
+            self._mkdirs(target.parent)
             os.replace(lock, target)  # the lock file becomes the ref: atomic
             fsync_dir(target.parent)
         finally:
@@ -167,7 +195,7 @@ class DirBackend(Backend):
 
     def list_sizes(self, prefix: str) -> dict[str, int]:
         if not self.root.is_dir():
-            raise StoreError(f"{self.describe()}: the directory does not exist (is the disk mounted?)")
+            raise self._missing()
         if prefix == OBJECTS:  # the hot path: two levels of scandir, no per-file Path objects
             out = {}
             base = self._path(OBJECTS)
@@ -188,11 +216,10 @@ class DirBackend(Backend):
             return None
 
     def upload_object(self, oid: str, path: Path, size: int, replace: bool = False) -> None:
-        self._ensure_root()
         final = self._path(object_key(oid))
         tmp_dir = self.root / "tmp"
         try:
-            tmp_dir.mkdir(parents=True, exist_ok=True)
+            self._mkdirs(tmp_dir)
         except OSError as exc:
             raise StoreError(f"{self.describe()}: cannot write object {oid[:12]}: {exc.strerror}") from None
         tmp = temp_name(tmp_dir, "obj-")
@@ -207,8 +234,8 @@ class DirBackend(Backend):
             finally:
                 os.close(fd)
             os.chmod(tmp, 0o444)
+            self._mkdirs(final.parent)
             if replace:  # repair: a damaged copy is there under this name; the verified one takes its place
-                final.parent.mkdir(parents=True, exist_ok=True)
                 os.replace(tmp, final)
                 fsync_dir(final.parent)
             else:

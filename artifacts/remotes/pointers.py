@@ -14,7 +14,6 @@ from artifacts.refs import check_ref_name, list_refs
 from artifacts.remotes import RESERVED, TRACKING
 from artifacts.remotes.backends import Backend, RefMoved
 from artifacts.remotes.config import RemoteSpec
-from artifacts.remotes.transfer import parallel
 from artifacts.store import Store
 
 REMOTE_CONFIG = {"format": 1, "hash": HASH_NAME, "type": "accrue-remote"}
@@ -43,6 +42,14 @@ def local_refs(store: Store) -> dict[str, str]:
 def tracking_refs(store: Store, remote: str, space: str = TRACKING) -> dict[str, str]:
     prefix = f"{space}/{remote}/"
     return {n[len(prefix) :]: i for n, i in list_refs(store, prefix).items()}
+
+
+def used_before(store: Store, remote: str) -> bool:
+    """Has this store pushed to or pulled from the remote (what it knows of it is kept)?"""
+    state = state_dir(store, remote)
+    return any((state / f).is_file() for f in ("base.json", "refs.json", "log.json")) or bool(
+        tracking_refs(store, remote)
+    )
 
 
 def merge_bases(store: Store, remote: str) -> dict[str, str]:
@@ -117,12 +124,31 @@ def both_moved(name: str, remote: str, mine: str, theirs: str | None, last: str 
     )
 
 
-def check_remote_config(backend: Backend, create: bool) -> None:
+def init_hint(backend: Backend) -> str:
+    return f"`accrue remote init {backend.spec.name}` makes it one"
+
+
+def check_remote_config(backend: Backend, create: bool, known: bool = False) -> None:
+    """Refuse what is not an accrue remote in one line. With create (push), an existing directory or
+    prefix that holds nothing yet becomes one — unless this store has used it before (known): a
+    remote that lost its config was unmounted, wiped or is another endpoint, and is never made again
+    behind the user's back. A directory remote's own directory is never made here."""
     raw = backend.get_bytes("config")
     if raw is None:
-        backend.probe(create)  # e.g. an S3 listing tells a missing bucket from an empty prefix
+        try:
+            backend.probe(False)  # a missing directory or bucket is one line (an S3 listing tells it apart)
+        except StoreError as exc:
+            if create and backend.spec.kind == "dir":
+                raise StoreError(f"{exc}; nothing was written — if it is a new remote, {init_hint(backend)}") from None
+            raise
         if not create:
             raise StoreError(f"{backend.describe()} holds no accrue store yet (push to it first)")
+        if known:
+            raise StoreError(
+                f"{backend.describe()} holds no accrue store, but this store has used it before (another disk "
+                f"mounted there, a wiped remote, the wrong endpoint?); nothing was written — if it is meant "
+                f"to start afresh, {init_hint(backend)}"
+            )
         try:
             backend.swap("config", canonical_json(REMOTE_CONFIG) + b"\n", None)
         except RefMoved:
@@ -179,14 +205,3 @@ def remember_version(store: Store, remote: str, space: str, name: str, oid: str,
         cache[name] = [version, oid]
         path.parent.mkdir(parents=True, exist_ok=True)
         save_json(path, cache)
-
-
-def present_on_remote(backend: Backend, oids: list[str], jobs: int, listing: bool = False) -> set[str]:
-    """Which of oids the remote holds: one HEAD each, or one listing when there are many (or
-    when listing: a remote with no refs yet holds few objects, so its listing is one request)."""
-    from artifacts.remotes.backends import object_key
-
-    if len(oids) <= HEAD_MAX and not listing:
-        sizes = parallel(lambda o: backend.head(object_key(o)), oids, jobs)
-        return {o for o, s in zip(oids, sizes) if s is not None}
-    return set(backend.remote_object_ids()) & set(oids)

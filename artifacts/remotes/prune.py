@@ -3,9 +3,11 @@ refs and killed pushes — and uploads a killed push left unfinished. A dry run 
 
 Safe beside a concurrent push (git's and restic's rules): an object younger than the grace period
 is kept, because a push uploads objects before it moves the refs that reach them; nothing is
-deleted while a push holds a lease (pushes/… on the remote, younger than LEASE_S), because a push
-may have found an old unreachable object present and be about to point a ref at it; and the refs
-are read again just before deleting, so one that moved meanwhile stops the prune."""
+deleted while a push holds a live lease (artifacts/remotes/lease.py: leases of pushes that are gone
+are taken over), because a push may have found an old unreachable object present and be about to
+point a ref at it; and the refs are read again just before deleting, so one that moved meanwhile
+stops the prune. A prune that deletes objects leaves a marker that makes every store's next push
+list the remote in full (artifacts/remotes/present.py)."""
 
 from __future__ import annotations
 
@@ -17,12 +19,11 @@ from artifacts.remotes.backends import OBJECTS, object_key
 from artifacts.remotes.check import verify_remote
 from artifacts.remotes.config import get_remote
 from artifacts.remotes.connect import open_backend
+from artifacts.remotes.lease import read_leases, take_over
 from artifacts.remotes.pointers import read_pointers
-from artifacts.remotes.push import PUSH_LEASES
+from artifacts.remotes.present import mark_pruned
 from artifacts.remotes.transfer import default_jobs, parallel
 from artifacts.store import Store
-
-LEASE_S = 3600.0  # a push lease older than this belongs to a push that died
 
 
 @dataclass
@@ -34,14 +35,10 @@ class PruneReport:
     bytes: int = 0
     young: int = 0  # unreachable, but younger than the grace period: kept
     uploads: list[str] = field(default_factory=list)  # unfinished uploads (would be) dropped
+    leases_taken_over: list[str] = field(default_factory=list)  # of pushes that are gone
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
-
-
-def _leases(backend) -> list[str]:
-    now = time.time()
-    return [k for k, (_s, mtime) in backend.list_aged(PUSH_LEASES).items() if now - mtime < LEASE_S]
 
 
 def prune_remote(
@@ -75,15 +72,20 @@ def prune_remote(
     report.uploads = sorted(what for what, _ in uploads)
     if dry_run or not (doomed or uploads):
         return report
-    busy = _leases(backend)
+    leases = read_leases(backend)
+    busy = [lease for lease in leases if lease.state == "live"]
     if busy:
         raise StoreError(
-            f"remote {spec.name}: a push is running ({busy[0]}); nothing was deleted — prune again when it is done"
+            f"remote {spec.name}: a push is running ({busy[0].describe()}); nothing was deleted — prune again "
+            f"when it is done, or `accrue remote unlock {spec.name} --all` if no push is running there"
         )
+    report.leases_taken_over = [lease.describe() for lease in take_over(backend, leases)]
     again = {f"ref {n}": v[0] for n, v in read_pointers(store, spec, backend, "refs").items()}
     again |= {f"log of store {s[:12]}": v[0] for s, v in read_pointers(store, spec, backend, "logs").items()}
     if again != walk.pointers:
         raise StoreError(f"remote {spec.name}: its refs moved while prune looked; nothing was deleted — run it again")
+    if doomed:
+        mark_pruned(backend, f"prune by store {store.read_config().get('store_id', '?')}")
     parallel(lambda oid: backend.remove(object_key(oid)), sorted(doomed), jobs)
     for _what, handle in uploads:
         backend.drop_upload(handle)

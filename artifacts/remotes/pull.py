@@ -1,8 +1,10 @@
 """fetch: download what the remote's refs reach, every object verified on arrival, then move the
 remote-tracking refs and enter the step records that came in the step cache. pull: fetch, then
 fast-forward each local ref that has not moved since this store and the remote last agreed on it
-(or that does not exist yet); a ref only this store moved stays; one both moved is a conflict.
---only leaves other kinds' data on the remote."""
+(or that does not exist yet); a ref only this store moved (or deleted) stays; one both moved is a
+conflict. --only leaves other kinds' data on the remote. --prune passes deletions on: fetch drops the
+remote-tracking refs of refs the remote no longer has, pull also deletes each such local ref that has
+not moved since the two sides last agreed on it (compare-and-delete, like every other fast-forward)."""
 
 from __future__ import annotations
 
@@ -14,7 +16,7 @@ from artifacts.auditlog import append_event
 from artifacts.errors import StoreError
 from artifacts.links import children
 from artifacts.manifests import KNOWN_KINDS
-from artifacts.refs import read_ref, set_ref
+from artifacts.refs import delete_ref, read_ref, set_ref
 from artifacts.remotes import LOG_TRACKING, TRACKING
 from artifacts.remotes.backends import Backend
 from artifacts.remotes.closure import bottom_up
@@ -26,6 +28,7 @@ from artifacts.remotes.pointers import (
     both_moved,
     check_remote_config,
     displaced_ref,
+    forget_bases,
     merge_bases,
     read_pointers,
     record_bases,
@@ -51,6 +54,10 @@ class FetchReport:
     ahead: list[str] = field(default_factory=list)  # pull: only this store moved (push shares it)
     displaced: dict[str, str] = field(default_factory=dict)  # pull --force: ref keeping the local id
     conflicts: list[str] = field(default_factory=list)
+    gone: dict[str, str] = field(default_factory=dict)  # deleted on the remote since last seen -> last id
+    pruned: list[str] = field(default_factory=list)  # --prune: remote-tracking refs dropped (fetch)
+    deleted: dict[str, str] = field(default_factory=dict)  # pull --prune: local refs deleted -> their id
+    deleted_here: list[str] = field(default_factory=list)  # pull: deleted in this store only (push --delete)
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -104,6 +111,13 @@ def _remote_closure(store: Store, backend: Backend, roots: list[str], only: set[
     return plan
 
 
+def _gone(store: Store, remote: str, current: dict[str, str], wanted: list[str]) -> dict[str, str]:
+    """Refs this store saw on the remote (agreed on, or fetched) that it no longer has: name -> last id."""
+    known = {**tracking_refs(store, remote), **merge_bases(store, remote)}
+    gone = {n: i for n, i in known.items() if n not in current}
+    return {n: i for n, i in gone.items() if not wanted or any(_matches({n: i}, w) for w in wanted)}
+
+
 def fetch(
     store: Store,
     remote: str,
@@ -111,6 +125,7 @@ def fetch(
     only: set[str] | None = None,
     jobs: int | None = None,
     meter: Meter | None = None,
+    prune: bool = False,
 ) -> FetchReport:
     spec = get_remote(store, remote)
     backend = open_backend(spec)
@@ -118,7 +133,10 @@ def fetch(
     report = FetchReport(remote=spec.name)
     check_remote_config(backend, create=False)
     current = {n: v[0] for n, v in read_pointers(store, spec, backend, "refs").items()}
-    chosen = select_refs(current, refs or [], f"on remote {spec.name}")
+    report.gone = _gone(store, spec.name, current, refs or [])
+    # a ref named that the remote deleted is no error with --prune: its deletion is what is fetched
+    wanted = [w for w in refs or [] if not (prune and not _matches(current, w) and _matches(report.gone, w))]
+    chosen = select_refs(current, wanted, f"on remote {spec.name}") if wanted or not refs else {}
     own = store.read_config().get("store_id")
     seen_logs = tracking_refs(store, spec.name, LOG_TRACKING)
     logs = {
@@ -166,11 +184,24 @@ def fetch(
         set_ref(store, f"{TRACKING}/{spec.name}/{name}", oid, log=False)
     for sid, oid in logs.items():
         set_ref(store, f"{LOG_TRACKING}/{spec.name}/{sid}", oid, log=False)
-    if tracked or logs:
-        append_event(store, "fetched", remote=spec.name, refs=tracked, logs=logs)
+    if prune:
+        for name in sorted(report.gone):
+            if delete_ref(store, f"{TRACKING}/{spec.name}/{name}", log=False) is not None:
+                report.pruned.append(name)
+    if tracked or logs or report.pruned:
+        append_event(store, "fetched", remote=spec.name, refs=tracked, logs=logs, **_pruned(report.pruned))
     report.refs, report.logs = chosen, logs
     report.steps_indexed = len(index_step_records(store, list(chosen.values()), f"remote {spec.name}"))
     return report
+
+
+def _matches(names: dict[str, str], wanted: str) -> bool:
+    w = wanted.rstrip("/")
+    return any(n == w or n.startswith(w + "/") for n in names)
+
+
+def _pruned(names: list[str]) -> dict:
+    return {"pruned": names} if names else {}
 
 
 def pull(
@@ -181,14 +212,17 @@ def pull(
     force: bool = False,
     jobs: int | None = None,
     meter: Meter | None = None,
+    prune: bool = False,
 ) -> FetchReport:
     spec = get_remote(store, remote)
     before = merge_bases(store, spec.name)
-    report = fetch(store, spec.name, refs, only, jobs, meter)
+    report = fetch(store, spec.name, refs, only, jobs, meter, prune=prune)
     for name, oid in report.refs.items():
         mine, last = read_ref(store, name), before.get(name)
         if mine == oid:
             report.up_to_date.append(name)
+        elif mine is None and last == oid and not force:  # deleted here since the two agreed: stays deleted
+            report.deleted_here.append(name)
         elif mine is None or mine == last:  # only the remote moved: fast-forward
             set_ref(store, name, oid)
             report.moved[name] = [mine, oid]
@@ -203,4 +237,28 @@ def pull(
         else:
             report.conflicts.append(both_moved(name, spec.name, mine, oid, last))
     record_bases(store, spec.name, {n: report.refs[n] for n in report.up_to_date + list(report.moved)})
+    if prune:
+        _pass_deletions_on(store, spec.name, report, before)
     return report
+
+
+def _pass_deletions_on(store: Store, remote: str, report: FetchReport, before: dict[str, str]) -> None:
+    """pull --prune: a ref the remote deleted goes here too if it is still at the id the two sides
+    last agreed on (deleted only if still there: compare-and-delete); one moved here since stays,
+    as a conflict naming the ways on."""
+    for name, last in sorted(report.gone.items()):
+        agreed = before.get(name, last)
+        mine = read_ref(store, name)
+        if mine is not None and mine == agreed:
+            mine = delete_ref(store, name, expect=agreed)  # None if it went meanwhile; another id if it moved
+            if mine == agreed:
+                report.deleted[name] = agreed
+                mine = None
+        if mine is not None:
+            report.conflicts.append(
+                f"ref {name}: deleted on remote {remote} since {agreed[:12]}, moved here to {mine[:12]}; "
+                f"`accrue push --force {remote} {name}` puts this store's back there, "
+                f"`accrue refs delete {name}` drops it here"
+            )
+            continue
+        forget_bases(store, remote, [name])

@@ -5,13 +5,10 @@ remote has not moved it since the two sides last agreed on it (pointers.merge_ba
 from __future__ import annotations
 
 import os
-import socket
-import uuid
 from dataclasses import dataclass, field
 
 from artifacts.auditlog import append_event
 from artifacts.errors import StoreError
-from artifacts.hashing import canonical_json
 from artifacts.links import children
 from artifacts.refs import set_ref
 from artifacts.remotes import TRACKING
@@ -19,6 +16,7 @@ from artifacts.remotes.backends import RefMoved
 from artifacts.remotes.closure import bottom_up
 from artifacts.remotes.config import check_not_copied, get_remote, store_id
 from artifacts.remotes.connect import open_backend
+from artifacts.remotes.lease import held_lease
 from artifacts.remotes.logsegment import next_segment
 from artifacts.remotes.pointers import (
     both_moved,
@@ -27,7 +25,6 @@ from artifacts.remotes.pointers import (
     load_json,
     local_refs,
     merge_bases,
-    present_on_remote,
     read_pointers,
     record_bases,
     remember_version,
@@ -35,11 +32,13 @@ from artifacts.remotes.pointers import (
     select_refs,
     state_dir,
     tracking_refs,
+    used_before,
 )
+from artifacts.remotes.present import Presence
 from artifacts.remotes.transfer import Meter, default_jobs, parallel
 from artifacts.store import Store
 
-PUSH_LEASES = "pushes"  # pushes/<store id>-<pid>-<nonce>: one per push in progress
+BOOKKEEPING = {"pushed", "fetched", "step-records-indexed"}  # events a push or pull logs about itself
 
 
 @dataclass
@@ -48,11 +47,15 @@ class PushReport:
     moved: dict[str, list] = field(default_factory=dict)  # ref -> [old remote id, new id]
     up_to_date: list[str] = field(default_factory=list)
     behind: list[str] = field(default_factory=list)  # remote moved on; this store did not
+    gone_there: list[str] = field(default_factory=list)  # deleted on the remote since last seen: not re-made
     conflicts: list[str] = field(default_factory=list)
     displaced: dict[str, str] = field(default_factory=dict)  # --force: remote ref keeping what it replaced
     objects_sent: int = 0
     bytes_sent: int = 0
-    objects_checked: int = 0
+    objects_checked: int = 0  # every object the refs it names reach, checked to be on the remote
+    healed: list[str] = field(default_factory=list)  # of those sent: missing or damaged there although reached
+    objects_rehashed: int = 0  # --verify: downloaded and hashed
+    leases_taken_over: list[str] = field(default_factory=list)  # of pushes whose holder is gone
     log_segment: str | None = None
 
     def as_dict(self) -> dict:
@@ -103,49 +106,67 @@ def push(
     force: bool = False,
     jobs: int | None = None,
     meter: Meter | None = None,
+    verify: bool = False,
 ) -> PushReport:
+    """With verify, every object the refs reach that the remote holds is downloaded and re-hashed,
+    and a corrupt one is sent again over it (before any ref moves)."""
     spec = get_remote(store, remote)
     check_not_copied(store)  # a copied store is refused before anything is sent
     backend = open_backend(spec)
     local = select_refs(local_refs(store), refs or [], "in this store")
-    check_remote_config(backend, create=True)
+    check_remote_config(backend, create=True, known=used_before(store, spec.name))
     sid = store_id(store)
-    # a lease that `remote prune` honours: it deletes nothing while a push may be relying on an
-    # object it found present (restic's lock files, for the same race)
-    lease = f"{PUSH_LEASES}/{sid}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
-    backend.put_bytes(lease, canonical_json({"host": socket.gethostname(), "pid": os.getpid()}) + b"\n")
-    try:
-        return _push(store, spec, backend, sid, local, force, jobs or default_jobs(), meter or Meter())
-    finally:
-        try:
-            backend.remove(lease)
-        except StoreError:
-            pass  # a stale lease only makes prune wait until it expires
+    with held_lease(backend, sid) as taken:
+        report = _push(store, spec, backend, sid, local, force, jobs or default_jobs(), meter or Meter(), verify)
+    report.leases_taken_over = [lease.describe() for lease in taken]
+    return report
 
 
-def _push(store: Store, spec, backend, sid: str, local: dict, force: bool, jobs: int, meter: Meter) -> PushReport:
-    report = PushReport(remote=spec.name)
-    current = read_pointers(store, spec, backend, "refs")
-    seen = tracking_refs(store, spec.name)
-    base = merge_bases(store, spec.name)
-
+def _decide(report: PushReport, spec, local: dict, current: dict, base: dict, force: bool):
+    """Per ref: which to move (and, with force, whose remote id to keep as displaced/)."""
     to_move: dict[str, str] = {}
     displace: dict[str, str] = {}  # push --force over a remote that moved: its id, kept there
     for name, oid in local.items():
-        cur = current.get(name, (None, ""))[0]
+        cur, last = current.get(name, (None, ""))[0], base.get(name)
         if cur == oid:
             report.up_to_date.append(name)
-        elif cur == base.get(name) or cur is None:  # only this store moved (a wiped remote gets it again)
+        elif cur is None and last is not None and not force:  # deleted there since the two agreed
+            if oid == last:
+                report.gone_there.append(name)  # never made again by a plain push
+            else:
+                report.conflicts.append(both_moved(name, spec.name, oid, None, last))
+        elif cur == last or cur is None:  # only this store moved (or the ref is new there)
             to_move[name] = oid
         elif force:
             to_move[name] = oid
             displace[name] = cur
-        elif oid == base.get(name):  # only the remote moved: nothing to send
+        elif oid == last:  # only the remote moved: nothing to send
             report.behind.append(name)
         else:
-            report.conflicts.append(both_moved(name, spec.name, oid, cur, base.get(name)))
+            report.conflicts.append(both_moved(name, spec.name, oid, cur, last))
+    return to_move, displace
 
-    # the audit-log segment written since the last push to this remote
+
+def _only_bookkeeping(segment) -> bool:
+    import json
+
+    try:
+        return all(json.loads(line).get("event") in BOOKKEEPING for line in segment.data.splitlines())
+    except ValueError:
+        return False
+
+
+def _push(
+    store: Store, spec, backend, sid: str, local: dict, force: bool, jobs: int, meter: Meter, verify: bool
+) -> PushReport:
+    report = PushReport(remote=spec.name)
+    current = read_pointers(store, spec, backend, "refs")
+    seen = tracking_refs(store, spec.name)
+    base = merge_bases(store, spec.name)
+    to_move, displace = _decide(report, spec, local, current, base, force)
+
+    # the audit-log segment written since the last push to this remote (a push that moves no ref
+    # sends none when those lines are only the last push's and pull's own: they go with the next)
     log_state_path = state_dir(store, spec.name) / "log.json"
     log_state = load_json(log_state_path)
     remote_log = read_pointers(store, spec, backend, "logs").get(sid)
@@ -154,29 +175,46 @@ def _push(store: Store, spec, backend, sid: str, local: dict, force: bool, jobs:
         raise StoreError(_same_id(spec.name, sid))  # another store pushed a log under this store's id
     chained = log_state.get("manifest") == remote_log_id and remote_log_id is not None
     segment = next_segment(store, sid, remote_log_id if chained else None, log_state.get("end", 0) if chained else 0)
+    if segment and not to_move and _only_bookkeeping(segment):
+        segment = None
 
-    # what the refs to move reach, less what the remote provably has (its refs' closures)
-    stop = {oid for name, oid in seen.items() if current.get(name, (None,))[0] == oid}
-    plan = _local_closure(store, list(to_move.values()), stop)
+    # every object the refs the remote will hold reach: on the remote, at the right size (--verify:
+    # the right bytes), else sent, before any ref moves
+    named = [local[n] for n in list(to_move) + report.up_to_date]
+    plan = _local_closure(store, named, set())
     candidates = sorted(set(plan.data) | set(plan.manifests) | plan.absent)
     seg_ids = [segment.data_id, segment.manifest_id] if segment else []
-    present = present_on_remote(backend, candidates + seg_ids, jobs, listing=not current)
+    presence = Presence(store, spec.name)
+    there = presence.check(backend, candidates + seg_ids, jobs, fresh=not current)
     report.objects_checked = len(candidates) + len(seg_ids)
-    lacking = [o for o in candidates if o not in present]
+    damaged = sorted(
+        o for o in candidates if there.get(o) is not None and _expected_size(store, plan, o) not in (None, there[o])
+    )
+    if verify:
+        damaged += _rehash(backend, [o for o in candidates if o in there and o not in damaged], jobs, meter, report)
+    lacking = [o for o in candidates if o not in there] + damaged
     for oid in lacking:
         if oid in plan.absent:
             raise StoreError(
-                f"object {oid[:12]} is not in this store (a partial clone) and remote "
-                f"{spec.name} lacks it too; pull it from the remote that has it first"
+                f"object {oid[:12]} is not in this store (a partial clone) and remote {spec.name} "
+                f"{'holds it damaged' if oid in damaged else 'lacks it too'}; pull it from the remote that has it first"
             )
+    presence.forget(damaged)
+    # reached by a ref the remote holds already (or through objects it holds): it should have been there
+    if lacking:
+        report.healed = sorted(set(damaged) | (set(lacking) & _reached_from_held(store, local, current)))
 
+    replace = set(damaged)
     data = [o for o in lacking if o in plan.data]
-    groups = [[o for o in g if o not in present] for g in bottom_up(plan.manifests)]
+    groups = [[o for o in g if o in lacking] for g in bottom_up(plan.manifests)]
     sizes = {o: store.object_size(o) or 0 for o in lacking}
     meter.start(f"push → {spec.name}", len(lacking), sum(sizes.values()))
 
     def send(oid: str) -> None:
-        backend.upload_object(oid, store.object_path(oid), sizes[oid])
+        if oid in replace:  # a damaged copy is there under this name
+            backend.upload_object(oid, store.object_path(oid), sizes[oid], replace=True)
+        else:
+            backend.upload_object(oid, store.object_path(oid), sizes[oid])
         meter.advance(sizes[oid])
 
     try:
@@ -185,13 +223,14 @@ def _push(store: Store, spec, backend, sid: str, local: dict, force: bool, jobs:
             parallel(send, group, jobs)
     finally:
         meter.stop()
+    presence.confirm(lacking)
     report.objects_sent, report.bytes_sent = len(lacking), sum(sizes.values())
 
     if segment:
         from artifacts.remotes.backends import object_key
 
         for oid, raw in ((segment.data_id, segment.data), (segment.manifest_id, segment.manifest)):
-            if oid not in present:
+            if oid not in there:
                 backend.put_bytes(object_key(oid), raw)
                 report.objects_sent += 1
                 report.bytes_sent += len(raw)
@@ -227,3 +266,39 @@ def _push(store: Store, spec, backend, sid: str, local: dict, force: bool, jobs:
     if tracked:  # one event for what was shared (the next push carries it; a no-op push logs nothing)
         append_event(store, "pushed", remote=spec.name, refs=tracked)
     return report
+
+
+def _expected_size(store: Store, plan: _Plan, oid: str) -> int | None:
+    if oid in plan.data:
+        return plan.data[oid]
+    return store.object_size(oid) if oid in plan.manifests else None
+
+
+def _reached_from_held(store: Store, local: dict, current: dict) -> set[str]:
+    """What the refs the remote already holds at this store's ids reach (the remote should hold it)."""
+    held = [oid for name, oid in local.items() if current.get(name, (None,))[0] == oid]
+    plan = _local_closure(store, held, set())
+    return set(plan.data) | set(plan.manifests) | plan.absent
+
+
+def _rehash(backend, oids: list[str], jobs: int, meter: Meter, report: PushReport) -> list[str]:
+    """push --verify: download and hash each; the ids whose remote bytes are not theirs."""
+    from artifacts.remotes.backends import MissingOnRemote, object_key
+
+    meter.start(f"re-hashing {backend.spec.name}", len(oids), 0)
+
+    def check(oid: str) -> bool:
+        with open(os.devnull, "wb") as sink:
+            try:
+                got, _n = backend.download_to(object_key(oid), sink.fileno())
+            except MissingOnRemote:
+                return True  # gone since it was listed: sent again like a corrupt one
+        meter.advance(0)
+        return got != oid
+
+    try:
+        bad = parallel(check, oids, jobs)
+    finally:
+        meter.stop()
+    report.objects_rehashed = len(oids)
+    return [o for o, b in zip(oids, bad) if b]

@@ -11,6 +11,7 @@ from artifacts.remotes.check import verify_remote
 from artifacts.remotes.closure import bottom_up
 from artifacts.remotes.config import get_remote
 from artifacts.remotes.connect import open_backend
+from artifacts.remotes.present import Presence
 from artifacts.remotes.transfer import Meter, default_jobs, parallel
 from artifacts.store import Store
 
@@ -60,4 +61,5 @@ def repair_remote(
     finally:
         meter.stop()
     report.resent, report.bytes_sent = here, sum(sizes.values())
+    Presence(store, spec.name).confirm(here)
     return report

@@ -17,7 +17,8 @@ STATES = {
     "diverged": "both moved: see `accrue pull` for the ways on",
     "local-only": "not on the remote: `accrue push` sends it",
     "remote-only": "not in this store: `accrue pull` brings it",
-    "gone-there": "deleted on the remote since this store last saw it",
+    "gone-there": "deleted on the remote since this store last saw it: `accrue pull --prune` deletes it here",
+    "deleted-here": "deleted in this store since it last agreed with the remote: `accrue push --delete` passes it on",
 }
 
 
@@ -46,9 +47,9 @@ def ref_status(store: Store, remote: str, offline: bool = False) -> list[RefStat
         if mine == theirs:
             state = "up-to-date"
         elif theirs is None:
-            state = "gone-there" if last == mine else "local-only"
+            state = "gone-there" if last == mine else "local-only" if last is None else "diverged"
         elif mine is None:
-            state = "remote-only"
+            state = "deleted-here" if last == theirs else "remote-only" if last is None else "behind"
         elif theirs == last:
             state = "ahead"
         elif mine == last:

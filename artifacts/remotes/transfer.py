@@ -11,7 +11,7 @@ from typing import Callable, Iterable, TypeVar
 from artifacts.atomic import fsync_dir, temp_name
 from artifacts.errors import StoreError
 from artifacts.hashing import hash_bytes
-from artifacts.remotes.backends import Backend, object_key
+from artifacts.remotes.backends import Backend, MissingOnRemote, object_key
 from artifacts.store import Store
 
 T = TypeVar("T")
@@ -78,6 +78,8 @@ def download_object(
                 got, n = backend.download_to(object_key(oid), fd)
                 if got == oid and (size is None or n == size):
                     os.fsync(fd)
+            except MissingOnRemote:
+                raise lacks(backend, oid) from None
             finally:
                 os.close(fd)
             if got == oid and (size is None or n == size):
@@ -109,18 +111,21 @@ def flush_dirs(dirs: set[Path], jobs: int) -> None:
     parallel(fsync_dir, sorted(dirs) + ([next(iter(dirs)).parent] if dirs else []), jobs)
 
 
+def lacks(backend: Backend, oid: str) -> MissingOnRemote:
+    return MissingOnRemote(
+        f"{backend.describe()}: lacks object {oid[:12]} that its refs reach; "
+        f"run `accrue remote repair {backend.spec.name}` from a store that has it"
+    )
+
+
 def download_manifest(backend: Backend, oid: str) -> bytes:
     """A manifest's bytes, held in memory (published later, after what it names)."""
-    from artifacts.remotes.backends import MissingOnRemote
     from artifacts.remotes.backends import object_key as key_of
 
     for _ in range(ATTEMPTS):
         data = backend.get_bytes(key_of(oid))
         if data is None:
-            raise MissingOnRemote(
-                f"{backend.describe()}: lacks object {oid[:12]} that its refs reach; "
-                f"run `accrue remote repair {backend.spec.name}` from a store that has it"
-            )
+            raise lacks(backend, oid)
         if hash_bytes(data) == oid:
             return data
     raise _corrupt(backend, oid, "corrupt")
