@@ -16,7 +16,10 @@ import typer
 
 from cli.store_cmds import StoreOpt
 
-robot_app = typer.Typer(help="Robot sessions: the learner process for a second host.", no_args_is_help=True)
+robot_app = typer.Typer(
+    help="Robot sessions: check a robot workflow, the learner process for a second host, its token and TLS.",
+    no_args_is_help=True,
+)
 
 CERT_FILE, KEY_FILE = "learner.crt", "learner.key"
 
@@ -203,6 +206,58 @@ def certs(
         f"learner: accrue robot learner --listen 0.0.0.0:50051 --tls-cert {cert_path} --tls-key {key_path} ...; "
         f"actor: robot.link.tls.ca: {cert_path} (copy the .crt only)"
     )
+
+
+@robot_app.command("check")
+def check(
+    workflow: Annotated[Path, typer.Argument(metavar="WORKFLOW", help="Workflow YAML file with a robot: section.")],
+    task: Annotated[
+        Optional[str], typer.Option("--task", help="The task whose robot to connect (default: the first).")
+    ] = None,
+    store: StoreOpt = None,
+) -> None:
+    """Check a robot workflow against the robot, moving nothing: every check `accrue run` makes before a step,
+    then connect the robot, read one observation, check it against the workflow's bounds, disconnect.
+
+    No action is ever sent. With robot.learner_address, the learner is asked Hello with the link token."""
+    from accrue.errors import AccrueError
+    from cli.store_cmds import open_store
+    from stages.errors import StageError
+    from stages.steps.robot_preflight import observe_once, preflight, reach_learner
+    from stages.workflow import load_workflow
+
+    wf = load_workflow(workflow)
+    if wf.robot is None:
+        raise StageError(f"{workflow}: no robot: section (accrue robot check is for robot workflows)")
+    if task is not None and task not in wf.tasks:
+        raise StageError(f"--task: {task!r} is not one of the workflow's tasks ({', '.join(wf.tasks)})")
+    st = open_store(store)
+    checked = preflight(wf, str(workflow), st)
+    robot = next(rc for rc in checked.robots if rc.task == (task or wf.tasks[0]))
+    m = robot.mapping
+    print(
+        f"workflow {wf.name}: robot.type {wf.robot.type} ({robot.config_class}), its config, keys and cameras "
+        f"fit the workflow and base_policy.init for {len(checked.robots)} task(s)"
+    )
+    try:
+        seen = observe_once(wf, robot)
+        learner = reach_learner(wf, st) if wf.robot.learner_address is not None else None
+    except AccrueError as exc:
+        raise StageError(f"{workflow}: {exc}") from None
+    print(f"task {robot.task}: connected in {seen.connect_s:.1f} s, read one observation, sent no action")
+    print(f"q ({len(seen.state)}): " + ", ".join(f"{k}={v:.4g}" for k, v in seen.state.items()))
+    print(f"actions ({m.action_mode}): {', '.join(m.action_keys)}")
+    cams = ", ".join(f"{k} {list(shape)}" for k, shape in seen.cameras.items())
+    print(f"cameras: {cams or 'none'}")
+    print(learner or "learner: started by the actor on this host (no robot.learner_address)")
+    if seen.findings:
+        for line in seen.findings:
+            print(f"out of bounds: {line}")
+        raise StageError(
+            f"{workflow}: the robot's observation is outside the workflow's bounds ({len(seen.findings)} finding"
+            f"{'s' if len(seen.findings) > 1 else ''} above): fix the robot's pose or the bounds before a run"
+        )
+    print("within bounds: robot.safety" + (", robot.action_bounds" if m.action_mode == "joint" else ""))
 
 
 def register(app: typer.Typer) -> None:

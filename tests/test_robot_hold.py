@@ -12,6 +12,7 @@ health the test switches on events (an episode pushed, the hold logged), never o
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import tempfile
 from pathlib import Path
@@ -156,20 +157,31 @@ def test_a_malformed_operator_page_address_is_refused_at_load(tmp_path):
 # ---------------------------------------------------------------------------------------------- hold
 
 
-@pytest.mark.parametrize("address", ["127.0.0.1:1", "10.255.255.1:50051"])
-def test_an_unreachable_learner_makes_the_actor_hold_and_the_step_end_nonzero(store, address):
-    """Before the fix the step finished (exit 0) with 0 learner updates and one warning line."""
-    wf = hold_workflow(store / "hw.yaml", store / "calib", learner_address=address)
+@pytest.mark.parametrize(
+    "address, why",
+    [
+        ("127.0.0.1:1", r"nothing listens there \(connection refused\)"),
+        ("10.255.255.1:50051", "no answer within 3 s|nothing listens there"),  # which: the network's call
+        ("gpu-box.invalid:50051", "the name gpu-box.invalid does not resolve"),
+    ],
+)
+def test_a_learner_that_never_answered_holds_the_robot_before_its_first_action(store, address, why):
+    """Before (issue 49): the actor acted robot.hold.staleness_s of robot time first, discarded that episode,
+    and then said the learner "did not come back" (it never came), an unresolvable name as UNAVAILABLE."""
+    # a wait past the link's first try (a Hello times out in 3 s), so that the line can say why it failed
+    hold = {"staleness_s": 1.0, "wait_s": 5}
+    wf = hold_workflow(store / "hw.yaml", store / "calib", learner_address=address, hold=hold)
     with pytest.raises(StageError) as err:
         run_stage(store / "store", wf, 1, step="train")
     line = str(err.value)
-    assert "\n" not in line and "did not come back within robot.hold.wait_s" in line and "--continue" in line
+    assert "\n" not in line and "did not come back" not in line and "--continue" in line
+    assert f"train: the learner at {address} never answered within" in line and re.search(why, line), line
+    assert "held before its first action (0 episodes are sealed)" in line
     [held] = train_events(store / "store", "robot-hold-started")
-    assert 1.0 <= held["stale_s"] < 1.0 + CHUNK_S + 1e-6  # within the staleness (checked at every chunk)
+    assert held["stale_s"] == 0 and held["never"] is True
+    assert not train_events(store / "store", "robot-episode-started")  # nothing moved
     [ended] = train_events(store / "store", "robot-session-ended")
-    assert ended["how"].startswith("held: learner unreachable")
-    discarded = train_events(store / "store", "robot-episode-discarded")
-    assert discarded and "learner stopped answering" in discarded[-1]["reason"]
+    assert ended["how"] == "held: the learner never connected in 5 s"
 
 
 def test_killing_the_learner_holds_within_the_staleness_and_ends_the_step(store, monkeypatch):

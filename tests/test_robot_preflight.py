@@ -174,3 +174,44 @@ def test_the_learner_address_must_resolve_and_a_token_must_be_there(tmp_path, st
 
     store_token(store.root)
     assert check(wf, store).learner.startswith("localhost:50051")
+
+
+def test_robot_check_reads_one_observation_checks_it_and_sends_no_action(tmp_path, store):
+    from stages.steps.robot_preflight import observe_once
+
+    checked = check(workflow(tmp_path), store)
+    robot = checked.robots[0]
+    sent: list = []
+    make = robot.make
+
+    def spied():
+        arm = make()
+        arm.send_action = lambda action: sent.append(action)
+        return arm
+
+    robot.make = spied
+    seen = observe_once(load(tmp_path / "hw.yaml"), robot)
+    assert sent == [] and seen.findings == [] and len(seen.state) == 29 and seen.cameras == {}
+
+
+def load(path: Path):
+    from stages.workflow import load_workflow
+
+    return load_workflow(path)
+
+
+def test_accrue_robot_check_says_what_it_read_and_exits_nonzero_out_of_bounds(tmp_path):
+    assert accrue(tmp_path, "init").returncode == 0
+    good = accrue(tmp_path, "robot", "check", str(workflow(tmp_path)))
+    assert good.returncode == 0, good.stderr[-2000:]
+    assert "read one observation, sent no action" in good.stdout and "q (29): ee_x_cm=" in good.stdout
+    assert "within bounds: robot.safety" in good.stdout and "Traceback" not in good.stderr
+
+    def joints(spec):  # the arm's joint targets, with bounds its resting pose is outside of
+        spec["robot"]["config"]["action_mode"] = "joint"
+        spec["robot"].update(action_mode="joint", action_bounds=[[10.0, 11.0]] * 6)
+
+    bad = accrue(tmp_path, "robot", "check", str(workflow(tmp_path, edit=joints)))
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr, bad.stderr[-2000:]
+    assert "out of bounds: robot.action_bounds: x.pos reads " in bad.stdout and "outside [10, 11]" in bad.stdout
+    assert bad.stderr.startswith("error: ") and "outside the workflow's bounds (6 findings above)" in bad.stderr

@@ -104,6 +104,7 @@ class LearnerLink:
         # a call gets through; see check()
         self.refused: LinkRefused | None = None
         self.last_ok = time.monotonic()
+        self.last_error: str | None = None  # why the last failed call failed (said when the actor gives up)
         # every weights snapshot received lands here; removed at close(), or at exit if close() never ran,
         # or by the next link on this machine when this process was killed (the pid is in the name)
         self.tmp, self._remove_tmp = owned_tmpdir(self, TMP_PREFIX)
@@ -321,8 +322,15 @@ class LearnerLink:
                 continue
             except Exception as exc:  # noqa: BLE001 - any failure: the learner is unreachable for now
                 self.ready = False
+                self.last_error = str(exc)
                 gone = time.monotonic() - self.last_ok
-                if gone >= self.dead_after_s and not self.lost_reported:
+                if gone >= self.dead_after_s and not self.lost_reported and self.last_heartbeat is None:
+                    self.lost_reported = True  # never answered: the actor holds before acting (LearnerHold)
+                    self.report(
+                        f"the learner{'' if self.local else f' at {self.address}'} has not answered yet ({exc})",
+                        {"event": "robot-learner-lost", "error": str(exc)},
+                    )
+                elif gone >= self.dead_after_s and not self.lost_reported:
                     self.lost_reported = True
                     self.report(
                         f"learner unreachable for {gone:.1f} s ({exc}); the actor goes on with "

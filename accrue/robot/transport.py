@@ -230,6 +230,24 @@ def _why_not_listening(address: str) -> str:
     return "gRPC refused the address; a plain socket could bind it, so try again"
 
 
+_UNRESOLVED = re.compile(r"(?i)errors resolving|DNS resolution failed|lookup (?:error|failed)|Domain name not found")
+
+
+def down_reason(address: str, code, details: str, timeout: float) -> str:
+    """Why a call did not get through, as the operator fixes it: a name that does not resolve, nothing
+    listening at the address, no answer in time; else gRPC's status and the start of its details."""
+    host = address.rpartition(":")[0]
+    if _UNRESOLVED.search(details):
+        return f"the name {host} does not resolve (no such host; check robot.learner_address)"
+    if "Connection refused" in details:
+        return "nothing listens there (connection refused): is the learner running, on that port?"
+    name = code.name if code is not None else "?"
+    if name == "DEADLINE_EXCEEDED":
+        return f"no answer within {timeout:g} s"
+    short = details.strip().splitlines()[0][:160] if details.strip() else ""
+    return f"{name} ({short})" if short else name
+
+
 class Peer:
     """The actor's end of the link: `token` goes with every call; `tls_ca` (a PEM file) turns on TLS and
     is the certificate authority the learner's certificate must be signed by."""
@@ -261,7 +279,7 @@ class Peer:
             if code == status.UNAVAILABLE and _TLS_FAILED.search(details):
                 why = details.rpartition("OPENSSL_internal:")[2].removesuffix(": OK").strip()
                 raise LinkRefused(f"{method} to {self.address}: TLS handshake failed ({why[:200]})", "tls") from None
-            raise PeerDown(f"{method} to {self.address}: {code.name if code else '?'}") from None
+            raise PeerDown(f"{method} to {self.address}: {down_reason(self.address, code, details, timeout)}") from None
         out, out_blob = unpack(data)
         if "error" in out:
             raise AccrueError(f"learner at {self.address} refused {method}: {out['error']}")

@@ -419,6 +419,12 @@ class RobotEnvironment:
             settings.hold_wait_s,
             "train",
             refused=lambda: getattr(link, "refused", None),  # a LearnerLink's LinkRefused (its token, TLS)
+            # a learner this actor starts itself is given its start-up before the robot's first action
+            first_wait_s=0.0 if remote else float(getattr(link, "start_timeout_s", 0.0)),
+            learner=f"the learner at {settings.learner_address}"
+            if remote
+            else "the learner process this actor started",
+            last_error=lambda: getattr(link, "last_error", None),
         )
 
         def between():

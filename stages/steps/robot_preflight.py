@@ -247,3 +247,98 @@ def _check_learner(wf: Workflow, store) -> str | None:
             )
         read_token_file(token, f"store {store.root}")
     return f"{r.learner_address} ({addr})" if addr != host.strip("[]") else r.learner_address
+
+
+@dataclass
+class Observed:
+    """One observation of the robot (`accrue robot check`): what it read and what is outside the bounds."""
+
+    connect_s: float
+    state: dict[str, float]
+    cameras: dict[str, tuple]
+    findings: list[str]
+
+
+def observe_once(wf: Workflow, robot: RobotChecked, connect_s: float = 60.0) -> Observed:
+    """Connect the robot of `robot.task`, read one observation, disconnect; never send an action.
+
+    The observation is checked against what the workflow states: every reading of q finite, within
+    robot.safety (its workspace, speed, force and torque where q shows them; its joint_bounds) and, with
+    action_mode joint, each commanded key's reading within robot.action_bounds; every camera frame of the
+    shape the robot declares. Each finding is one line naming the key; a robot that cannot be connected or
+    read is an AccrueError line."""
+    import math
+    import time
+
+    import numpy as np
+
+    from accrue.errors import AccrueError
+    from accrue.robot.bridge import RobotBridge, RobotFault, Timeouts
+    from accrue.robot.safety import ActionEnvelope, SafetyEnvelope
+
+    r = wf.robot
+    safety, actions = SafetyEnvelope.from_dict(r.safety), ActionEnvelope.from_dict(r.safety)
+    # a first connect also loads the driver's libraries (a simulator: tens of seconds on a busy machine)
+    timeouts = dataclasses.replace(
+        Timeouts.from_dict(r.timeouts), connect_s=max(connect_s, r.timeouts.get("connect_s", 0))
+    )
+    bridge = RobotBridge(robot.make, robot.mapping, timeouts, safety=safety, actions=actions)
+    started = time.monotonic()
+    try:
+        bridge.connect()
+        took = time.monotonic() - started
+        bridge.observe()
+        obs = bridge.last_observation()
+    except RobotFault as exc:
+        raise AccrueError(f"robot.type {r.type} (task {robot.task}): {exc}") from None
+    finally:
+        bridge.disconnect()
+    m = bridge.mapping
+    state = {k: float(obs[k]) for k in m.state_keys}
+    findings = [f"robot.state_keys: {k} reads {v} (not a number)" for k, v in state.items() if not math.isfinite(v)]
+    violation = safety.violation(np.array(list(state.values())), m.state_keys)
+    if violation:
+        findings.append(f"robot.safety: {violation}")
+    bounds = dict(actions.bounds)
+    where = dict.fromkeys(bounds, "robot.safety.joint_bounds")
+    if m.action_mode == "joint":
+        for key, (lo, hi) in zip(m.action_keys, m.action_bounds):
+            bounds.setdefault(key, (lo, hi))
+            where.setdefault(key, "robot.action_bounds")
+    for key, (lo, hi) in bounds.items():
+        if key in obs and not lo <= float(obs[key]) <= hi:
+            findings.append(f"{where[key]}: {key} reads {float(obs[key]):.4g}, outside [{lo:g}, {hi:g}]")
+    cameras = {}
+    for key in m.camera_keys:
+        frame = np.asarray(obs.get(key))
+        cameras[key] = tuple(frame.shape)
+        declared = tuple(int(s) for s in robot.observation_features[key])
+        if frame.shape != declared:
+            findings.append(
+                f"robot.camera_keys: {key} gave a frame of shape {list(frame.shape)}, declared {list(declared)}"
+            )
+    return Observed(took, state, cameras, findings)
+
+
+def reach_learner(wf: Workflow, store, timeout_s: float = 5.0) -> str:
+    """`Hello` to robot.learner_address with the link token (and TLS): what answered, in one line; an
+    AccrueError line for a learner that refuses this actor or does not answer."""
+    from accrue.errors import AccrueError
+    from accrue.robot.learner_client import refusal_line
+    from accrue.robot.link_auth import link_auth_for
+    from accrue.robot.transport import PROTOCOL, LinkRefused, Peer, PeerDown
+
+    r = wf.robot
+    auth = link_auth_for(r.model_dump(), store.root)
+    peer = Peer(r.learner_address, auth.token, tls_ca=auth.tls_ca)
+    try:
+        hello, _ = peer.call("Hello", {"protocol": PROTOCOL}, timeout=timeout_s)
+    except LinkRefused as exc:
+        raise AccrueError(f"robot.learner_address: {refusal_line(r.learner_address, exc, auth)}") from None
+    except PeerDown as exc:
+        raise AccrueError(f"robot.learner_address: the learner does not answer ({exc})") from None
+    finally:
+        peer.close()
+    return (
+        f"the learner at {r.learner_address} answered (accrue {hello.get('accrue')}, protocol {hello.get('protocol')})"
+    )

@@ -147,13 +147,18 @@ def children_keep_sigint():
 class LearnerHold:
     """The actor acts only on weights from a learner that answers (paper Sec. V-C's asynchrony, bounded).
 
-    `stale_s` is the robot time acted since the learner last answered (link.healthy()); once it reaches
-    `staleness_s` the episode in progress is discarded (as at a kill), no command is sent (the robot holds
-    its last target), the operator is told, and the actor waits up to `wait_s` of wall time for the learner:
-    back in time, the session goes on; else the step ends in one line, every sealed episode kept. A learner
-    that answers is training on every sealed episode, so its weights are as fresh as it can make them.
-    A learner that refuses this actor (`refused()` returns its LinkRefused: a wrong link token, or TLS)
-    cannot come back by waiting, so the hold ends at once, in one line saying what to fix."""
+    A learner that has not answered yet in this session holds the robot before its first action: the
+    operator is told, and the actor waits up to `first_wait_s` (at least wait_s) of wall time for it - a
+    learner this actor starts itself needs its start-up - then the step ends in one line saying it never
+    connected, nothing moved. Once it has answered, `stale_s` is the robot time acted since it last
+    answered (link.healthy()); once it reaches `staleness_s` the episode in progress is discarded (as at a
+    kill), no command is sent (the robot holds its last target), the operator is told, and the actor waits
+    up to `wait_s` of wall time for the learner: back in time, the session goes on; else the step ends in
+    one line, every sealed episode kept. A learner that answers is training on every sealed episode, so its
+    weights are as fresh as it can make them. A learner that refuses this actor (`refused()` returns its
+    LinkRefused: a wrong link token, or TLS) cannot come back by waiting, so the hold ends at once, in one
+    line saying what to fix. `learner` names it in the lines ("the learner at HOST:PORT"), `last_error()`
+    says why the last call failed."""
 
     def __init__(
         self,
@@ -163,30 +168,42 @@ class LearnerHold:
         step: str,
         poll_s: float = 0.1,
         refused: Callable[[], Exception | None] = lambda: None,
+        first_wait_s: float = 0.0,
+        learner: str = "the learner",
+        last_error: Callable[[], str | None] = lambda: None,
     ):
         self.healthy, self.staleness_s, self.wait_s, self.step, self.poll_s = healthy, staleness_s, wait_s, step, poll_s
-        self.refused = refused
+        self.refused, self.learner, self.last_error = refused, learner, last_error
+        self.first_wait_s = max(wait_s, first_wait_s)
         self.stale_s = 0.0
         self.holding = False
+        self.answered = False  # the learner answered at least once in this session
 
     def acted(self, robot_s: float) -> None:
         self.stale_s = 0.0 if self.healthy() else self.stale_s + robot_s
 
     def due(self) -> bool:
         if self.healthy():
+            self.answered = True
             self.stale_s = 0.0
             return False
-        return self.stale_s >= self.staleness_s - 1e-9
+        return not self.answered or self.stale_s >= self.staleness_s - 1e-9
 
     def wait(self, session: "HardwareSession", operator, show, console) -> None:
-        """Hold until the learner answers again, or end the step (StageError) after wait_s."""
-        why = (
-            f"the learner has not answered for {self.stale_s:.1f} s of robot time "
-            f"(robot.hold.staleness_s {self.staleness_s:g})"
-        )
-        line = f"robot held: {why}; waiting up to {self.wait_s:g} s for it"
+        """Hold until the learner answers (again), or end the step (StageError) after the wait."""
+        never = not self.answered
+        limit = self.first_wait_s if never else self.wait_s
+        if never:
+            why = f"{self.learner} has not answered yet (it never connected in this session)"
+            line = f"robot held before its first action: {why}; waiting up to {limit:g} s for it"
+        else:
+            why = (
+                f"the learner has not answered for {self.stale_s:.1f} s of robot time "
+                f"(robot.hold.staleness_s {self.staleness_s:g})"
+            )
+            line = f"robot held: {why}; waiting up to {limit:g} s for it"
         self.holding = True
-        session._log("robot-hold-started", stale_s=round(self.stale_s, 3), staleness_s=self.staleness_s)
+        session._log("robot-hold-started", stale_s=round(self.stale_s, 3), staleness_s=self.staleness_s, never=never)
         console.print(f"{self.step}: {line}", soft_wrap=True)
         operator.tell(line)
         show(learner_health="holding", status=line)
@@ -201,14 +218,8 @@ class LearnerHold:
                         f"{self.step}: {err}; {len(session.episodes)} episodes are sealed: fix that and resume "
                         f"with `accrue stage run ... --step {self.step} --continue`"
                     )
-                if time.monotonic() - started >= self.wait_s:
-                    session._log("robot-hold-ended", outcome="gave up", held_s=round(time.monotonic() - started, 3))
-                    session.close(f"held: learner unreachable for {self.wait_s:g} s")
-                    raise StageError(
-                        f"{self.step}: the learner did not come back within robot.hold.wait_s {self.wait_s:g} s "
-                        f"({why}); {len(session.episodes)} episodes are sealed: start the learner and resume "
-                        f"with `accrue stage run ... --step {self.step} --continue`"
-                    )
+                if time.monotonic() - started >= limit:
+                    self._give_up(session, started, never, limit, why)
                 if operator.poll() == "abort":
                     session.close("aborted by the operator")
                     raise StageError(
@@ -219,10 +230,32 @@ class LearnerHold:
         finally:
             self.holding = False
         held = time.monotonic() - started
+        self.answered = True
         session._log("robot-hold-ended", outcome="learner back", held_s=round(held, 3))
-        operator.tell(f"the learner is back after {held:.1f} s: going on")
-        console.print(f"{self.step}: the learner is back after {held:.1f} s; going on")
+        what = "answered" if never else "is back"
+        operator.tell(f"the learner {what} after {held:.1f} s: going on")
+        console.print(f"{self.step}: the learner {what} after {held:.1f} s; going on")
         self.stale_s = 0.0
+
+    def _give_up(self, session: "HardwareSession", started: float, never: bool, limit: float, why: str) -> None:
+        held = round(time.monotonic() - started, 3)
+        session._log("robot-hold-ended", outcome="never connected" if never else "gave up", held_s=held)
+        last = self.last_error()
+        last = f"; last try: {last}" if last else ""
+        sealed = len(session.episodes)
+        resume = f"resume with `accrue stage run ... --step {self.step} --continue`"
+        if never:
+            session.close(f"held: the learner never connected in {limit:g} s")
+            raise StageError(
+                f"{self.step}: {self.learner} never answered within {limit:g} s (robot.hold.wait_s){last}; the "
+                f"robot was held before its first action ({sealed} episodes are sealed): start the learner and "
+                + resume
+            )
+        session.close(f"held: learner unreachable for {limit:g} s")
+        raise StageError(
+            f"{self.step}: the learner did not come back within robot.hold.wait_s {limit:g} s ({why}{last}); "
+            f"{sealed} episodes are sealed: start the learner and {resume}"
+        )
 
 
 def release_robot(bridge, session: "HardwareSession") -> None:
