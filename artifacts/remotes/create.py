@@ -31,7 +31,7 @@ def init_remote(store: Store, name: str) -> bool:
         check_remote_config(backend, create=False)  # refuses a config that is not an accrue remote's
         return False
     backend.probe(True)
-    if spec.kind == "dir" and any(p.name != "tmp" for p in spec.path.iterdir()):
+    if spec.kind == "dir" and any(p.is_file() for p in spec.path.rglob("*")):  # empty folders are fine
         raise StoreError(
             f"{backend.describe()}: the directory holds files but no accrue store; "
             "use an empty or new directory (nothing was written)"

@@ -202,7 +202,7 @@ def _push(
     presence.forget(damaged)
     # reached by a ref the remote holds already (or through objects it holds): it should have been there
     if lacking:
-        report.healed = sorted(set(damaged) | (set(lacking) & _reached_from_held(store, local, current)))
+        report.healed = sorted(set(damaged) | (set(lacking) & _reached_from_held(store, local_refs(store), current)))
 
     replace = set(damaged)
     data = [o for o in lacking if o in plan.data]
@@ -275,7 +275,7 @@ def _expected_size(store: Store, plan: _Plan, oid: str) -> int | None:
 
 
 def _reached_from_held(store: Store, local: dict, current: dict) -> set[str]:
-    """What the refs the remote already holds at this store's ids reach (the remote should hold it)."""
+    """What the refs the remote holds at this store's ids reach (all of it should be there already)."""
     held = [oid for name, oid in local.items() if current.get(name, (None,))[0] == oid]
     plan = _local_closure(store, held, set())
     return set(plan.data) | set(plan.manifests) | plan.absent
