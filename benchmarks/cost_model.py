@@ -60,6 +60,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
+import perf_report  # noqa: E402
 from perf_report import GRID_SPECS, machine, software  # noqa: E402
 
 SPECS = (*GRID_SPECS, "contact-learner")
@@ -569,7 +570,7 @@ def prepare_learner(config: dict) -> tuple[dict, dict]:
     return row, steps
 
 
-def measure_learners(needed: dict, updates: int, rounds: int = 3) -> dict:
+def measure_learners(needed: dict, updates: int, rounds: int = 5) -> dict:
     """Seconds per gradient update of every learner setting, timed in interleaved rounds (a busy machine
     slows them alike), the median round kept; stage 1 and, where it costs more, a later stage."""
     rows, steps = {}, {}
@@ -577,6 +578,7 @@ def measure_learners(needed: dict, updates: int, rounds: int = 3) -> dict:
         rows[key], phases = prepare_learner(config)
         steps.update({(key, phase): fn for phase, fn in phases.items()})
     times: dict[tuple[str, str], list[float]] = {k: [] for k in steps}
+    before = load()
     for _ in range(rounds):
         for (key, phase), fn in steps.items():
             utd = rows[key]["utd"]
@@ -585,10 +587,13 @@ def measure_learners(needed: dict, updates: int, rounds: int = 3) -> dict:
             for _ in range(calls):
                 fn()
             times[(key, phase)].append((time.perf_counter() - t) / (calls * utd))
+    after = load()
     for key, row in rows.items():
-        row["first_update_s"] = round(statistics.median(times[(key, "first")]), 5)
-        row["later_update_s"] = round(statistics.median(times.get((key, "later"), times[(key, "first")])), 5)
-        row["load_avg_1min"] = load()
+        for phase in ("first", "later"):
+            rounds_s = times.get((key, phase), times[(key, "first")])
+            row[f"{phase}_update_s"] = round(statistics.median(rounds_s), 5)
+            row[f"{phase}_update_s_best_round"] = round(min(rounds_s), 5)
+        row.update(load_avg_1min=before, load_avg_1min_after=after)
     return rows
 
 
@@ -834,16 +839,8 @@ def committed(path: Path = OUT) -> tuple[dict, dict]:
 
 
 def _measuring_args(argv: list[str]) -> list[str]:
-    """argv without what changes no figure (--out FILE, --markdown, --note TEXT)."""
-    kept, skip = [], False
-    for a in argv:
-        if skip:
-            skip = False
-        elif a in ("--out", "--note"):
-            skip = True
-        elif not (a.startswith(("--out=", "--note=")) or a == "--markdown"):
-            kept.append(a)
-    return kept
+    """argv without what changes no figure (perf_report's rule: --out FILE, --note TEXT; and --markdown)."""
+    return [a for a in perf_report._measuring_args(argv) if a != "--markdown"]
 
 
 def main() -> None:
@@ -851,7 +848,7 @@ def main() -> None:
     ap.add_argument("--measure", action="store_true", help="measure the coefficients (else: read them from --out)")
     ap.add_argument("--specs", nargs="+", default=list(SPECS), help="bench specs (workflows/bench/NAME.yaml)")
     ap.add_argument("--episodes", type=int, default=32, help="measure: demonstrator episodes per task")
-    ap.add_argument("--updates", type=int, default=48, help="measure: timed gradient updates per learner setting")
+    ap.add_argument("--updates", type=int, default=60, help="measure: timed gradient updates per learner setting")
     ap.add_argument("--finetune-s", type=float, help="finetune-base seconds a stage (800 steps), not perf.json's")
     ap.add_argument("--no-validation", action="store_true", help="skip the comparison with measured stages")
     ap.add_argument("--markdown", action="store_true", help="print the projection as a markdown table")
