@@ -124,7 +124,7 @@ def test_a_pulled_artifact_keeps_the_provenance_of_the_store_that_made_it(tmp_pa
 
     robot = Store.init(tmp_path / "robot")[0]
     aid, _ = add_path(robot, tree(tmp_path / "recorded" / "demos", {"data.bin": b"123"}), "demos", ref="team/demos")
-    (tmp_path / "nas").mkdir()
+    (tmp_path / "nas" / "remote").mkdir(parents=True)  # the remote's directory (`accrue remote init` makes one)
     add_remote(robot, "origin", str(tmp_path / "nas" / "remote"))
     push(robot, "origin")
     learner = Store.init(tmp_path / "learner")[0]

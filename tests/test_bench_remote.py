@@ -152,7 +152,7 @@ def test_a_store_that_ran_a_bench_verifies_pushes_and_pulls(tmp_path):
     spec = load_spec(write_spec(tmp_path, "shared", [0]))
     record_outcome(store, spec, spec.cells[0], "failed", tries=1, seconds=0.5, error="x")
     assert accrue("verify", "--store", str(a)).returncode == 0
-    assert accrue("remote", "add", "nas", str(tmp_path / "nas"), "--store", str(a)).returncode == 0
+    assert accrue("remote", "add", "nas", str(tmp_path / "nas"), "--create", "--store", str(a)).returncode == 0
     assert accrue("push", "--store", str(a)).returncode == 0
     assert accrue("clone", str(tmp_path / "nas"), str(b)).returncode == 0
     assert read_ref(Store.open(b), outcome_ref(spec, spec.cells[0])) == read_ref(

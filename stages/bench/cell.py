@@ -36,7 +36,7 @@ class CellJob:
     source: str  # where it came from, for error messages
     log: str  # the cell's log file (appended)
     cwd: str  # the bench's working directory (relative paths in workflows)
-    env: dict = field(default_factory=dict)
+    env: dict = field(default_factory=dict, repr=False)  # may hold the remote's credentials: never shown
     remote: dict | None = None  # node_store.remote_target: the cell runs on the node's own store
     node_store: str | None = None  # that store's path on the node ({host}, {node} filled in there)
     tracking: str | None = None  # the bench's tracking directory (runs/bench/<spec>/tracking)

@@ -50,7 +50,13 @@ def default_logs_dir(spec: BenchSpec) -> Path:
 
 
 def make_job(
-    spec: BenchSpec, store: Store, cell: Cell, logs: Path, remote: dict | None = None, node_store: str | None = None
+    spec: BenchSpec,
+    store: Store,
+    cell: Cell,
+    logs: Path,
+    remote: dict | None = None,
+    node_store: str | None = None,
+    credentials: dict | None = None,
 ) -> CellJob:
     return CellJob(
         store=str(Path(store.root).resolve()),
@@ -58,7 +64,7 @@ def make_job(
         source=f"{spec.path} (cell {cell.name})",
         log=str((logs / f"{cell.name}.log").resolve()),
         cwd=os.getcwd(),
-        env=job_env(),
+        env={**job_env(), **(credentials or {})},  # the remote's credentials: the worker's environment only
         remote=remote,
         node_store=node_store,
         tracking=str((logs.parent / "tracking").resolve()),  # beside logs/: runs/bench/<spec>/tracking
@@ -92,15 +98,15 @@ def run_bench(
             results[c.name] = CellResult(c, "skipped")
         else:
             todo.append(c)
-    target = None
+    target, credentials = None, None
     if remote is not None and todo:
-        from stages.bench.node_store import collect, remote_target, share
+        from stages.bench.node_store import collect, remote_target, share, worker_credentials
 
-        target = remote_target(store, remote)
+        target, credentials = remote_target(store, remote), worker_credentials(store, remote)
         share(store, remote)  # the nodes find this store's demos, policies and earlier cells there
 
     def job(cell: Cell) -> CellJob:
-        return make_job(spec, store, cell, logs, target, node_store)
+        return make_job(spec, store, cell, logs, target, node_store, credentials)
 
     progress = BenchProgress(spec, store, cells, console=console, skipped=len(cells) - len(todo))
 

@@ -9,6 +9,13 @@ cells on a store of its own, filled from the remote and emptied back into it.
     sync_out(node, target, cell_name)                    # push workflow/<cell>/... and what it reaches
     collect(store, "team", cell_name)                    # the bench's store: pull the cell's refs
 
+A worker starts with the remote's settings as the bench's process resolved them (remote_target: the
+endpoint and region, from the remote's config or the AWS_* environment) and with the credentials
+that process was given (worker_credentials: AWS_ACCESS_KEY_ID, AWS_SECRET_ACCESS_KEY, AWS_SESSION_TOKEN
+from its environment, or resolved from its AWS profile). The credentials travel in the cell's job
+(CellJob.env, left out of its repr) into the worker's environment only: never into a log, a store's
+config or the node store; the node store keeps the endpoint and region as its remote's settings.
+
 The node's store pulls every ref's manifests and step records, not their data, so a step another
 cell committed anywhere is a cache hit here (the pulled step index) and only the data a step reads
 crosses the network (the promisor remote's lazy fetch). Two cells of different nodes that need the
@@ -17,6 +24,7 @@ same uncached step both compute it: the step locks are per store.
 
 from __future__ import annotations
 
+import os
 import socket
 from pathlib import Path
 
@@ -37,10 +45,48 @@ COLLECT_KINDS = {"eval"}
 OUTCOMES = "bench/"  # stages.bench.state.outcome_ref
 
 
+CREDENTIALS = ("AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY", "AWS_SESSION_TOKEN")
+
+
 def remote_target(store: Store, name: str) -> dict:
-    """What a worker needs to reach the bench store's remote NAME (it has no access to that store)."""
+    """What a worker needs to reach the bench store's remote NAME (it has no access to that store):
+    its URL and S3 settings as this process resolves them (the environment's endpoint and region
+    included; a profile left out when its credentials are passed instead: a worker may lack it)."""
     spec = get_remote(store, name)
-    return {"name": spec.name, "url": spec.url, "settings": dict(spec.settings)}
+    settings = dict(spec.settings)
+    if spec.kind == "s3":
+        from artifacts.remotes.s3 import endpoint_of
+
+        endpoint = endpoint_of(spec)
+        region = settings.get("region") or os.environ.get("AWS_REGION") or os.environ.get("AWS_DEFAULT_REGION")
+        settings.update({k: v for k, v in (("endpoint", endpoint), ("region", region)) if v})
+        if worker_credentials(store, name):
+            settings.pop("profile", None)
+    return {"name": spec.name, "url": spec.url, "settings": settings}
+
+
+def worker_credentials(store: Store, name: str) -> dict:
+    """The credentials this process was given for remote NAME, as AWS_* variables for a worker's
+    environment (empty for a directory remote, or when there are none: the worker's own apply)."""
+    spec = get_remote(store, name)
+    if spec.kind != "s3":
+        return {}
+    env = os.environ
+    profile = spec.settings.get("profile")
+    if not profile and env.get("AWS_ACCESS_KEY_ID") and env.get("AWS_SECRET_ACCESS_KEY"):
+        return {k: env[k] for k in CREDENTIALS if env.get(k)}
+    import boto3
+    from botocore.exceptions import BotoCoreError, ProfileNotFound
+
+    try:
+        found = boto3.Session(profile_name=profile or env.get("AWS_PROFILE") or None).get_credentials()
+        frozen = found.get_frozen_credentials() if found is not None else None
+    except (BotoCoreError, ProfileNotFound):
+        return {}
+    if frozen is None or not frozen.access_key or not frozen.secret_key:
+        return {}
+    keys = {"AWS_ACCESS_KEY_ID": frozen.access_key, "AWS_SECRET_ACCESS_KEY": frozen.secret_key}
+    return {**keys, **({"AWS_SESSION_TOKEN": frozen.token} if frozen.token else {})}
 
 
 def node_store_path(template: str) -> Path:
