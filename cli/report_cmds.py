@@ -163,9 +163,12 @@ def _print_hardware(summary: dict) -> None:
             f"{row['accrue_s']:.1f} s: {row['saved_s']:.1f} s saved ({row['saved_percent']}%)"
         )
     for k, row in summary.get("interventions", {}).items():
+        warm = row.get("warmup")
         typer.echo(
-            f"stage {k}: interventions per {row['window']}-episode window: "
-            + ", ".join(f"{w['episodes']} {100 * w['rate']:.1f}%" for w in row["windows"])
+            f"stage {k}: interventions"
+            + (f" in warmup {warm['episodes']} {100 * warm['rate']:.1f}%;" if warm else "")
+            + f" per {row['window']}-episode train window: "
+            + (", ".join(f"{w['episodes']} {100 * w['rate']:.1f}%" for w in row["windows"]) or "none")
         )
     for name, path in summary["files"].items():
         typer.echo(f"{name}: {path}")

@@ -54,6 +54,10 @@ def run(
         from stages.steps.robot_preflight import preflight
 
         preflight(wf, str(workflow), st, (1, last))
+        if wf.robot.learner_address is None:  # warmup starts train's learner, so it is up when train begins
+            from accrue.robot.learner_client import start_learner_ahead
+
+            start_learner_ahead()
     out = console()
     runner = Runner(st, console=out if not as_json else None, wait=wait)
     started, summary = time.monotonic(), []

@@ -91,6 +91,10 @@ def run(
         from stages.steps.robot_preflight import preflight
 
         preflight(wf, str(workflow), st, (1, stage))
+        if wf.robot.learner_address is None and step in (None, "train"):  # warmup starts train's learner
+            from accrue.robot.learner_client import start_learner_ahead
+
+            start_learner_ahead()
     plan_stage = load_plan_function()
     plan = plan_stage(wf, stage, st)
     runner = Runner(st, console=console() if not as_json else None, wait=wait)

@@ -185,3 +185,8 @@ def test_the_ci_workflow_runs_the_whole_loop_on_the_so101(tmp_path):
     assert all(e["robot_time_s"] > 0 and e["workflow"] == "so101-sim-ci" for e in sealed)
     said = run.stdout + run.stderr
     assert "so101/reach_close" in said and "base-policy episodes on the robot (so101/reach_close)" in said
+    # the loop trains through the learner: a train episode acts on learned weights (v1 is the learner's
+    # first snapshot, taken before any update; every episode ran v0 before the learner came up first)
+    versions = [e["weights_version"] for e in sealed if e["phase"] == "train"]
+    assert max(v or 0 for v in versions) >= 2, versions
+    assert "Traceback" not in said  # lerobot's torchcodec probe no longer runs (accrue.policy.video_backend)

@@ -62,6 +62,144 @@ def sweep_dead_actor_dirs() -> list[Path]:
     return sweep_dead(TMP_PREFIX)
 
 
+def learner_command(dead_after_s: float) -> list[str]:
+    """The command line of a learner an actor starts on loopback (its token goes in the environment)."""
+    return [
+        sys.executable,
+        "-m",
+        "accrue.robot.learner_service",
+        "--listen",
+        "127.0.0.1:0",
+        "--parent-pid",
+        str(os.getpid()),
+        "--orphan-after",
+        str(max(10.0, 4 * dead_after_s)),
+    ]
+
+
+class SpareLearner:
+    """This actor's own learner process, started ahead of the step that needs it (the robot's warmup starts
+    the one train will use, so that its start-up - a torch import, tens of seconds on a busy machine - runs
+    while the operator does warmup, not in train's robot time). A thread starts it and keeps it from taking
+    itself for an orphan (Hello every few seconds) until a LearnerLink takes it (`take_spare`), or until
+    `close()`, or the end of this process."""
+
+    KEEP_S = 2.0
+
+    def __init__(self, dead_after_s: float = 3.0, start_timeout_s: float = 120.0):
+        self.auth = LinkAuth.ephemeral()
+        self.proc: subprocess.Popen | None = None
+        self.port: int | None = None
+        self.error: str | None = None
+        self.started = threading.Event()  # the port is known, or the start failed (error)
+        self.taken = threading.Event()
+        self.dead_after_s, self.start_timeout_s = dead_after_s, start_timeout_s
+        self.thread = threading.Thread(target=self._run, name="spare-learner", daemon=True)
+
+    def start(self) -> "SpareLearner":
+        self.thread.start()
+        return self
+
+    def alive(self) -> bool:
+        return self.error is None and (self.proc is None or self.proc.poll() is None)
+
+    def _run(self) -> None:
+        import select
+
+        env = dict(os.environ, **{TOKEN_ENV: self.auth.token})  # never on the command line
+        try:
+            self.proc = subprocess.Popen(
+                learner_command(self.dead_after_s), stdout=subprocess.PIPE, stderr=None, text=True, env=env
+            )
+            deadline, line = time.monotonic() + self.start_timeout_s, ""
+            while time.monotonic() < deadline and not self.taken.is_set() and self.proc.poll() is None:
+                if select.select([self.proc.stdout], [], [], 0.2)[0]:
+                    line = self.proc.stdout.readline()
+                    break
+            if "port" not in line:
+                self.error = f"learner process did not start (exit {self.proc.poll()})"
+                return
+            self.port = int(line.split("port")[1].split()[0])
+            threading.Thread(target=self.proc.stdout.read, daemon=True).start()  # drain its later output
+        except OSError as exc:
+            self.error = f"learner process did not start ({exc.strerror})"
+            return
+        finally:
+            self.started.set()
+        peer = Peer(f"127.0.0.1:{self.port}", self.auth.token)
+        try:
+            while not self.taken.wait(self.KEEP_S):
+                try:  # its orphan watch counts any call: this actor is alive and wants it
+                    peer.call("Hello", {"protocol": PROTOCOL}, timeout=2.0)
+                except Exception:  # noqa: BLE001 - a learner that died is found by the link that takes it
+                    pass
+        finally:
+            peer.close()
+
+    def close(self) -> None:
+        """Stop the process (nobody took it)."""
+        self.taken.set()
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(timeout=5)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+
+
+_SPARE: list[SpareLearner] = []
+_SPARE_LOCK = threading.Lock()
+_AHEAD = {"on": False}  # `accrue run` / `stage run` turn it on: the robot's warmup then starts train's learner
+
+
+def start_learner_ahead(on: bool = True) -> None:
+    """Whether the robot's warmup starts the learner its train will take (prestart_learner) in this process:
+    on for the commands that run warmup and then train in one process; off (the default) elsewhere, where no
+    train may follow to take it."""
+    _AHEAD["on"] = on
+
+
+def learner_ahead() -> bool:
+    return _AHEAD["on"]
+
+
+def prestart_learner(dead_after_s: float = 3.0) -> SpareLearner:
+    """Start this actor's next learner now, in the background (one at a time; an existing live one is kept)."""
+    import atexit
+
+    with _SPARE_LOCK:
+        if _SPARE and _SPARE[0].alive():
+            return _SPARE[0]
+        if _SPARE:
+            _SPARE.pop().close()
+        spare = SpareLearner(dead_after_s).start()
+        _SPARE.append(spare)
+        if not getattr(prestart_learner, "registered", False):
+            atexit.register(drop_spare)
+            prestart_learner.registered = True
+        return spare
+
+
+def take_spare() -> SpareLearner | None:
+    """The learner prestart_learner started, now this caller's (None when there is none, or it died)."""
+    with _SPARE_LOCK:
+        spare = _SPARE.pop() if _SPARE else None
+    if spare is None:
+        return None
+    if not spare.alive():
+        spare.close()
+        return None
+    return spare
+
+
+def drop_spare() -> None:
+    """Stop a spare learner nobody took (the end of the process, or a run that stops before train)."""
+    with _SPARE_LOCK:
+        spares, _SPARE[:] = list(_SPARE), []
+    for spare in spares:
+        spare.close()
+
+
 class LearnerLink:
     def __init__(
         self,
@@ -162,21 +300,30 @@ class LearnerLink:
             self._remove_tmp()  # the caller has sealed what it keeps (session.seal_learner copies)
 
     # ------------------------------------------------------------------ the thread
+    def _adopt(self) -> bool:
+        """Take the learner this actor started ahead (prestart_learner), once it is up; False if none."""
+        spare = take_spare()
+        if spare is None:
+            return False
+        spare.started.wait(self.start_timeout_s)
+        if spare.port is None or not spare.alive():
+            spare.close()
+            return False
+        spare.taken.set()
+        self.proc, self.auth, self.address = spare.proc, spare.auth, f"127.0.0.1:{spare.port}"
+        self.report(
+            f"learner process started (pid {self.proc.pid}, port {spare.port}, ahead of train)",
+            {"event": "robot-learner-started", "pid": self.proc.pid, "port": spare.port},
+        )
+        return True
+
     def _spawn(self) -> None:
         import select
 
-        cmd = [
-            sys.executable,
-            "-m",
-            "accrue.robot.learner_service",
-            "--listen",
-            "127.0.0.1:0",
-            "--parent-pid",
-            str(os.getpid()),
-            "--orphan-after",
-            str(max(10.0, 4 * self.dead_after_s)),
-        ]
+        if self.proc is None and self._adopt():
+            return
         env = dict(os.environ, **{TOKEN_ENV: self.auth.token})  # never on the command line
+        cmd = learner_command(self.dead_after_s)
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=None, text=True, env=env)
         deadline = time.monotonic() + self.start_timeout_s
         line = ""

@@ -42,32 +42,47 @@ def stage_curves(store: Store, wf: Workflow) -> dict[int, dict]:
     return out
 
 
-def stage_interventions(store: Store, wf: Workflow) -> dict[int, dict]:
-    """stage -> the train step's interventions (robot.intervention, beyond the paper), read from its sealed
-    episode records: the intervention rate (intervened control steps / control steps, teleop.window_rate)
-    per block of `stop_window` consecutive episodes ("windows"), and the sliding one over the last
-    `stop_window` episodes at the stage's end ("sliding_rate", the page's and TensorBoard's last value).
-    Stages run without interventions are left out."""
+def step_episodes(store: Store, wf: Workflow, k: int, step: str) -> list[dict] | None:
+    """The sealed episode records (episode.json, in index order) of stage k's committed hardware `step`;
+    None when it has not committed."""
     from artifacts.manifests import read_artifact, read_tree
     from artifacts.refs import read_ref
 
+    record_id = read_ref(store, step_ref(wf.name, k, step))
+    if record_id is None:
+        return None
+    artifact = (store.read_json(record_id).get("outputs") or {}).get("episodes")
+    if artifact is None:
+        return []
+    manifest = read_artifact(store, artifact)
+    files = sorted(
+        (e["path"], e["id"]) for e in read_tree(store, manifest["content"]) if e["path"].endswith("episode.json")
+    )
+    return [json.loads(store.read_bytes(oid)) for _, oid in files]
+
+
+def stage_interventions(store: Store, wf: Workflow) -> dict[int, dict]:
+    """stage -> its interventions (robot.intervention, beyond the paper), read from the sealed episode
+    records: for train, the intervention rate (intervened control steps / control steps, teleop.window_rate)
+    per block of `stop_window` consecutive episodes ("windows"), and the sliding one over the last
+    `stop_window` episodes at the stage's end ("sliding_rate", the page's and TensorBoard's last value); for
+    warmup (the operator may take over there too), its episodes as one block ("warmup"). Stages run without
+    interventions are left out."""
     size = wf.robot.stop_window if wf.robot is not None else 20
     out = {}
     for k in range(1, wf.num_stages + 1):
-        record_id = read_ref(store, step_ref(wf.name, k, "train"))
-        if record_id is None:
+        train = step_episodes(store, wf, k, "train")
+        if train is None:
             break
-        artifact = (store.read_json(record_id).get("outputs") or {}).get("episodes")
-        if artifact is None:
-            continue
-        manifest = read_artifact(store, artifact)
-        files = sorted(
-            (e["path"], e["id"]) for e in read_tree(store, manifest["content"]) if e["path"].endswith("episode.json")
-        )
-        eps = [json.loads(store.read_bytes(oid)) for _, oid in files]
-        eps = [e for e in eps if e.get("phase") == "train"]
-        if any("interventions" in e for e in eps):
-            out[k] = intervention_rates(eps, size)
+        warm = [e for e in step_episodes(store, wf, k, "warmup") or [] if e.get("phase") == "warmup"]
+        train = [e for e in train if e.get("phase") == "train"]
+        row = intervention_rates(train, size) if any("interventions" in e for e in train) else None
+        if any("interventions" in e for e in warm):
+            block = intervention_rates(warm, max(1, len(warm)))["windows"]
+            row = row or {"window": size, "windows": [], "intervened_steps": 0}
+            row["warmup"] = block[0] if block else None
+        if row is not None:
+            out[k] = row
     return out
 
 
@@ -103,7 +118,8 @@ def interventions_markdown(rows: dict[int, dict]) -> str:
         "# Interventions (robot.intervention; beyond the paper)",
         "",
         "Intervention rate: control steps the operator drove through the teleoperator / all control steps",
-        "(accrue.robot.teleop.window_rate). The table gives it per block of consecutive train episodes; the",
+        "(accrue.robot.teleop.window_rate). The table gives it for each stage's warmup episodes and per block",
+        "of consecutive train episodes; the",
         "operator page and TensorBoard show it sliding, over the last episodes, whose value at each stage's",
         "end is listed below the table.",
         "",
@@ -111,9 +127,10 @@ def interventions_markdown(rows: dict[int, dict]) -> str:
         "|---|---|---|---|---|---|",
     ]
     for k, row in sorted(rows.items()):
-        for w in row["windows"]:
+        warm = [("warmup ", row["warmup"])] if row.get("warmup") else []
+        for what, w in [*warm, *(("", w) for w in row["windows"])]:
             lines.append(
-                f"| {k} | {w['episodes']} | {w['intervened_steps']} | {w['control_steps']} | "
+                f"| {k} | {what}{w['episodes']} | {w['intervened_steps']} | {w['control_steps']} | "
                 f"{w['episodes_with_interventions']} | {100 * w['rate']:.1f}% |"
             )
     lines.append("")
@@ -207,6 +224,13 @@ def plot_fig4(curves: dict[int, dict], wf: Workflow, path: Path, other: dict[int
 
 def table3_markdown(table: dict[int, dict[str, list[bool]]], wf: Workflow) -> str:
     stages = sorted(table)
+    if not stages or len(wf.tasks) < 2:  # retention is of tasks 1..k-1 after stage k: none before stage 2
+        why = (
+            f"the workflow has one task ({wf.tasks[0]})"
+            if len(wf.tasks) < 2
+            else "no stage after the first has committed evaluate-all yet"
+        )
+        return f"# Retention trials (Table III)\n\nNo retention trials: {why}; they are run on tasks 1..k-1 after stage k.\n"
     lines = ["| task | " + " | ".join(f"after stage {k}" for k in stages) + " |", "|---|" + "---|" * len(stages)]
     for i, task in enumerate(wf.tasks[:-1], 1):
         cells = [f"{sum(table[k][task])}/{len(table[k][task])}" if task in table[k] else "–" for k in stages]

@@ -72,9 +72,18 @@ def run(ctx: StepContext) -> None:
             complete_episodes=kept["current_complete_episodes"],
         )
     ctx.console.print(
-        f"handoff: θ^{c['stage']}, ψ^{c['stage']} and {len(memory)} retained transitions "
-        f"({kept['kept']} complete episodes per task index)"
+        f"handoff: θ^{c['stage']}, ψ^{c['stage']} and {len(memory)} retained transitions ({kept_text(kept['kept'])})"
     )
+
+
+def kept_text(kept: dict) -> str:
+    """{task index: complete episodes kept} in words: `20 of task 1, 5 of task 2 kept` (tasks 1-based)."""
+    parts = sorted((int(t), n) for t, n in kept.items())
+    if not parts:
+        return "no complete episode kept"
+    if len(parts) == 1:
+        return f"{parts[0][1]} complete episodes of task {parts[0][0] + 1} kept"
+    return "complete episodes: " + ", ".join(f"{n} of task {t + 1}" for t, n in parts) + " kept"
 
 
 STEP = StepDef(

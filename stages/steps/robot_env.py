@@ -22,6 +22,7 @@ import shutil
 import threading
 from pathlib import Path
 
+from stages.errors import StageError
 from stages.runner_context import StepContext
 from stages.steps.common import copy_tree, read_json, write_json
 from stages.steps.robot_session import (
@@ -117,6 +118,55 @@ def learner_tracking(ctx: StepContext, tracking: dict | None, settings: SessionS
 
     spec, name, log_dir = tracking_run(ctx, tracking or {"spec": settings.tracking}, stage, ctx.config["workflow"])
     return {"spec": settings_of(spec), "run_name": name + "/learner", "log_dir": str(log_dir / "learner")}
+
+
+def learner_before_warmup(ctx: StepContext, settings: SessionSettings, poll_s: float = 1.0) -> None:
+    """Before the robot's first warmup episode: a learner on another host (robot.learner_address) answers
+    Hello with the link token, or nothing moves - waited for up to robot.hold.wait_s, then one line saying it
+    never answered (why: a name that does not resolve, nothing listening, no answer), or at once one saying
+    what to fix when it refuses this actor (its token, TLS). A learner this actor starts itself is started
+    now, in the background, when train follows in this process (learner_client.start_learner_ahead), so
+    that it is up when train's first episode begins."""
+    import time
+
+    from accrue.robot import learner_client
+    from accrue.robot.link_auth import link_auth_for
+    from accrue.robot.transport import PROTOCOL, LinkRefused, Peer, PeerDown
+
+    address = settings.learner_address
+    if address is None:
+        if learner_client.learner_ahead():
+            learner_client.prestart_learner(settings.dead_after_s)
+        return
+    auth = link_auth_for({"link": settings.link}, ctx.store.root)
+    peer = Peer(address, auth.token, tls_ca=auth.tls_ca)
+    deadline, told = time.monotonic() + settings.hold_wait_s, False
+    try:
+        while True:
+            try:
+                peer.call("Hello", {"protocol": PROTOCOL}, timeout=3.0)
+                break
+            except LinkRefused as exc:
+                raise StageError(f"warmup: {learner_client.refusal_line(address, exc, auth)}; nothing moved") from None
+            except PeerDown as exc:
+                if time.monotonic() >= deadline:
+                    raise StageError(
+                        f"warmup: the learner at {address} never answered within robot.hold.wait_s "
+                        f"{settings.hold_wait_s:g} s (last try: {exc}); nothing moved: start it (`accrue robot "
+                        "learner ...` on its host, docs/ROBOT_LINK.md) and run again"
+                    ) from None
+                if not told:
+                    ctx.console.print(
+                        f"warmup: waiting for the learner at {address} before the robot's first episode ({exc}); "
+                        f"up to robot.hold.wait_s {settings.hold_wait_s:g} s",
+                        soft_wrap=True,
+                    )
+                    told = True
+                time.sleep(poll_s)
+    finally:
+        peer.close()
+    if told:
+        ctx.console.print(f"warmup: the learner at {address} answered; going on")
 
 
 def link_healthy(link) -> bool:
@@ -241,6 +291,7 @@ class RobotEnvironment:
         c, settings = ctx.config, self.settings
         task, k = c["task"], c["stage"]
         features = base.features[task]
+        learner_before_warmup(ctx, settings)
         with self._session(ctx) as session:
             bridge = make_bridge(c, settings, task, self._fault(ctx))
             operator = make_operator(settings, bridge, ctx.console, store_root=ctx.store.root, audit=session.audit)
@@ -342,7 +393,11 @@ class RobotEnvironment:
             write_json(session.dir / "learner.json", {"updates": 0, "version": 0, "episodes": []})
             session._save()
         sealed_info = read_json(session.dir / "learner.json")
-        acting = {"learner": load_learner(session.dir / "learner", device="cpu"), "version": sealed_info["version"]}
+        acting = {
+            "learner": load_learner(session.dir / "learner", device="cpu"),
+            "version": sealed_info["version"],
+            "updates": sealed_info["updates"],
+        }
         pending: list[Path] = []  # learner checkpoints to seal, from the link's thread
         lock = threading.Lock()
 
@@ -383,7 +438,7 @@ class RobotEnvironment:
         def on_snapshot(h: dict, d: Path):
             learner = load_learner(d / "learner", device="cpu")
             with lock:
-                acting.update(learner=learner, version=int(h["version"]))
+                acting.update(learner=learner, version=int(h["version"]), updates=int(h.get("updates", 0)))
                 if h.get("checkpoint"):
                     pending.append(d)
 
@@ -435,8 +490,8 @@ class RobotEnvironment:
             succ, n = session.window(c["stop_window"])
             ctx.console.print(
                 f"train: {len(session.ordered('train'))} episodes, running success {succ}/{n}, RL robot "
-                f"time {sum(e['robot_time_s'] for e in session.ordered('train')):.1f} s, weights "
-                f"v{acting['version']}",
+                f"time {sum(e['robot_time_s'] for e in session.ordered('train')):.1f} s of "
+                f"{c['budget_s']:g} s, weights v{acting['version']} ({acting['updates']} learner updates)",
                 soft_wrap=True,
             )
 
