@@ -350,6 +350,8 @@ def push(
             typer.echo(f"  {name}: the remote's previous id is kept there as ref {keep}")
         for lease in report.leases_taken_over:
             typer.echo(f"  took over the lease of a push that is gone: {lease}")
+        for upload in report.uploads_resumed:
+            typer.echo(f"  finished a killed push's upload of {upload}")
         healed = f" ({len(report.healed)} missing or damaged there although its refs reach them)"
         typer.echo(
             f"push -> {spec.name}: sent {report.objects_sent} objects ({human_size(report.bytes_sent)})"

@@ -2308,6 +2308,7 @@ def test_a_first_push_sends_every_object_once_and_leaves_its_bookkeeping(tmp_pat
         "healed": [],
         "objects_rehashed": 0,
         "leases_taken_over": [],
+        "uploads_resumed": [],
     }
     assert 0 in sent.values()
     local_bytes = sum(store.object_size(o) for o in local_objects)

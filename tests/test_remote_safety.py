@@ -344,6 +344,11 @@ def test_a_lease_is_renewed_while_its_push_runs(tmp_path, monkeypatch):
             time.sleep(0.02)
     assert len(puts) >= 3 and len(set(puts)) == 1  # put, then renewed (same key)
     assert lease.read_leases(backend) == []
+    # what a push learns for resuming uploads: when its lease was written, and whether another push was live
+    with lease.held_lease(backend, "s" * 32) as alone:
+        assert not alone.others_live and alone.written_at is not None
+        with lease.held_lease(backend, "t" * 32) as second:
+            assert second.others_live and second.taken == []
 
 
 def test_a_lease_holder_is_gone_only_when_provably_so():
@@ -401,3 +406,46 @@ def test_a_no_op_push_uploads_nothing(tmp_path, remote_url):
     (tmp_path / "x.bin").write_bytes(b"more")
     cli(a, "add", str(tmp_path / "x.bin"), "--kind", "replay", "--ref", "team/x")
     assert _json(cli(a, "push", "--json"))["log_segment"]
+
+
+def test_a_killed_multipart_upload_is_finished_where_it_stopped(tmp_path, s3_env, monkeypatch):
+    import time
+    import uuid
+
+    from artifacts.hashing import CHUNK_SIZE
+    from artifacts.remotes.backends import SINGLE_PUT_MAX
+    from artifacts.remotes.s3 import S3Backend
+
+    bucket = f"b-{uuid.uuid4().hex[:12]}"
+    client = s3_client(s3_env)
+    client.create_bucket(Bucket=bucket)
+    url = f"s3://{bucket}/lab"
+    a = tmp_path / "a"
+    assert cli(a, "init").returncode == 0
+    data = os.urandom(SINGLE_PUT_MAX + CHUNK_SIZE + 1000)  # four parts: 8 + 8 + 8 MiB + 1000 bytes
+    (tmp_path / "big.bin").write_bytes(data)
+    cli(a, "add", str(tmp_path / "big.bin"), "--kind", "checkpoint", "--ref", "team/big")
+    with_remote(a, url)
+    oid = _content(a, "team/big")
+    key = f"lab/{_key(oid)}"
+    # a push killed with parts 1 (here: other bytes, as if the file changed) and 3 sent
+    upload = client.create_multipart_upload(Bucket=bucket, Key=key)["UploadId"]
+    for n, body in ((1, b"x" * CHUNK_SIZE), (3, data[2 * CHUNK_SIZE : 3 * CHUNK_SIZE])):
+        client.upload_part(Bucket=bucket, Key=key, UploadId=upload, PartNumber=n, Body=body)
+    time.sleep(1.1)  # begun a second before the next push's lease (the remote's clock counts seconds)
+    sent = []
+    real = S3Backend._boto3
+
+    def counting(backend):
+        made = real(backend)
+        upload_part = made.upload_part
+        made.upload_part = lambda **kw: sent.append(kw["PartNumber"]) or upload_part(**kw)
+        return made
+
+    monkeypatch.setattr(S3Backend, "_boto3", counting)
+    pushed = _json(cli(a, "push", "--json"))
+    assert pushed["uploads_resumed"] == [f"{oid[:12]}: 1 of 4 parts were there"] and sorted(sent) == [1, 2, 4]
+    assert client.list_multipart_uploads(Bucket=bucket).get("Uploads", []) == []
+    assert cli(a, "verify", "--remote", "origin", "--full").returncode == 0
+    b = tmp_path / "b"
+    assert accrue("clone", url, str(b)).returncode == 0 and cli(b, "verify", "--full").returncode == 0

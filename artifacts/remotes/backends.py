@@ -30,6 +30,10 @@ class Backend:
     """Keys are '/'-separated paths relative to the remote's root."""
 
     spec: RemoteSpec
+    # S3: a multipart upload of an object begun before this time (the remote's clock) by a push that is gone
+    # is finished instead of started again (set by push; None: never); what was, is noted in resumed
+    resume_before: float | None = None
+    resumed: tuple[str, ...] = ()
 
     def describe(self) -> str:
         return f"remote {self.spec.name} ({self.spec.url})"

@@ -120,15 +120,27 @@ def take_over(backend: Backend, leases: list[Lease], every: bool = False) -> lis
     return dropped
 
 
+@dataclass
+class Held:
+    """What a push learnt putting its lease: the stale leases it took over, whether another push was live
+    then, and when its own lease was written by the remote's clock (None if it cannot tell)."""
+
+    taken: list[Lease]
+    others_live: bool
+    written_at: float | None
+
+
 @contextlib.contextmanager
-def held_lease(backend: Backend, sid: str) -> Iterator[list[Lease]]:
+def held_lease(backend: Backend, sid: str) -> Iterator[Held]:
     """A lease for the push inside, renewed every RENEW_S on a thread; stale leases met on the way in
-    are taken over (yielded). Removed at the end; a killed push's goes stale by itself."""
-    taken = take_over(backend, read_leases(backend))
+    are taken over. Removed at the end; a killed push's goes stale by itself."""
+    leases = read_leases(backend)
+    taken = take_over(backend, leases)
     info = lease_info(sid)
     key = f"{PUSH_LEASES}/{sid}-{info['pid']}-{uuid.uuid4().hex[:8]}"
     body = canonical_json(info) + b"\n"
     backend.put_bytes(key, body)
+    written = backend.list_aged(PUSH_LEASES).get(key)
     stop = threading.Event()
 
     def renew() -> None:
@@ -141,7 +153,7 @@ def held_lease(backend: Backend, sid: str) -> Iterator[list[Lease]]:
     renewer = threading.Thread(target=renew, name="accrue-lease", daemon=True)
     renewer.start()
     try:
-        yield taken
+        yield Held(taken, any(lease.state == "live" for lease in leases), written[1] if written else None)
     finally:
         stop.set()
         renewer.join()

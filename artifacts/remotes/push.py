@@ -56,6 +56,7 @@ class PushReport:
     healed: list[str] = field(default_factory=list)  # of those sent: missing or damaged there although reached
     objects_rehashed: int = 0  # --verify: downloaded and hashed
     leases_taken_over: list[str] = field(default_factory=list)  # of pushes whose holder is gone
+    uploads_resumed: list[str] = field(default_factory=list)  # a killed push's multipart uploads, finished
     log_segment: str | None = None
 
     def as_dict(self) -> dict:
@@ -116,9 +117,13 @@ def push(
     local = select_refs(local_refs(store), refs or [], "in this store")
     check_remote_config(backend, create=True, known=used_before(store, spec.name))
     sid = store_id(store)
-    with held_lease(backend, sid) as taken:
+    with held_lease(backend, sid) as held:
+        # uploads a killed push left unfinished are taken up where they stopped: only those begun before this
+        # push's lease was written, and only when no other push was running then (none of them is its)
+        backend.resume_before = held.written_at if not held.others_live else None
         report = _push(store, spec, backend, sid, local, force, jobs or default_jobs(), meter or Meter(), verify)
-    report.leases_taken_over = [lease.describe() for lease in taken]
+    report.leases_taken_over = [lease.describe() for lease in held.taken]
+    report.uploads_resumed = list(backend.resumed)
     return report
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import os
 import re
+import threading
 from datetime import timedelta
 from pathlib import Path
 from typing import Iterator
@@ -176,6 +177,7 @@ def explain_s3_error(exc: BaseException, where: str, endpoint: str | None = None
 class S3Backend(Backend):
     def __init__(self, spec: RemoteSpec) -> None:
         self.spec = spec
+        self._lock, self._abandoned = threading.Lock(), None
         try:
             self.store = _s3_store(spec)
         except Exception as exc:  # noqa: BLE001 - bad configuration values, unknown keys
@@ -336,6 +338,8 @@ class S3Backend(Backend):
         import obstore  # a PUT replaces whatever the key held, so `replace` needs nothing more here
 
         key = object_key(oid)
+        if size > SINGLE_PUT_MAX and self.resume_before is not None and self._resume(oid, path, size):
+            return
         if size <= SINGLE_PUT_MAX:
             data = path.read_bytes()
             if blake3.blake3(data).hexdigest() != oid:
@@ -362,6 +366,94 @@ class S3Backend(Backend):
             # multipart: parts of CHUNK_SIZE, up to MULTIPART_CONCURRENCY in flight (obstore's
             # default 5 MiB x 12 measured ~15% slower than a plain upload of the same file)
             obstore.put(self.store, key, chunks(), chunk_size=CHUNK_SIZE, max_concurrency=MULTIPART_CONCURRENCY)
+
+    def _abandoned_uploads(self) -> dict[str, list[str]]:
+        """Unfinished multipart uploads of objects begun before resume_before: key -> uploads (one listing
+        per push, made on the first big object)."""
+        with self._lock:
+            if self._abandoned is None:
+                begun = sorted(
+                    (started, handle)
+                    for _what, started, handle in self.unfinished_uploads()
+                    if handle[0].startswith("objects/") and started < (self.resume_before or 0)
+                )
+                self._abandoned = {}
+                for _started, (key, upload_id) in reversed(begun):  # the newest first
+                    self._abandoned.setdefault(key, []).append(upload_id)
+            return self._abandoned
+
+    def _resume(self, oid: str, path: Path, size: int) -> bool:
+        """Finish the newest abandoned multipart upload of this object: the parts already there are kept when
+        their MD5 (their ETag) is that of the same bytes here, the rest sent, and the whole file hashed to oid on
+        the way. False (nothing done) when there is none or its parts are not this file's: the caller uploads."""
+        import hashlib
+
+        from botocore.exceptions import BotoCoreError, ClientError
+
+        key = object_key(oid)
+        uploads = self._abandoned_uploads().get(key)
+        if not uploads:
+            return False
+        upload_id = uploads[0]
+        full = (f"{self.spec.prefix}/" if self.spec.prefix else "") + key
+        client = self._boto3()
+        count = -(-size // CHUNK_SIZE)
+        try:
+            parts = [
+                part
+                for page in client.get_paginator("list_parts").paginate(
+                    Bucket=self.spec.bucket, Key=full, UploadId=upload_id
+                )
+                for part in page.get("Parts", [])
+            ]
+            have = {}
+            for part in parts:
+                n = part["PartNumber"]
+                want = min(CHUNK_SIZE, size - (n - 1) * CHUNK_SIZE) if 1 <= n <= count else -1
+                if part["Size"] != want:
+                    return False  # another part size: not a push of this object (left for prune)
+                have[n] = part["ETag"].strip('"')
+            hasher, kept, todo = blake3.blake3(max_threads=1), {}, []
+            with open(path, "rb") as f:
+                for n in range(1, count + 1):
+                    chunk = f.read(CHUNK_SIZE)
+                    hasher.update(chunk)
+                    if have.get(n) == hashlib.md5(chunk, usedforsecurity=False).hexdigest():
+                        kept[n] = have[n]
+                    else:
+                        todo.append(n)
+            if hasher.hexdigest() != oid:
+                raise local_corrupt(oid)
+            if not kept:
+                return False  # nothing worth keeping: a fresh upload is as fast
+
+            def send(n: int) -> tuple[int, str]:
+                with open(path, "rb") as f:
+                    f.seek((n - 1) * CHUNK_SIZE)
+                    body = f.read(CHUNK_SIZE)
+                got = client.upload_part(Bucket=self.spec.bucket, Key=full, UploadId=upload_id, PartNumber=n, Body=body)
+                return n, got["ETag"].strip('"')
+
+            from artifacts.remotes.transfer import parallel
+
+            for n, etag in parallel(send, todo, MULTIPART_CONCURRENCY):
+                kept[n] = etag
+            client.complete_multipart_upload(
+                Bucket=self.spec.bucket,
+                Key=full,
+                UploadId=upload_id,
+                MultipartUpload={"Parts": [{"PartNumber": n, "ETag": f'"{kept[n]}"'} for n in sorted(kept)]},
+            )
+        except ClientError as exc:
+            if exc.response.get("Error", {}).get("Code") in ("NoSuchUpload", "InvalidPart", "InvalidPartOrder"):
+                return False  # finished or dropped meanwhile (a prune): upload afresh
+            raise explain_s3_error(exc, self.describe(), endpoint_of(self.spec)) from None
+        except BotoCoreError as exc:
+            raise explain_s3_error(exc, self.describe(), endpoint_of(self.spec)) from None
+        with self._lock:
+            self.resumed += (f"{oid[:12]}: {len(kept) - len(todo)} of {count} parts were there",)
+            uploads.pop(0)
+        return True
 
     def download_to(self, key: str, fd: int) -> tuple[str, int]:
         import obstore
