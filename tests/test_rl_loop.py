@@ -110,9 +110,13 @@ def test_evaluation_is_repeatable_and_counts_exactly_m_episodes():
     assert good.success_rate(TASK, lambda s, ref, fresh: np.repeat(lift, len(s), 0)) == 0.0
 
 
-def run_loop(tmp_path, stop_after_checkpoint=None, resume_dir=None):
-    """Train 240 env steps with checkpoints every 80; optionally raise after the n-th checkpoint (a crash)."""
-    settings = rl_loop.LoopSettings([TASK], env_steps=240, eval_every=120, checkpoint_every=80)
+def train_with_checkpoints(tmp_path, settings, evaluator, stop_after_checkpoint=None, resume_dir=None):
+    """train_loop from a fresh warmup, or from a saved checkpoint; each checkpoint is saved as the train
+    step saves it (learner, new replay shards, loop state, the e* actor snapshot); optionally raise after
+    the n-th checkpoint (a crash). Returns (final LoopState or None after a crash, checkpoints, learner,
+    buffer)."""
+    from stages.steps.sim_env import CHOSEN_ACTOR_FILE, load_actor_snapshot
+
     torch.manual_seed(0)  # the global RNG is part of the saved state (the train step seeds it too)
     if resume_dir is None:
         buf = ReplayBuffer(STATE_DIM, H)
@@ -126,6 +130,8 @@ def run_loop(tmp_path, stop_after_checkpoint=None, resume_dir=None):
         buf = ReplayBuffer.load(resume_dir / "replay")
         learner = load_learner(resume_dir / "learner")
         state = rl_loop.LoopState.from_json(json.loads((resume_dir / "loop.json").read_text()))
+        if (resume_dir / CHOSEN_ACTOR_FILE).exists():
+            state.chosen_actor = load_actor_snapshot(learner, resume_dir / CHOSEN_ACTOR_FILE)
         col = make_collector(buf, state.next_episode)
         rl_loop.restore_collector(col, state)
     saved = []
@@ -135,13 +141,26 @@ def run_loop(tmp_path, stop_after_checkpoint=None, resume_dir=None):
         save_learner(learner, d / "learner")
         buf.save_new_shards(d / "replay")
         (d / "loop.json").write_text(json.dumps(st.to_json()))
+        if st.chosen_actor is not None:
+            torch.save(st.chosen_actor.state_dict(), d / CHOSEN_ACTOR_FILE)
         saved.append(d)
         if stop_after_checkpoint is not None and len(saved) == stop_after_checkpoint:
             raise KeyboardInterrupt
 
     try:
-        state = rl_loop.train_loop(learner, col, make_evaluator(2), settings, state=state, on_checkpoint=on_checkpoint)
+        state = rl_loop.train_loop(learner, col, evaluator, settings, state=state, on_checkpoint=on_checkpoint)
     except KeyboardInterrupt:
+        return None, saved, learner, buf
+    return state, saved, learner, buf
+
+
+def run_loop(tmp_path, stop_after_checkpoint=None, resume_dir=None):
+    """Train 240 env steps with checkpoints every 80."""
+    settings = rl_loop.LoopSettings([TASK], env_steps=240, eval_every=120, checkpoint_every=80)
+    state, saved, learner, buf = train_with_checkpoints(
+        tmp_path, settings, make_evaluator(2), stop_after_checkpoint, resume_dir
+    )
+    if state is None:
         return None, saved
     final = tmp_path / "final"
     save_learner(learner, final / "learner")
@@ -200,7 +219,6 @@ def two_task_loop(full_curves: bool, crash_after=None, resume_dir=None, tmp_path
     the train step does (stages.steps.sim_env)."""
     from accrue.scripted_reference import ScriptedReference
     from accrue.sim import get_task
-    from stages.steps.sim_env import CHOSEN_ACTOR_FILE, load_actor_snapshot
 
     tasks = [EARLIER, TASK]
     settings = rl_loop.LoopSettings(tasks, 240, 80, 120, full_curves=full_curves)
@@ -213,40 +231,7 @@ def two_task_loop(full_curves: bool, crash_after=None, resume_dir=None, tmp_path
 
     report = evaluator(500, 4)
     ev = evaluator(99, 2, report)
-    torch.manual_seed(0)
-    if resume_dir is None:
-        buf = ReplayBuffer(STATE_DIM, H)
-        col = make_collector(buf)
-        col.restart()
-        rl_loop.warmup(col, 2)
-        learner, state = small_learner(), rl_loop.LoopState(next_episode=col.next_episode)
-        col = make_collector(buf, state.next_episode)
-        col.restart()
-    else:
-        buf = ReplayBuffer.load(resume_dir / "replay")
-        learner = load_learner(resume_dir / "learner")
-        state = rl_loop.LoopState.from_json(json.loads((resume_dir / "loop.json").read_text()))
-        if (resume_dir / CHOSEN_ACTOR_FILE).exists():
-            state.chosen_actor = load_actor_snapshot(learner, resume_dir / CHOSEN_ACTOR_FILE)
-        col = make_collector(buf, state.next_episode)
-        rl_loop.restore_collector(col, state)
-    saved = []
-
-    def on_checkpoint(st):
-        d = tmp_path / f"ckpt-{len(saved)}"
-        save_learner(learner, d / "learner")
-        buf.save_new_shards(d / "replay")
-        (d / "loop.json").write_text(json.dumps(st.to_json()))
-        if st.chosen_actor is not None:
-            torch.save(st.chosen_actor.state_dict(), d / CHOSEN_ACTOR_FILE)
-        saved.append(d)
-        if crash_after is not None and len(saved) == crash_after:
-            raise KeyboardInterrupt
-
-    try:
-        state = rl_loop.train_loop(learner, col, ev, settings, state=state, on_checkpoint=on_checkpoint)
-    except KeyboardInterrupt:
-        return None, ev, saved
+    state, saved, _, _ = train_with_checkpoints(tmp_path, settings, ev, crash_after, resume_dir)
     return state, ev, saved
 
 
