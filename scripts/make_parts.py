@@ -1,6 +1,7 @@
 """Author the built-in plug/socket/gripper parts as USD under accrue/sim/assets/<family>/<name>/.
 
-Run after changing accrue/sim/part_shapes.py or PART_TABLE / CONTACT_PART_TABLE in accrue/sim/tasks.py:
+Run after changing accrue/sim/part_shapes.py or PART_TABLE / CONTACT_PART_TABLE / CONTACT2_PART_TABLE in
+accrue/sim/tasks.py:
     .venv/bin/python scripts/make_parts.py [--out DIR]
 """
 
@@ -9,18 +10,16 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from accrue.sim.part_shapes import gear_parts, insertion_parts
-from accrue.sim.tasks import ASSET_DIR, CONTACT_PART_TABLE, PART_TABLE
+from accrue.sim.part_shapes import build_parts
+from accrue.sim.tasks import ASSET_DIR, CONTACT2_PART_TABLE, CONTACT_PART_TABLE, PART_TABLE
 from accrue.sim.usd_parts import write_part
 
 
 def build_all(out: Path) -> list[Path]:
     written = []
-    for name, (family, shape, clearance, depth, chamfer, length) in [*PART_TABLE.items(), *CONTACT_PART_TABLE.items()]:
-        if shape == "gear":
-            parts = gear_parts(clearance, depth, chamfer, thickness=length)
-        else:
-            parts = insertion_parts(shape, clearance, depth, chamfer, length)
+    tables = [*PART_TABLE.items(), *CONTACT_PART_TABLE.items(), *CONTACT2_PART_TABLE.items()]
+    for name, (family, shape, clearance, depth, chamfer, length) in tables:
+        parts = build_parts(shape, clearance, depth, chamfer, length)
         folder = out / family / name
         for role, pieces in (("plug", parts.plug), ("socket", parts.socket), ("gripper", parts.gripper)):
             write_part(folder / f"{role}.usda", pieces, name=role.capitalize())

@@ -13,6 +13,7 @@ import functools
 import numpy as np
 
 from accrue.errors import AccrueError
+from accrue.sim.geometry import Primitive, piece_top
 from accrue.sim.tasks import TaskSpec
 from accrue.sim.usd_parts import read_part
 
@@ -35,15 +36,21 @@ def damping_for(kp_pos: float, kp_rot: float, plug_mass: float) -> tuple[float, 
 
 
 def _add_pieces(spec, body, pieces, prefix: str, *, collide: tuple[int, int], rgba, group: int):
+    """One geom per piece, named prefix_000, ...: a mesh for a vertex array, a box or cylinder for a Primitive."""
     import mujoco
 
-    for i, verts in enumerate(pieces):
+    primitive_types = {"box": mujoco.mjtGeom.mjGEOM_BOX, "cylinder": mujoco.mjtGeom.mjGEOM_CYLINDER}
+    for i, piece in enumerate(pieces):
         name = f"{prefix}_{i:03d}"
-        spec.add_mesh(name=name, uservert=np.asarray(verts, dtype=float).ravel().tolist())
+        if isinstance(piece, Primitive):
+            shape = {"type": primitive_types[piece.kind], "size": [*piece.size, 0.0][:3]}
+            shape.update(pos=list(piece.pos), quat=list(piece.quat))
+        else:
+            spec.add_mesh(name=name, uservert=np.asarray(piece, dtype=float).ravel().tolist())
+            shape = {"type": mujoco.mjtGeom.mjGEOM_MESH, "meshname": name}
         body.add_geom(
             name=name,
-            type=mujoco.mjtGeom.mjGEOM_MESH,
-            meshname=name,
+            **shape,
             contype=collide[0],
             conaffinity=collide[1],
             rgba=rgba,
@@ -60,7 +67,7 @@ def build_spec(task: TaskSpec):
 
     plug, socket = read_part(task.plug_usd), read_part(task.socket_usd)
     gripper = read_part(task.gripper_usd) if task.gripper_usd is not None else []
-    top = max(float(np.max(p[:, 2])) for p in plug)
+    top = max(piece_top(p) for p in plug)
 
     spec = mujoco.MjSpec()
     spec.modelname = task.task_id.replace("/", "_")

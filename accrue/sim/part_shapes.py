@@ -181,3 +181,127 @@ def gear_parts(clearance: float, depth: float, chamfer: float, thickness: float)
     neighbour = [g.prism(g.regular_polygon(16, hub_r) + ncentre, *neighbour_z)]
     neighbour += [g.prism(t + ncentre, *neighbour_z) for t in _gear_teeth(np.pi, hub_r, tip_r, half_w)]
     return PartPieces(rings + teeth, [*shaft, collar, base, *neighbour], gripper_pieces(tip_r, thickness + 12 * MM))
+
+
+# ------------------------------------------------------------------ contact2: fewer, simpler colliders
+# The contact2 family's parts (tasks.CONTACT2_PART_TABLE): the contact family's parts rebuilt for a cheap
+# narrow phase. Whatever is a box or a cylinder is a MuJoCo primitive; a round plug is a true cylinder in a
+# hole of WALL_SIDES chamfered walls (its radial play is `clearance` towards a wall and clearance / cos(pi / 8)
+# towards a corner, the same at every yaw), where the contact parts put a 16- or 24-gon prism in a hole of
+# as many walls. Only the walls that carry a chamfer stay meshes.
+WALL_SIDES = 8
+WALL = 6.0 * MM  # wall thickness behind a hole edge (as insertion_parts)
+
+
+def _hole_floor(reach: float, depth: float):
+    return g.box(-reach, -reach, -depth - 4 * MM, reach, reach, -depth)
+
+
+def _round_hole(radius: float, clearance: float) -> np.ndarray:
+    """The WALL_SIDES-gon whose walls sit `clearance` from a cylinder of `radius` (a face normal to +x)."""
+    n = WALL_SIDES
+    return g.regular_polygon(n, (radius + clearance) / np.cos(np.pi / n), phase=np.pi / n)
+
+
+def cylinder_peg_parts(clearance: float, depth: float, chamfer: float, length: float, radius: float = 5.0 * MM):
+    """A cylindrical peg (one primitive) in a hole of WALL_SIDES chamfered walls, floor a box."""
+    hole = _round_hole(radius, clearance)
+    socket = g.hole_walls(hole, depth, WALL, chamfer)
+    socket.append(_hole_floor(float(np.abs(hole).max()) + WALL, depth))
+    return PartPieces([g.cylinder(radius, 0.0, length)], socket, gripper_pieces(radius, length))
+
+
+def keyed_cylinder_parts(
+    clearance: float,
+    depth: float,
+    chamfer: float,
+    length: float,
+    radius: float = 5.5 * MM,
+    key_width: float = 2.4 * MM,
+    key_length: float = 2.5 * MM,
+):
+    """A cylinder with a key on +x (two primitives, as plugs/keyed_round's outline: circle and key bar) in
+    a hole of WALL_SIDES - 1 chamfered walls and a key slot cut into the +x face: two corner blocks, each
+    facing that face and one side of the slot (chamfered on both), and the slot's end wall."""
+    n = WALL_SIDES
+    hole = g.ccw(_round_hole(radius, clearance))  # vertex 0 at +pi/n; edge n-1 (vertex n-1 -> 0) faces +x
+    normals = g.edge_normals(hole)
+    half = key_width / 2 + clearance  # the slot's half width
+    face = radius + clearance  # x of the +x face
+    end = radius + key_length + clearance  # x of the slot's end
+    full_ext = WALL * np.tan(np.pi / n)
+    # the walls beside the +x face stop short of the slot (their usual corner lengthening would reach into it)
+    rise = (hole[1, 1] - hole[0, 1]) / np.linalg.norm(hole[1] - hole[0])
+    near_slot = float(hole[0, 1] - half) / rise
+    socket = []
+    for i in range(n - 1):
+        ext_a = min(full_ext, near_slot) if i == 0 else full_ext
+        ext_b = min(full_ext, near_slot) if i + 1 == n - 1 else full_ext
+        socket.append(g.wall_piece(hole[i], hole[i + 1], normals[i], ext_a, ext_b, depth, WALL, chamfer))
+    top = g.chamfered_block(face, half, end + WALL, float(hole[0, 1]) + WALL, depth, chamfer, "xy")
+    socket += [top, top * [1.0, -1.0, 1.0]]
+    socket.append(g.chamfered_block(end, -half - WALL, end + WALL, half + WALL, depth, chamfer, "x"))
+    socket.append(_hole_floor(end + WALL, depth))
+    plug = [
+        g.cylinder(radius, 0.0, length),
+        g.box(0.0, -key_width / 2, 0.0, radius + key_length, key_width / 2, length),
+    ]
+    return PartPieces(plug, socket, gripper_pieces(radius + key_length, length))
+
+
+def square_bore_gear_parts(clearance: float, depth: float, chamfer: float, thickness: float) -> PartPieces:
+    """gear_parts' gear and neighbour with a square bore (4 chamfered pieces, their outer corners inside the
+    hub) on a cylindrical shaft `clearance` narrower than the bore's half width: like gear_parts' octagonal
+    pair, the shaft does not key the gear's yaw, the teeth do. Teeth, shaft, collar, base and the
+    neighbour are primitives."""
+    shaft_r, hub_r, tip_r, half_w = 3.0 * MM, 7.0 * MM, 9.0 * MM, 1.2 * MM
+    bore = g.regular_polygon(4, (shaft_r + clearance) * np.sqrt(2.0), phase=np.pi / 4)
+    ring_wall = hub_r * np.cos(np.pi / 4) - (shaft_r + clearance)  # the ring's corners stay on the hub
+    rings = [p * [1, 1, -1] for p in g.hole_walls(bore, thickness, ring_wall, chamfer)]
+
+    def teeth(phase: float, centre, z0: float, z1: float) -> list:
+        out = []
+        for k in range(GEAR_TEETH):
+            ang = phase + 2 * np.pi * k / GEAR_TEETH
+            r_mid = (hub_r - 0.5 * MM + tip_r) / 2
+            mid = (centre[0] + r_mid * np.cos(ang), centre[1] + r_mid * np.sin(ang), (z0 + z1) / 2)
+            out.append(g.turned_box(mid, ((tip_r - hub_r + 0.5 * MM) / 2, half_w, (z1 - z0) / 2), ang))
+        return out
+
+    gear = rings + teeth(np.pi / GEAR_TEETH, (0.0, 0.0), 0.0, thickness)
+    base_z = (-depth - 4 * MM, -depth)
+    fixed = [
+        g.cylinder(shaft_r, -depth, 0.0),
+        g.cylinder(5.0 * MM, *base_z),  # the collar the gear comes to rest on
+        g.box(GEAR_CENTRE_DISTANCE - 7 * MM, -12 * MM, base_z[0], GEAR_CENTRE_DISTANCE + 12 * MM, 12 * MM, base_z[1]),
+        g.cylinder(hub_r, -depth, -depth + thickness, centre=(GEAR_CENTRE_DISTANCE, 0.0)),
+    ]
+    fixed += teeth(np.pi, (GEAR_CENTRE_DISTANCE, 0.0), -depth, -depth + thickness)
+    return PartPieces(gear, fixed, gripper_pieces(tip_r, thickness + 12 * MM))
+
+
+def box_peg_parts(clearance: float, depth: float, chamfer: float, length: float) -> PartPieces:
+    """insertion_parts("rect_peg") with the peg and the floor as boxes (the walls are the same)."""
+    mesh = insertion_parts("rect_peg", clearance, depth, chamfer, length)
+    lo, hi = mesh.plug[0].min(axis=0), mesh.plug[0].max(axis=0)
+    floor = mesh.socket[-1]
+    flo, fhi = floor.min(axis=0), floor.max(axis=0)
+    return PartPieces([g.box(*lo, *hi)], [*mesh.socket[:-1], g.box(*flo, *fhi)], mesh.gripper)
+
+
+CONTACT2_BUILDERS = {
+    "cylinder_peg": cylinder_peg_parts,
+    "keyed_cylinder": keyed_cylinder_parts,
+    "square_bore_gear": square_bore_gear_parts,
+    "box_peg": box_peg_parts,
+}
+
+
+def build_parts(shape: str, clearance: float, depth: float, chamfer: float, length: float) -> PartPieces:
+    """The pieces of a part table row (tasks.PART_TABLE, CONTACT_PART_TABLE, CONTACT2_PART_TABLE); `length`
+    is a gear's thickness."""
+    if shape in CONTACT2_BUILDERS:
+        return CONTACT2_BUILDERS[shape](clearance, depth, chamfer, length)
+    if shape == "gear":
+        return gear_parts(clearance, depth, chamfer, thickness=length)
+    return insertion_parts(shape, clearance, depth, chamfer, length)

@@ -9,6 +9,13 @@ Families and their role in the benchmark (FAMILY_ROLES):
   pose estimate, in-hand offset of the held part, force noise), so no constant per-task correction
   helps; what helps is the contact skill every task needs (search under contact, compliance, and for
   gear_mesh rotation under contact). Success is a fraction of the insertion depth, as in FORGE.
+- contact2/*: the contact family, version 2 (same role, tasks, randomisation, success rules and physics
+  settings; parts rebuilt with fewer, simpler colliders, CONTACT2_PART_TABLE): a cylinder or box is a
+  MuJoCo primitive, a round hole has 8 walls instead of 16 or 24, the gear a square bore on a round shaft.
+  Its narrow phase costs about half the contact family's (benchmarks/profile_contact_physics.py). It is a
+  new family rather than new parts under the old ids because stored results name contact/* tasks and must
+  stay reproducible; a versioned name keeps the pairing visible (contact2/<name> is contact/<name>'s
+  successor, so a spec moves over by its family prefix) and leaves room for a contact3.
 - nist/* and plugs/*: a fixed per-fixture socket-estimate bias (`estimate_bias`) on top of small
   per-episode noise: what RL can add there is a constant per-task offset. The negative control.
 """
@@ -104,6 +111,7 @@ _REGISTRY: dict[str, TaskSpec] = {}
 
 FAMILY_ROLES = {
     "contact": "shared-skill",  # per-episode zero-mean errors; a contact skill shared by the family fixes them
+    "contact2": "shared-skill",  # the contact family with cheaper colliders (same errors, success, physics)
     "nist": "negative-control",  # fixed per-fixture estimate bias: a constant per-task offset
     "plugs": "negative-control",  # the same mechanism on AutoMate-like plugs
 }
@@ -148,6 +156,19 @@ CONTACT_PART_TABLE = {
     "rect_peg": ("contact", "rect_peg", 0.25 * MM, 12 * MM, 0.55 * MM, 28 * MM),
 }
 
+# contact2: the same parts as primitives and fewer wall pieces (part_shapes.CONTACT2_BUILDERS). Depths,
+# chamfers and lengths are the contact family's. round_peg's clearance is 0.16 mm, not 0.20: the contact
+# family's 16-gon peg in a hole grown by 0.20 mm has 0.10-0.20 mm of radial play depending on its yaw
+# (0.12 on average), a cylinder has the same play at every yaw; 0.16 is the closest the geometry
+# descriptor's fixed scale takes in (accrue.learner_inputs: 0.25 +- 2 x 0.05 mm). keyed_peg's 24-gon pair
+# had 0.20-0.25 (0.22 on average) and keeps its 0.25; the gear's bore and the rect peg keep theirs.
+CONTACT2_PART_TABLE = {
+    "round_peg": ("contact2", "cylinder_peg", 0.16 * MM, 16 * MM, 0.5 * MM, 30 * MM),
+    "keyed_peg": ("contact2", "keyed_cylinder", 0.25 * MM, 14 * MM, 0.6 * MM, 30 * MM),
+    "gear_mesh": ("contact2", "square_bore_gear", 0.30 * MM, 10 * MM, 0.5 * MM, 8 * MM),
+    "rect_peg": ("contact2", "box_peg", 0.25 * MM, 12 * MM, 0.55 * MM, 28 * MM),
+}
+
 
 def _contact_randomisation(**kw) -> Randomisation:
     """FORGE's sources of difficulty, all per episode and zero-mean: the fixed part's pose estimate
@@ -170,7 +191,15 @@ def _builtin_specs() -> list[TaskSpec]:
     def contact(name, instruction, symmetry, frac, **kw):
         return from_table(CONTACT_PART_TABLE, name, instruction, symmetry, success_depth_frac=frac, **kw)
 
-    return [
+    def contact2(old: TaskSpec, instruction: str) -> TaskSpec:
+        """contact/<name>'s task on contact2's parts, with its own instruction (a scripted reference finds
+        its task by the instruction)."""
+        name = old.task_id.split("/")[1]
+        parts = from_table(CONTACT2_PART_TABLE, name, instruction, old.yaw_symmetry)
+        keep = ("estimate_bias", "max_steps", "success_depth_frac", "randomisation")
+        return dataclasses.replace(parts, **{k: getattr(old, k) for k in keep})
+
+    specs = [
         spec("rect_peg", "insert the rectangular peg into its hole", 2, (1.2, -0.6, 2.0)),
         spec("round_peg", "insert the round peg into its hole", 0, (-1.0, 1.0, 0.0)),
         spec(
@@ -184,6 +213,8 @@ def _builtin_specs() -> list[TaskSpec]:
         spec("l_shape", "insert the L-shaped plug into its socket", 1, (-0.5, -1.4, -2.0)),
         spec("keyed_round", "insert the keyed round plug into its socket", 1, (1.5, 1.0, -3.5)),
         spec("twin_pins", "insert the twin-pin plug into its socket", 2, (-1.3, 1.2, 1.5)),
+    ]
+    contact_specs = [
         contact(
             "round_peg",
             "insert the tight round peg into its hole",
@@ -216,6 +247,14 @@ def _builtin_specs() -> list[TaskSpec]:
             randomisation=_contact_randomisation(friction=(0.3, 1.1)),
         ),
     ]
+    contact2_instructions = {
+        "round_peg": "insert the tight cylindrical peg into its round hole",
+        "keyed_peg": "insert the keyed cylinder into its keyed hole",
+        "gear_mesh": "mesh the square-bored gear onto its shaft beside the neighbour gear",
+        "rect_peg": "insert the rectangular block into its tight hole",
+    }
+    contact2_specs = [contact2(c, contact2_instructions[c.task_id.split("/")[1]]) for c in contact_specs]
+    return [*specs, *contact_specs, *contact2_specs]
 
 
 for _s in _builtin_specs():
