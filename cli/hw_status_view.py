@@ -21,7 +21,7 @@ def print_hardware_status(store, wf) -> None:
         title = (
             f"robot — stage {r['stage']} {r['step']} ({r['state']}): {r['episodes']} episodes, "
             f"{r['successes']} labelled success, robot time {r['robot_time_s']:.1f} s, "
-            f"{r['faults']} with faults"
+            f"{fault_text(r)}"
         )
         if "window" in r:
             title += f"; running success {r['window']} — stop rule {r['stop_rule']}"
@@ -40,3 +40,19 @@ def print_hardware_status(store, wf) -> None:
                 s["ended"],
             )
         console().print(table)
+
+
+def fault_text(row: dict, shown: int = 3) -> str:
+    """`no faults`, or `1 with faults (episode 4, ended fault: robot did not answer ...)`: which episodes,
+    and the first fault of each (the first `shown` of them; `accrue log --event robot-fault` has all)."""
+    eps = row.get("fault_episodes")
+    if not row["faults"]:
+        return "no faults"
+    if not eps:
+        return f"{row['faults']} with faults"
+    parts = []
+    for e in eps[:shown]:
+        more = f" and {len(e['faults']) - 1} more" if len(e["faults"]) > 1 else ""
+        parts.append(f"episode {e['index']}, ended {e['end']}: {e['faults'][0]}{more}")
+    rest = f"; {len(eps) - shown} more: accrue log --event robot-fault" if len(eps) > shown else ""
+    return f"{row['faults']} with faults ({'; '.join(parts)}{rest})"

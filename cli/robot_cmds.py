@@ -56,6 +56,13 @@ def learner(
     insecure: Annotated[
         bool, typer.Option("--insecure", help="Allow a non-loopback address without TLS (a trusted LAN only).")
     ] = False,
+    tracking: Annotated[
+        Optional[Path],
+        typer.Option(
+            "--tracking-dir",
+            help="Where to write the learner's scalars (default: the store's log/tracking with --store, else none).",
+        ),
+    ] = None,
 ) -> None:
     """Serve an actor's learner over gRPC until interrupted; only callers with the link token get in."""
     from accrue.errors import AccrueError
@@ -67,6 +74,8 @@ def learner(
             argv += [flag, str(value)]
     if insecure:
         argv.append("--insecure")
+    if tracking is not None:
+        argv += ["--tracking-dir", str(tracking)]
     # the address first: a mistake there is one line before anything touches the store
     check_listen(listen, tls_cert is not None, insecure, prog="accrue robot learner")
     audit = None
@@ -79,6 +88,10 @@ def learner(
 
         audit = store_audit(store)
         os.environ[TOKEN_ENV] = store_token(store)  # the learner pops it: not in argv, not inherited
+        if tracking is None:  # the store's log/tracking, where the actor's runs are
+            from accrue.tracking import tracking_dir
+
+            argv += ["--tracking-dir", str(tracking_dir(store, "").absolute())]
     elif token_file is not None:
         argv += ["--token-file", str(token_file)]
     raise typer.Exit(main(argv, audit=audit))

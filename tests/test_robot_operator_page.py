@@ -570,7 +570,8 @@ def test_the_page_shows_interventions_and_its_i_button_takes_over(tmp_path, monk
     assert len(steps) >= 3 and np.array_equal(marks, want)
     assert e["interventions"] == int(want.sum()) > 0
     # what the page showed: the count while driving (the chunks done so far), then the sealed count and rate
-    assert 0 < int(driving.split()[0]) < e["interventions"] and driving.endswith(" steps this episode")
-    assert count == f"{e['interventions']} steps in episode 0"
-    shown_rate = float(rate.removeprefix("window rate ").removesuffix("% of steps"))
+    assert 0 < int(driving.split()[0]) < e["interventions"] and driving.endswith(" steps driven in this episode")
+    assert count == f"{e['interventions']} steps driven in episode 0"
+    assert rate.startswith("(") and rate.endswith("% of the steps of the last 20 sealed episodes)")
+    shown_rate = float(rate[1:].split("%")[0])
     assert shown_rate == pytest.approx(100 * e["interventions"] / e["control_steps"], abs=0.051)

@@ -19,7 +19,8 @@ Tracking (accrue.tracking, docs/TRACKING.md): when `Init` carries a `tracking` s
 learner/<losses, q_mean>, learner/updates, learner/version, learner/episodes and
 learner/intervention_transitions (rows of its buffer the operator drove; also in every Heartbeat answer)
 against its update count, one point per `every` updates: under the actor's log directory when the actor
-started it (same host), under ./accrue-tracking/<run> of a learner started by hand on another host.
+started it (same host); a learner started by hand writes under `--tracking-dir` (`accrue robot learner --store
+DIR`: the store's log/tracking/<run>), and with neither keeps none - never into the working directory.
 
 A re-initialised learner continues the run: it starts from the update count of the checkpoint it is sent
 and numbers its weights above `version_floor` (the newest version the actor has seen), so one version
@@ -93,9 +94,13 @@ class LearnerService:
         orphan_after_s: float = 0.0,
         audit: Callable[[str, dict], None] | None = None,
         spawned: bool = False,
+        tracking_root: Path | None = None,
     ):
         self.lock = threading.Lock()
         self.spawned = spawned  # started by its actor, on the actor's host: the actor's log dir is ours
+        # a learner started by hand writes its runs here (--tracking-dir; `accrue robot learner --store DIR`:
+        # the store's log/tracking); None: it keeps no scalars, and never writes into the working directory
+        self.tracking_root = tracking_root
         self.tracker = None
         self.track_mark = 0
         self.run_id: str | None = None
@@ -202,9 +207,16 @@ class LearnerService:
         if not tracking:
             return
         name = str(tracking.get("run_name") or "learner")
-        log_dir = (
-            Path(tracking["log_dir"]) if self.spawned and tracking.get("log_dir") else Path("accrue-tracking") / name
-        )
+        if self.spawned and tracking.get("log_dir"):
+            log_dir = Path(tracking["log_dir"])
+        elif self.tracking_root is not None:
+            log_dir = self.tracking_root / name
+        else:
+            say(
+                "accrue robot learner: tracking off for this run (no --store or --tracking-dir: "
+                "nothing is written into the working directory)"
+            )
+            return
         try:
             self.tracker = open_tracker(
                 tracking.get("spec"), log_dir, name, warn=lambda line: say(f"accrue robot learner: {line}")
@@ -376,6 +388,7 @@ def main(argv: list[str] | None = None, audit: Callable[[str, dict], None] | Non
     parser.add_argument("--tls-cert", default=None)
     parser.add_argument("--tls-key", default=None)
     parser.add_argument("--insecure", action="store_true")
+    parser.add_argument("--tracking-dir", default=None, help="where a learner started by hand writes its scalars")
     args = parser.parse_args(argv)
     if (args.tls_cert is None) != (args.tls_key is None):
         raise AccrueError("accrue robot learner: give --tls-cert and --tls-key together")
@@ -383,7 +396,12 @@ def main(argv: list[str] | None = None, audit: Callable[[str, dict], None] | Non
     token = link_token(args.token_file)
 
     # the port is bound (and a port in use refused) before the slow imports below
-    service = LearnerService(args.orphan_after, audit=audit, spawned=bool(args.parent_pid))
+    service = LearnerService(
+        args.orphan_after,
+        audit=audit,
+        spawned=bool(args.parent_pid),
+        tracking_root=Path(args.tracking_dir).expanduser().absolute() if args.tracking_dir else None,
+    )
     server, port = serve(
         service.handlers(),
         args.listen,

@@ -72,6 +72,11 @@ class Operator:
         """Non-blocking, during an episode: "end" (stop it now), "abort", or None."""
         return None
 
+    def finish(self, line: str, last: int) -> ResetAnswer:
+        """The step has all its episodes (`line` says so): the last chance to re-label the last one, `last`,
+        before the step ends. go=False: the operator aborted. An operator nobody answers for finishes."""
+        return ResetAnswer(go=True)
+
     def close(self) -> None:
         """Release what the operator holds (the terminal's mode, the page's server)."""
 
@@ -101,6 +106,10 @@ class ScriptedOperator(Operator):
         if self.reset_scene is not None:
             self.reset_scene()
         fix, self._pending = self._pending, None
+        return ResetAnswer(go=True, relabel=fix)
+
+    def finish(self, line: str, last: int) -> ResetAnswer:
+        fix, self._pending = self._pending, None  # a slip on the step's last episode is corrected too
         return ResetAnswer(go=True, relabel=fix)
 
     def label(self, episode: int, summary: str) -> Label | None:
@@ -137,7 +146,8 @@ KEYS = {
     "a": "abort",
     "i": "take over / give back",  # only while robot.intervention (signal: key) is on
 }
-RESET_KEYS, LABEL_KEYS, RELABEL_KEYS, EPISODE_KEYS = "rpla", "sfpa", "sfa", "epa"
+RESET_KEYS, LABEL_KEYS, RELABEL_KEYS, EPISODE_KEYS, FINISH_KEYS = "rpla", "sfpa", "sfa", "epa", "rla"
+FINISH_LINE = "r=finish  l=re-label last  a=abort"  # at a step's end r finishes it (no scene to reset)
 AUDIT_EVENT = "robot-operator-action"
 
 
@@ -188,9 +198,9 @@ class KeyOperator(Operator):
         self.audit(AUDIT_EVENT, fields)
         self._acted(via, action, fields)
 
-    def _unknown(self, key: str, keys: str) -> None:
+    def _unknown(self, key: str, keys: str, line: str | None = None) -> None:
         shown = {"\x1b": "Esc", "\x7f": "Backspace", "\t": "Tab"}.get(key, key if key.isprintable() else repr(key))
-        self._say(f"key {shown!r} does nothing here; keys now: {keys_line(keys)}")
+        self._say(f"key {shown!r} does nothing here; keys now: {line or keys_line(keys)}")
 
     def _pause(self, via: str, during_episode: bool = False) -> None:
         self.paused = not self.paused
@@ -241,6 +251,29 @@ class KeyOperator(Operator):
                 return ResetAnswer(go=True, relabel=relabel)
             else:
                 self._unknown(key, RESET_KEYS)
+        raise AssertionError("unreachable")  # _keys never ends
+
+    def finish(self, line: str, last: int) -> ResetAnswer:
+        self._episode = None
+        prompt = f"{line}: press r to finish the step, or l to re-label episode {last} first"
+        self._expect("finish", last, FINISH_KEYS, prompt)
+        self._say(f"{prompt}  ({FINISH_LINE})")
+        relabel = None
+        for via, key in self._keys():
+            if key == "a":
+                self._action(via, "abort", episode=last)
+                return ResetAnswer(go=False, relabel=relabel)
+            if key == "l":
+                got = self._relabel(last)
+                if got is None:  # aborted while re-labelling
+                    return ResetAnswer(go=False, relabel=relabel)
+                relabel = got
+                self._expect("finish", last, FINISH_KEYS, prompt)
+            elif key == "r":
+                self._action(via, "finish", episode=last)
+                return ResetAnswer(go=True, relabel=relabel)
+            else:
+                self._unknown(key, FINISH_KEYS, FINISH_LINE)
         raise AssertionError("unreachable")  # _keys never ends
 
     def _relabel(self, last: int) -> Label | None:

@@ -42,6 +42,8 @@ SHOWN_KEYS = (
     "episode",
     "step",
     "window",
+    "window_size",
+    "max_steps",
     "robot_time_s",
     "learner_version",
     "learner_health",
@@ -414,7 +416,7 @@ PAGE = r"""<!doctype html>
         <dt>phase</dt><dd id="phase">-</dd>
         <dt>episode</dt><dd id="episode">-</dd>
         <dt>step</dt><dd id="step">-</dd>
-        <dt>success (last 20)</dt><dd><span id="window-text">-</span><div id="marks"></div></dd>
+        <dt id="window-label">running success</dt><dd><span id="window-text">-</span><div id="marks"></div></dd>
         <dt>robot time</dt><dd id="robot-time">-</dd>
         <dt>learner</dt><dd><span id="learner-version">-</span> <span id="learner-health"></span></dd>
         <dt>interventions</dt><dd><span id="interventions">-</span> <span id="intervening"></span>
@@ -472,11 +474,12 @@ function render(st) {
   text("task", s.task);
   text("phase", s.phase);
   text("episode", s.episode);
-  text("step", s.step);
-  const w = s.window || [];
+  text("step", s.step, (v) => s.max_steps ? v + " of at most " + s.max_steps : String(v));
+  const w = s.window || [], size = Number(s.window_size) || 20;  // the stop rule's window (robot.stop_window)
+  $("window-label").textContent = "success (last " + size + ")";
   text("window-text", w.length ? w.filter(Boolean).length + "/" + w.length : null);
   const marks = $("marks");
-  marks.replaceChildren(...Array.from({ length: 20 }, (_, i) => {
+  marks.replaceChildren(...Array.from({ length: size }, (_, i) => {
     const m = document.createElement("span");
     if (i < w.length) m.className = w[i] ? "ok" : "bad";
     return m;
@@ -490,12 +493,12 @@ function render(st) {
   const acting = p.expect === "episode", ended = p.expect !== "episode" && p.expect !== "label";
   text("interventions", s.interventions,
        (v) => v + (ended && s.episode !== null && s.episode !== undefined
-         ? " steps in episode " + s.episode : " steps this episode"));
+         ? " steps driven in episode " + s.episode : " steps driven in this episode"));
   $("intervening").textContent = s.intervening && acting ? "OPERATOR DRIVING" : "";
   $("intervening").className = s.intervening && acting ? "health-holding" : "";
   const rate = s.intervention_rate_window;  // absent: interventions are off
   $("intervention-rate").textContent = rate === undefined || rate === null ? ""
-    : "window rate " + (100 * Number(rate)).toFixed(1) + "% of steps";
+    : "(" + (100 * Number(rate)).toFixed(1) + "% of the steps of the last " + size + " sealed episodes)";
   text("status", s.status);
   $("prompt").textContent = p.line || "";
   $("paused").style.display = st.paused ? "block" : "none";

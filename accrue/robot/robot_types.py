@@ -205,6 +205,10 @@ def written_type_names(kind: str, imports: tuple[str, ...]) -> tuple[set[str], s
         name = str(dist.metadata.get("Name") or "")
         if name.lower().startswith(_PLUGIN_PREFIXES[kind]):
             files += [dist.locate_file(f) for f in dist.files or () if str(f).endswith(".py")]
+            found = _package_files(name.replace("-", "_"))  # lerobot imports the distribution by its name
+            if found is None and not dist.files:
+                return None  # nothing of it to read: only lerobot's own import can say what it registers
+            files += found or []
     names = _source_names(files)
     owner = "Robot" if kind == "robot" else "Teleoperator"
     return set(names), {n for n, cls in names.items() if cls.endswith(owner + "Config")}

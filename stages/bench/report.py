@@ -95,6 +95,7 @@ def report_and_records(store: Store, spec: BenchSpec, recorded: Recorded | None 
     `recorded` the report is exactly the store's."""
     states = cell_states(store, spec)
     cells, records, missing, fresh = [], [], [], []
+    unasked = 0  # runs without a report set because their cell's workflow asks for none (report_episodes 0)
     curves: dict[str, list] = {m: [] for m in spec.methods}
     used, compared = [], []  # records that stand in for a cell; (cell, record file, differences) checks
     for cell in spec.cells:
@@ -146,6 +147,8 @@ def report_and_records(store: Store, spec: BenchSpec, recorded: Recorded | None 
             used.append(saved)
             if saved["stage_curves"] is not None:
                 curves[cell.method].append(saved["stage_curves"])
+        if row["metrics"] is not None and not row["disjoint_report"] and not cell.workflow.budgets.report_episodes:
+            unasked += 1
         if row["metrics"] is None:
             missing.append({k: row[k] for k in ("cell", "method", "ordering", "seed", "state", "stages_done", "error")})
         cells.append(row)
@@ -187,6 +190,7 @@ def report_and_records(store: Store, spec: BenchSpec, recorded: Recorded | None 
         "predictions": judge_against(spec.predictions, records, spec.reference, spec.methods),
         "success_threshold": spec.success_threshold,
         "runs_with_report_set": sum(1 for r in records if r["disjoint_report"]),
+        "runs_without_report_set_asked": unasked,
         "stage_curves": mean_stage_curves(curves),
     }
     if recorded is not None:
@@ -408,12 +412,20 @@ def _transfer_lines(report: dict) -> list[str]:
     if "iqm" not in (agg["methods"][0] if agg["methods"] else {}):
         return []
     done, disjoint = report["cells_done"], report.get("runs_with_report_set", 0)
-    sets = (
-        "every run's numbers are on a disjoint report set (best checkpoint chosen on the selection set)"
-        if done and disjoint == done
-        else f"{disjoint} of {done} runs have a disjoint report set; the others' numbers are on the episodes "
-        "their best checkpoint was chosen on (runs from before the split)"
-    )
+    unasked = report.get("runs_without_report_set_asked", 0)
+    older = done - disjoint - unasked
+    chosen_on = "the episodes their best checkpoint was chosen on"
+    if done and disjoint == done:
+        sets = "every run's numbers are on a disjoint report set (best checkpoint chosen on the selection set)"
+    elif done and unasked == done:
+        sets = f"the spec sets no budgets.report_episodes, so every run's numbers are on {chosen_on}"
+    else:
+        parts = [f"{disjoint} of {done} runs have a disjoint report set"]
+        if unasked:
+            parts.append(f"{unasked} ask for none (budgets.report_episodes 0): their numbers are on {chosen_on}")
+        if older:
+            parts.append(f"{older} ran before report sets existed: their numbers are on {chosen_on}")
+        sets = "; ".join(parts)
     thr = report.get("success_threshold")
     header = [
         "method",

@@ -53,6 +53,7 @@ def session_settings(wf: Workflow):
         timeouts=dict(r.timeouts),
         intervention=r.intervention.model_dump() if r.intervention is not None else None,
         tracking=wf.tracking.model_dump(),
+        stop_window=r.stop_window,
     )
 
 

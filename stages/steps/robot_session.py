@@ -58,6 +58,7 @@ class SessionSettings:
     # robot.intervention (teleop, config, imports, signal, action_map, action_scale); None: off (the paper)
     intervention: dict | None = None
     tracking: dict | None = None  # the workflow's tracking: section (None: accrue.tracking's defaults)
+    stop_window: int = 20  # robot.stop_window: the running success the operator is shown, in every phase
 
 
 class SessionStop(KeyboardInterrupt):
@@ -723,7 +724,8 @@ def _episodes(ctx, session, operator, bridge, take, lost, loop: EpisodeLoop) -> 
                 frames = bridge.frames()
             except AccrueError:
                 frames = []
-        window = [bool(e["label"]["success"]) for e in session.ordered(phase)][-ctx.config.get("stop_window", 20) :]
+        size = ctx.config.get("stop_window", session.settings.stop_window)  # train's is keyed; warmup's is not
+        window = [bool(e["label"]["success"]) for e in session.ordered(phase)][-size:]
         taking = (
             {}
             if take is None
@@ -740,6 +742,8 @@ def _episodes(ctx, session, operator, bridge, take, lost, loop: EpisodeLoop) -> 
                 "episode": live["index"],
                 "step": live["step"],
                 "window": window,
+                "window_size": size,
+                "max_steps": loop.settings.max_steps,
                 "robot_time_s": round(session.robot_time_s() + live["acted_s"], 2),
                 "frame": frames[0] if frames else None,
                 **loop.learner_state(),
@@ -750,7 +754,7 @@ def _episodes(ctx, session, operator, bridge, take, lost, loop: EpisodeLoop) -> 
 
     def poll() -> str | None:
         command = operator.poll()
-        live["step"] += loop.settings.horizon
+        live["step"] = min(live["step"] + loop.settings.horizon, loop.settings.max_steps)  # a chunk may be cut
         live["acted_s"] += chunk_s
         if live["acted_s"] - live["shown_s"] >= SHOW_EVERY_S - 1e-9:
             live["shown_s"] = live["acted_s"]
@@ -762,10 +766,14 @@ def _episodes(ctx, session, operator, bridge, take, lost, loop: EpisodeLoop) -> 
                 return "abort"  # ends the episode now; discarded below, not an operator's abort
         return command
 
-    while not loop.done():
+    finished = False
+    while not finished:
+        if loop.done():  # the operator may still re-label the step's last episode (which may undo the stop rule)
+            finished = _finish(session, operator, loop, last, show, phase)
+            continue
         loop.between()
         if loop.done():
-            break
+            continue
         if loop.hold is not None and loop.hold.due():
             loop.hold.wait(session, operator, show, ctx.console)
             continue
@@ -808,6 +816,8 @@ def _episodes(ctx, session, operator, bridge, take, lost, loop: EpisodeLoop) -> 
             session.close("aborted by the operator")
             raise StageError(f"aborted by the operator; episode {index} discarded, {len(session.episodes)} sealed")
         if out.can_succeed:
+            # the page shows the episode ended, with the steps it ran, while the operator labels it
+            show(status=f"episode {index} ended ({out.end}, {out.control_steps} steps): label it")
             label = operator.label(index, f"{out.end}, {out.control_steps} steps")
             if label is None:
                 recorder.abort(0)
@@ -852,6 +862,26 @@ def _episodes(ctx, session, operator, bridge, take, lost, loop: EpisodeLoop) -> 
                 lost(out.reason)
     recorder_dir = logs
     shutil.rmtree(recorder_dir, ignore_errors=True)
+
+
+def _finish(session: HardwareSession, operator, loop: EpisodeLoop, last: int | None, show, phase: str) -> bool:
+    """The step's episodes are all sealed: the operator's last chance to re-label the last one (which a reset
+    prompt gives every other episode). True: the step ends; False: a re-label undid loop.done() (train's
+    stop rule), so more episodes follow."""
+    if last is None:
+        return True
+    n = len(session.ordered(phase))
+    show(status=f"{phase}: {n} episodes sealed; r finishes the step, l re-labels episode {last} first")
+    answer = operator.finish(f"{phase} ({loop.task}): {n} episodes sealed", last)
+    if answer.relabel is not None:
+        arrays = session.relabel(last, answer.relabel.to_json(), loop.gamma)
+        loop.on_sealed(last, arrays, relabel=True)
+    if not answer.go:
+        session.close("aborted by the operator")
+        raise StageError(
+            f"aborted by the operator; {len(session.episodes)} episodes are sealed (resume with --continue)"
+        )
+    return loop.done()
 
 
 def episodes_output(ctx: StepContext, session: HardwareSession, phase: str | None = None) -> Path:

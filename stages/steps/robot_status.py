@@ -70,6 +70,12 @@ def robot_status(store: Store, wf: Workflow) -> list[dict]:
                 "successes": sum(bool(e["label"]["success"]) for e in episodes),
                 "robot_time_s": round(sum(e["robot_time_s"] for e in episodes), 3),
                 "faults": sum(1 for e in episodes if e.get("faults")),
+                # which episodes, and what happened in each (its first fault, and how many more)
+                "fault_episodes": [
+                    {"index": e["index"], "end": e.get("end"), "faults": list(e["faults"])}
+                    for e in episodes
+                    if e.get("faults")
+                ],
             }
             if step == "train" and wf.robot is not None:
                 r = wf.robot
