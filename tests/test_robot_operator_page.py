@@ -480,6 +480,9 @@ def test_screenshot_of_a_training_session(tmp_path, monkeypatch, store, headless
             wait_prompt(pg, "label")
             ok = bool(op_success(pg))
             pg.click("#btn-s" if ok else "#btn-f")
+        if phase == "warmup":  # its last episode may still be re-labelled: r finishes the step
+            wait_prompt(pg, "finish")
+            pg.click("#btn-r")
         if phase == "train":
             wait_prompt(pg, "reset")
             pg.click("#btn-r")
