@@ -78,6 +78,20 @@ def run(
             f"workflow {wf.name}: stages {first}-{last} done ({done} steps run, "
             f"{len(summary) - done} cached) in {time.monotonic() - started:.0f} s"
         )
+        out.print(report_line(wf, workflow, st), soft_wrap=True)
+
+
+def report_line(wf, workflow: Path, store) -> str:
+    """What `accrue report` makes of the run, and where: the line `accrue run` ends with."""
+    from stages.report.build import FILES, default_out_dir
+
+    if wf.robot is not None:
+        from stages.report.hardware import INTERVENTIONS_FILE, REPORT_FILES
+
+        names = [*REPORT_FILES.values(), *([INTERVENTIONS_FILE] if wf.robot.intervention is not None else [])]
+    else:
+        names = list(FILES.values())
+    return f"report: `accrue report {workflow}` writes {default_out_dir(wf, store)}/: {', '.join(names)}"
 
 
 def parse_stages(text: str | None, num_stages: int) -> tuple[int, int]:

@@ -119,3 +119,20 @@ def test_progress_says_the_rate_and_the_time_left():
     assert said[0].startswith("warmup: episode 2/4 (0.2") and said[0].endswith(" episodes/s, 10.0 s left)")
     assert said[1].startswith("warmup: episode 4/4 (") and said[1].endswith(", done)") and len(said) == 2
     assert [took_text(s) for s in (4.25, 185, 7620)] == ["4.2 s", "3 min 05 s", "2 h 07 min"]
+
+
+def test_accrue_run_ends_naming_the_reports_files(tmp_path, monkeypatch):
+    from artifacts.store import Store
+    from cli.run_cmds import report_line
+    from stages.workflow import load_workflow
+
+    root = Path(__file__).resolve().parents[1] / "workflows"
+    monkeypatch.chdir(tmp_path)
+    store = Store.init(tmp_path / ".accrue")[0]  # the default store: runs/<name>/report
+    sim = report_line(load_workflow(root / "quickstart.yaml"), Path("workflows/quickstart.yaml"), store)
+    assert sim == (
+        "report: `accrue report workflows/quickstart.yaml` writes runs/quickstart/report/: curves.png, "
+        "success_matrix.png, base_vs_rl.png, report.rrd, report.json"
+    )
+    robot = report_line(load_workflow(root / "so101-sim-ci.yaml"), Path("so101.yaml"), store)
+    assert robot.endswith("writes runs/so101-sim-ci/report/: fig4.png, table3.md, report.json")

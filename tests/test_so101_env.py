@@ -190,3 +190,8 @@ def test_the_ci_workflow_runs_the_whole_loop_on_the_so101(tmp_path):
     versions = [e["weights_version"] for e in sealed if e["phase"] == "train"]
     assert max(v or 0 for v in versions) >= 2, versions
     assert "Traceback" not in said  # lerobot's torchcodec probe no longer runs (accrue.policy.video_backend)
+    # the run ends naming the report's files, and `accrue report` writes exactly those
+    [line] = [x for x in said.splitlines() if x.startswith("report: `accrue report ")]
+    where, names = line.split(" writes ")[1].split("/: ")
+    assert names.split(", ") == ["fig4.png", "table3.md", "report.json"]
+    assert all((tmp_path / where / name).is_file() for name in names.split(", "))

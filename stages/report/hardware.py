@@ -27,6 +27,9 @@ from stages.report.data import read_step_file
 from stages.runner import step_ref
 from stages.workflow import RobotSpec, Workflow
 
+REPORT_FILES = {"fig4": "fig4.png", "table3": "table3.md", "summary": "report.json"}
+INTERVENTIONS_FILE = "interventions.md"  # with robot.intervention only
+
 
 def stage_curves(store: Store, wf: Workflow) -> dict[int, dict]:
     """stage -> the committed hardware train curve (curve.json with "hardware": true)."""
@@ -282,15 +285,15 @@ def write_hardware_report(
             "stages": {k: stage_summary(c, single_task) for k, c in other.items()},
             "time_saved": saved,
         }
-    files = {"fig4": str(plot_fig4(curves, wf, out / "fig4.png", other))}
-    (out / "table3.md").write_text(table3_markdown(table, wf))
-    files["table3"] = str(out / "table3.md")
+    files = {"fig4": str(plot_fig4(curves, wf, out / REPORT_FILES["fig4"], other))}
+    (out / REPORT_FILES["table3"]).write_text(table3_markdown(table, wf))
+    files["table3"] = str(out / REPORT_FILES["table3"])
     taken = stage_interventions(store, wf)
     if taken:  # only a workflow run with robot.intervention has any
         summary["interventions"] = taken
-        (out / "interventions.md").write_text(interventions_markdown(taken))
-        files["interventions"] = str(out / "interventions.md")
+        (out / INTERVENTIONS_FILE).write_text(interventions_markdown(taken))
+        files["interventions"] = str(out / INTERVENTIONS_FILE)
     summary["files"] = files
     summary["out_dir"] = str(out)
-    (out / "report.json").write_text(json.dumps(summary, indent=2, default=str) + "\n")
+    (out / REPORT_FILES["summary"]).write_text(json.dumps(summary, indent=2, default=str) + "\n")
     return summary
