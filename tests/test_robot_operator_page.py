@@ -532,8 +532,8 @@ def test_the_page_shows_interventions_and_its_i_button_takes_over(tmp_path, monk
     op = session.operator()
     pg = open_page(headless, op.url, store)
     wait_prompt(pg, "reset", 0)
-    expect(pg.locator("#interventions")).to_have_text("0 steps this episode")
-    expect(pg.locator("#intervention-rate")).to_have_text("window rate 0.0% of steps")
+    expect(pg.locator("#interventions")).to_have_text("0 steps driven in this episode")
+    expect(pg.locator("#intervention-rate")).to_have_text("(0.0% of the steps of the last 20 sealed episodes)")
     expect(pg.locator("#btn-i")).to_be_disabled()  # no episode running: nothing to take over
     pg.click("#btn-r")
     wait_prompt(pg, "episode", 0)
