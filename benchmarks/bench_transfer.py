@@ -80,8 +80,12 @@ def load() -> list[float]:
 
 
 def commit() -> str:
+    """HEAD, with "+changes" when the code measured (artifacts/, cli/) differs from it."""
     done = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True)
-    return done.stdout.strip() or "unknown"
+    dirty = subprocess.run(
+        ["git", "status", "--porcelain", "--", "artifacts", "cli"], cwd=ROOT, capture_output=True, text=True
+    )
+    return (done.stdout.strip() or "unknown") + ("+changes" if dirty.stdout.strip() else "")
 
 
 def main() -> None:

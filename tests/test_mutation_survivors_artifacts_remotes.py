@@ -1764,9 +1764,10 @@ def test_data_left_behind_by_only_is_noted_as_promised_by_that_remote_which_beco
     second.close()
 
 
-def test_the_progress_bar_counts_each_object_once_whichever_thread_advances_it():
+def test_the_progress_bar_counts_each_object_once_whichever_thread_advances_it(monkeypatch):
     """progress.RichMeter.advance 2, 3 (the objects done shown as 1, or counting down), start 11, 13, 19 (no
-    bar, no speed, or the objects column garbled), 26, 27 (no total bytes; "None" objects at first): what, bar, bytes, speed, then "done/all objects"."""
+    bar, no speed, or the objects column garbled), 26, 27 (no total bytes; "None" objects at first): what, bar, bytes, speed, then "done/all objects".
+    Not on a terminal (a log, a captured run) there is no bar at all, and no thread redrawing it."""
     import io
     import re
 
@@ -1775,6 +1776,11 @@ def test_the_progress_bar_counts_each_object_once_whichever_thread_advances_it()
     from artifacts.remotes.progress import RichMeter
 
     meter = RichMeter()
+    meter.start("pull ← nas", 40, 4000)
+    assert meter.bar is None  # pytest's stderr is no terminal
+    meter.advance(10)
+    meter.stop()
+    monkeypatch.setenv("TTY_COMPATIBLE", "1")  # stderr counts as a terminal for rich
     meter.start("pull ← nas", 40, 4000)
     assert (meter.bar.tasks[0].fields["objects"], meter.bar.tasks[0].total) == ("0/40", 4000)
     workers = [threading.Thread(target=lambda: [meter.advance(10) for _ in range(10)]) for _ in range(4)]

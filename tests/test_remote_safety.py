@@ -29,6 +29,8 @@ from remote_support import (  # noqa: E402,F401
 )
 from test_cli_store import one_line_error  # noqa: E402
 
+from artifacts.store import Store  # noqa: E402
+
 
 def _key(oid: str) -> str:
     return f"objects/blake3/{oid[:2]}/{oid[2:]}"
@@ -49,6 +51,14 @@ def put_remote_key(url: str, key: str, data: bytes) -> None:
 
 def _content(store: Path, ref: str) -> str:
     return _json(cli(store, "show", ref, "--json"))["content"]
+
+
+def _pushed(path: Path, url: str) -> Path:
+    """A store (remote_support.make_store) that pushed everything to remote origin at url."""
+    make_store(path)
+    with_remote(path, url)
+    assert cli(path, "push").returncode == 0
+    return path
 
 
 def _pushed_dir_remote(tmp_path: Path) -> tuple[Path, Path]:
@@ -111,10 +121,7 @@ def test_a_directory_remote_is_made_by_remote_init_or_add_create_only(tmp_path):
 
 
 def test_a_wiped_remote_is_refused_by_push_and_started_afresh_by_remote_init(tmp_path, remote_url):
-    a = tmp_path / "a"
-    make_store(a)
-    with_remote(a, remote_url)
-    assert cli(a, "push").returncode == 0
+    a = _pushed(tmp_path / "a", remote_url)
     for key in remote_file_keys(remote_url, ""):  # everything, its config too
         delete_remote_key(remote_url, key)
     line = one_line_error(cli(a, "push"))
@@ -199,10 +206,8 @@ def test_pull_prune_keeps_a_ref_moved_here_since_as_a_conflict_and_push_force_pu
 
 # ----------------------------------------------------------------------------- 3. push checks the remote
 def test_push_sends_again_what_its_refs_reach_but_the_remote_lost_and_verify_names_the_heal(tmp_path, remote_url):
-    a = tmp_path / "robot"
-    store = make_store(a)
-    with_remote(a, remote_url)
-    assert cli(a, "push").returncode == 0
+    a = _pushed(tmp_path / "robot", remote_url)
+    store = Store.open(a)
     replay, handoff_tree = _content(a, "team/replay"), _content(a, "team/handoff")
     data = bytearray(store.read_bytes(replay))
     data[10] ^= 0xFF
@@ -231,7 +236,6 @@ def test_a_ref_moved_to_objects_the_remote_lost_gets_them_sent_first(tmp_path):
     # a new ref that reaches the lost manifest through the step record: re-sent before the ref moves
     record = user_refs(a)["workflow/wf/stage/1/train"]
     from artifacts.refs import set_ref
-    from artifacts.store import Store
 
     set_ref(Store.open(a), "team/record-copy", record)
     pushed = _json(cli(a, "push", "origin", "team/record-copy", "--json"))
@@ -251,10 +255,7 @@ def test_verify_remote_names_a_store_that_has_them_when_this_one_lacks_them(tmp_
 
 
 def test_a_failed_clone_names_the_commands_that_work_and_running_it_again_goes_on(tmp_path, remote_url):
-    a = tmp_path / "robot"
-    make_store(a)
-    with_remote(a, remote_url)
-    assert cli(a, "push").returncode == 0
+    a = _pushed(tmp_path / "robot", remote_url)
     replay = _content(a, "team/replay")
     delete_remote_key(remote_url, _key(replay))
     b = tmp_path / "workstation"
@@ -346,7 +347,7 @@ def test_a_lease_is_renewed_while_its_push_runs(tmp_path, monkeypatch):
     assert lease.read_leases(backend) == []
     # what a push learns for resuming uploads: when its lease was written, and whether another push was live
     with lease.held_lease(backend, "s" * 32) as alone:
-        assert not alone.others_live and alone.written_at is not None
+        assert not alone.others_live and alone.written_at() is not None
         with lease.held_lease(backend, "t" * 32) as second:
             assert second.others_live and second.taken == []
 
@@ -394,10 +395,7 @@ def test_clone_takes_and_keeps_the_endpoint_and_region(tmp_path, s3_env, monkeyp
 
 # ----------------------------------------------------------------------------- 6. a no-op push sends nothing
 def test_a_no_op_push_uploads_nothing(tmp_path, remote_url):
-    a = tmp_path / "a"
-    make_store(a)
-    with_remote(a, remote_url)
-    assert cli(a, "push").returncode == 0
+    a = _pushed(tmp_path / "a", remote_url)
     before = remote_file_keys(remote_url, "")
     noop = _json(cli(a, "push", "--json"))
     assert (noop["objects_sent"], noop["log_segment"], noop["moved"]) == (0, None, {})
@@ -428,7 +426,8 @@ def test_a_killed_multipart_upload_is_finished_where_it_stopped(tmp_path, s3_env
     with_remote(a, url)
     oid = _content(a, "team/big")
     key = f"lab/{_key(oid)}"
-    # a push killed with parts 1 (here: other bytes, as if the file changed) and 3 sent
+    # a push killed (its lease left behind) with parts 1 (here: other bytes, as if the file changed) and 3 sent
+    put_remote_key(url, "pushes/killed", _lease(_dead_pid()))
     upload = client.create_multipart_upload(Bucket=bucket, Key=key)["UploadId"]
     for n, body in ((1, b"x" * CHUNK_SIZE), (3, data[2 * CHUNK_SIZE : 3 * CHUNK_SIZE])):
         client.upload_part(Bucket=bucket, Key=key, UploadId=upload, PartNumber=n, Body=body)
@@ -445,6 +444,7 @@ def test_a_killed_multipart_upload_is_finished_where_it_stopped(tmp_path, s3_env
     monkeypatch.setattr(S3Backend, "_boto3", counting)
     pushed = _json(cli(a, "push", "--json"))
     assert pushed["uploads_resumed"] == [f"{oid[:12]}: 1 of 4 parts were there"] and sorted(sent) == [1, 2, 4]
+    assert [t.split(" ")[0] for t in pushed["leases_taken_over"]] == ["pushes/killed"]
     assert client.list_multipart_uploads(Bucket=bucket).get("Uploads", []) == []
     assert cli(a, "verify", "--remote", "origin", "--full").returncode == 0
     b = tmp_path / "b"

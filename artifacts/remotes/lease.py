@@ -122,12 +122,18 @@ def take_over(backend: Backend, leases: list[Lease], every: bool = False) -> lis
 
 @dataclass
 class Held:
-    """What a push learnt putting its lease: the stale leases it took over, whether another push was live
-    then, and when its own lease was written by the remote's clock (None if it cannot tell)."""
+    """What a push learnt putting its lease: the stale leases it took over, and whether another push was
+    live then."""
 
     taken: list[Lease]
     others_live: bool
-    written_at: float | None
+    backend: Backend
+    key: str
+
+    def written_at(self) -> float | None:
+        """When the lease was written, by the remote's clock (one listing; None if it cannot tell)."""
+        found = self.backend.list_aged(PUSH_LEASES).get(self.key)
+        return found[1] if found else None
 
 
 @contextlib.contextmanager
@@ -140,7 +146,6 @@ def held_lease(backend: Backend, sid: str) -> Iterator[Held]:
     key = f"{PUSH_LEASES}/{sid}-{info['pid']}-{uuid.uuid4().hex[:8]}"
     body = canonical_json(info) + b"\n"
     backend.put_bytes(key, body)
-    written = backend.list_aged(PUSH_LEASES).get(key)
     stop = threading.Event()
 
     def renew() -> None:
@@ -153,7 +158,7 @@ def held_lease(backend: Backend, sid: str) -> Iterator[Held]:
     renewer = threading.Thread(target=renew, name="accrue-lease", daemon=True)
     renewer.start()
     try:
-        yield Held(taken, any(lease.state == "live" for lease in leases), written[1] if written else None)
+        yield Held(taken, any(lease.state == "live" for lease in leases), backend, key)
     finally:
         stop.set()
         renewer.join()

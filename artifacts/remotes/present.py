@@ -1,8 +1,8 @@
 """What a remote holds, as this store last confirmed it: push checks every object the refs it names
 reach, and this keeps that check cheap.
 
-A remote of up to LIST_SMALL objects is listed on every push (a listing answers a thousand keys a
-request), so an object deleted or truncated there is seen at once. A bigger one is listed in full
+A remote of up to LIST_SMALL objects is listed on every push (two requests: a listing answers a
+thousand keys a request), so an object deleted or truncated there is seen at once. A bigger one is listed in full
 (a "full check") when the last one is older than ACCRUE_REMOTE_RECHECK seconds (a day by default)
 or when `remote prune` has deleted anything since (it leaves a marker, PRUNED, on the remote);
 otherwise only the objects not confirmed since that full check get a HEAD each, and what a push
@@ -24,7 +24,7 @@ from artifacts.remotes.pointers import HEAD_MAX, load_json, save_json, state_dir
 from artifacts.remotes.transfer import parallel
 from artifacts.store import Store
 
-LIST_SMALL = 10_000  # up to this many objects (ten listing requests) a remote is listed every push
+LIST_SMALL = 2_000  # up to this many objects (two listing requests) a remote is listed every push
 PRUNED = "pruned"  # rewritten by every prune that deletes: a full check must follow
 
 

@@ -13,9 +13,11 @@ class RichMeter(Meter):
         self.bar, self.lock = None, threading.Lock()  # advanced from the transfer threads
 
     def start(self, what: str, objects: int, nbytes: int) -> None:
-        if not objects:
-            return
         from rich.console import Console
+
+        console = Console(stderr=True)
+        if not objects or not console.is_terminal:  # nothing to draw: no bar, no refresh thread
+            return
         from rich.progress import BarColumn, DownloadColumn, Progress, TextColumn, TransferSpeedColumn
 
         self.bar = Progress(
@@ -24,7 +26,7 @@ class RichMeter(Meter):
             DownloadColumn(),
             TransferSpeedColumn(),
             TextColumn("{task.fields[objects]} objects"),
-            console=Console(stderr=True),
+            console=console,
             transient=True,
         )
         self.bar.start()

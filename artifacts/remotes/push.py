@@ -117,11 +117,20 @@ def push(
     local = select_refs(local_refs(store), refs or [], "in this store")
     check_remote_config(backend, create=True, known=used_before(store, spec.name))
     sid = store_id(store)
+    running = state_dir(store, spec.name) / "push-running"  # there after a push of this store was killed
+    killed = running.is_file()
     with held_lease(backend, sid) as held:
-        # uploads a killed push left unfinished are taken up where they stopped: only those begun before this
-        # push's lease was written, and only when no other push was running then (none of them is its)
-        backend.resume_before = held.written_at if not held.others_live else None
-        report = _push(store, spec, backend, sid, local, force, jobs or default_jobs(), meter or Meter(), verify)
+        # uploads a killed push left unfinished are taken up where they stopped: looked for only after a
+        # push was killed (this store's, or one whose lease this push took over), only those begun before
+        # this push's lease was written, and only when no other push was running then (none is its)
+        if (killed or held.taken) and not held.others_live:
+            backend.resume_before = held.written_at()
+        running.parent.mkdir(parents=True, exist_ok=True)
+        running.touch()
+        try:
+            report = _push(store, spec, backend, sid, local, force, jobs or default_jobs(), meter or Meter(), verify)
+        finally:
+            running.unlink(missing_ok=True)
     report.leases_taken_over = [lease.describe() for lease in held.taken]
     report.uploads_resumed = list(backend.resumed)
     return report
