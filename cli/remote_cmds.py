@@ -371,8 +371,18 @@ def _delete(st, remote: str, refs: list[str], as_json: bool) -> None:
     if as_json:
         print_json(report.as_dict())
     else:
+        from artifacts.refs import read_ref
+
         for name, oid in report.deleted.items():
-            typer.echo(f"  {name}: deleted on {remote} (was {oid[:12]})")
+            here = read_ref(st, name) is not None
+            typer.echo(
+                f"  {name}: deleted on {remote} (was {oid[:12]})"
+                + (
+                    "; still in this store: `accrue refs delete` deletes it here, else a push sends it again"
+                    if here
+                    else ""
+                )
+            )
         typer.echo(f"push --delete -> {remote}: {len(report.deleted)} refs deleted")
     _fail_on(report.conflicts)
 

@@ -194,7 +194,8 @@ def test_pull_prune_keeps_a_ref_moved_here_since_as_a_conflict_and_push_force_pu
     a, remote = _pushed_dir_remote(tmp_path)
     b = tmp_path / "b"
     assert accrue("clone", str(remote), str(b)).returncode == 0
-    assert cli(b, "push", "--delete", "team/replay").returncode == 0
+    deleted = cli(b, "push", "--delete", "team/replay")
+    assert deleted.returncode == 0 and "still in this store: `accrue refs delete` deletes it here" in deleted.stdout
     (tmp_path / "newer.bin").write_bytes(b"newer")
     mine = cli(a, "add", str(tmp_path / "newer.bin"), "--kind", "replay", "--ref", "team/replay").stdout.strip()
     line = one_line_error(cli(a, "pull", "--prune", "origin", "team/replay"))
