@@ -31,8 +31,8 @@ def test_family_is_registered_beside_the_contact_family():
         assert new.role == old.role == "shared-skill"
         changed = {f.name for f in dataclasses.fields(old) if getattr(old, f.name) != getattr(new, f.name)}
         allowed = {"task_id", "family", "instruction", "plug_usd", "socket_usd", "gripper_usd"}
-        # the round peg's clearance is the only geometry figure that moved (tasks.CONTACT2_PART_TABLE says why)
-        assert changed - allowed == ({"clearance"} if name == "round_peg" else set())
+        # the round fits' clearances are the only geometry figures that moved (tasks.CONTACT2_PART_TABLE: why)
+        assert changed - allowed == (set() if name == "rect_peg" else {"clearance"})
 
 
 def test_every_collision_pair_has_a_primitive():

@@ -85,7 +85,14 @@ def test_user_usd_part_round_trips_into_a_runnable_task(tmp_path):
     assert len(back) == 1
     assert np.allclose(sorted(back[0][:, 2]), sorted(np.unique(parts.plug[0][:, 2].round(6)).repeat(6)), atol=1e-6)
     spec = register_usd_task(
-        "mine/hex", tmp_path / "plug.usda", tmp_path / "socket.usda", depth=10 * MM, yaw_symmetry=6, replace=True
+        "mine/hex",
+        tmp_path / "plug.usda",
+        tmp_path / "socket.usda",
+        depth=10 * MM,
+        yaw_symmetry=6,
+        clearance=0.3 * MM,  # the parts' own: a task left registered keeps the geometry descriptor in range
+        chamfer=0.7 * MM,
+        replace=True,
     )
     assert "mine/hex" in list_tasks()
     from accrue.sim import make_expert
@@ -163,6 +170,7 @@ def test_task_yaml(tmp_path):
     write_part(tmp_path / "s.usda", parts.socket)
     (tmp_path / "task.yaml").write_text(
         "task_id: mine/tri\nplug: p.usda\nsocket: s.usda\ndepth_mm: 10\nyaw_symmetry: 3\nmax_steps: 70\nreplace: true\n"
+        "clearance: 0.0003\nchamfer: 0.0007\n"
     )
     spec = load_task_yaml(tmp_path / "task.yaml")
     assert spec.task_id == "mine/tri" and spec.max_steps == 70 and spec.depth == pytest.approx(0.01)

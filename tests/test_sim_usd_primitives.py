@@ -106,7 +106,14 @@ def test_a_user_task_from_primitive_parts_runs(tmp_path):
     write_part(tmp_path / "plug.usda", parts.plug)
     write_part(tmp_path / "socket.usda", parts.socket)
     spec = register_usd_task(
-        "mine/cylinder", tmp_path / "plug.usda", tmp_path / "socket.usda", depth=12 * MM, yaw_symmetry=0, replace=True
+        "mine/cylinder",
+        tmp_path / "plug.usda",
+        tmp_path / "socket.usda",
+        depth=12 * MM,
+        yaw_symmetry=0,
+        clearance=0.25 * MM,
+        chamfer=0.6 * MM,
+        replace=True,
     )
     env, expert = make_vec_env(spec.task_id, num_envs=4, seed=0), make_expert(spec.task_id, seed=0)
     obs, won = env.reset(), np.zeros(4, bool)

@@ -157,15 +157,17 @@ CONTACT_PART_TABLE = {
 }
 
 # contact2: the same parts as primitives and fewer wall pieces (part_shapes.CONTACT2_BUILDERS). Depths,
-# chamfers and lengths are the contact family's. round_peg's clearance is 0.16 mm, not 0.20: the contact
-# family's 16-gon peg in a hole grown by 0.20 mm has 0.10-0.20 mm of radial play depending on its yaw
-# (0.12 on average), a cylinder has the same play at every yaw; 0.16 is the closest the geometry
-# descriptor's fixed scale takes in (accrue.learner_inputs: 0.25 +- 2 x 0.05 mm). keyed_peg's 24-gon pair
-# had 0.20-0.25 (0.22 on average) and keeps its 0.25; the gear's bore and the rect peg keep theirs.
+# chamfers and lengths are the contact family's. A polygon prism in a hole of the same polygon grown by c has
+# less play than c at most yaws; a cylinder has its clearance at every yaw, so the round fits take the old
+# pairs' play: round_peg 0.16 mm (its 16-gon pair had 0.10-0.20, 0.12 on average; 0.16 is the least the
+# geometry descriptor's fixed scale takes in, accrue.learner_inputs), keyed_peg 0.22 (its 24-gon pair had
+# 0.20-0.25, 0.22 on average), gear_mesh 0.22 (its square bore has 0.22-0.31 towards its corners, the
+# octagonal pair 0.30-0.33 at the yaw the teeth mesh at). rect_peg keeps 0.25, now 0.03 mm above the
+# other three's clearances (inside their range on the other descriptor columns).
 CONTACT2_PART_TABLE = {
     "round_peg": ("contact2", "cylinder_peg", 0.16 * MM, 16 * MM, 0.5 * MM, 30 * MM),
-    "keyed_peg": ("contact2", "keyed_cylinder", 0.25 * MM, 14 * MM, 0.6 * MM, 30 * MM),
-    "gear_mesh": ("contact2", "square_bore_gear", 0.30 * MM, 10 * MM, 0.5 * MM, 8 * MM),
+    "keyed_peg": ("contact2", "keyed_cylinder", 0.22 * MM, 14 * MM, 0.6 * MM, 30 * MM),
+    "gear_mesh": ("contact2", "square_bore_gear", 0.22 * MM, 10 * MM, 0.5 * MM, 8 * MM),
     "rect_peg": ("contact2", "box_peg", 0.25 * MM, 12 * MM, 0.55 * MM, 28 * MM),
 }
 
