@@ -324,10 +324,9 @@ def train_loop(
         """Earlier tasks at e* only, on the set the metrics read (report when there is one): c_{k,j} = c[k][j][e*]."""
         if settings.full_curves or not earlier or state.chosen_scored:
             return
-        deployed = state.chosen_actor
-        acts = {
-            t: (frozen_acts or {}).get(t, lambda s, ref, fresh: learner.act_with(deployed, s, ref)) for t in earlier
-        }
+        chosen = state.chosen_actor
+        at_chosen = lambda s, ref, fresh: learner.act_with(chosen, s, ref)  # noqa: E731
+        acts = {t: (frozen_acts or {}).get(t, at_chosen) for t in earlier}
         values, curves = (report, state.report_curve) if report else (evaluator, state.curve)
         for t in earlier:
             curves[t][state.chosen] = values.success_rate(t, acts[t])

@@ -348,8 +348,9 @@ def test_retain_merges_at_stage_end_and_every_retain_interval_updates(monkeypatc
 
 
 def test_isolated_scores_each_earlier_task_with_its_own_actor_isolated_frozen_ignored(monkeypatch):
-    """Mutation isolated-frozen-ignored: with frozen_acts for task 1 (an actor that lifts z and so always
-    succeeds on the fake env), task 1's curve is that actor's, task 2's the stage's own (near ã: fails)."""
+    """Mutations isolated-frozen-ignored and chosen-scores-base-policy: with frozen_acts for task 1 (an actor
+    that lifts z and so always succeeds on the fake env), task 1's score is that actor's, task 2's curve the
+    stage's own (near ã: fails). Task 1 is scored once, at e* (the earliest best point of task 2: 0)."""
     lifted = []
 
     def lift(s, ref, fresh):
@@ -361,8 +362,8 @@ def test_isolated_scores_each_earlier_task_with_its_own_actor_isolated_frozen_ig
     Recorder(monkeypatch)
     run = run_stage2(config("isolated"), frozen_acts={T1: lift})
     assert lifted
-    assert run.state.curve[T1] == [1.0, 1.0]
+    assert run.state.curve[T1] == [1.0, None]
     assert run.state.curve[T2] == [0.0, 0.0]
     # without the frozen actor, task 1 is scored with the stage's actor (near ã) and fails
     plain = run_stage2(config("isolated"))
-    assert plain.state.curve[T1] == [0.0, 0.0]
+    assert plain.state.curve[T1] == [0.0, None]

@@ -270,3 +270,42 @@ def test_a_resumed_loop_scores_the_chosen_checkpoint_it_had_saved(tmp_path):
     assert crashed is None and (saved[0] / "chosen_actor.pt").exists()
     resumed, _, _ = two_task_loop(False, resume_dir=saved[0], tmp_path=tmp_path / "c")
     assert resumed.to_json() == whole.to_json()
+
+
+def test_the_grid_scores_the_deployed_actor_not_the_base_policy():
+    """Mutation eval-scores-base-policy: a learner whose deployed actor lifts the plug scores 0 at every
+    grid point, where the scripted base policy alone succeeds."""
+    from types import SimpleNamespace
+
+    from accrue.scripted_reference import ScriptedReference
+    from accrue.sim import get_task
+
+    scripted, instruction = ScriptedReference(1.0), get_task(TASK).instruction
+
+    def base(obs):
+        return scripted.reference_chunk(obs, instruction, H)
+
+    class LiftingLearner:
+        cfg = SimpleNamespace(utd=1)
+
+        def act(self, s, ref, explore=True, reset_mask=None):
+            return ref
+
+        def train_step(self, *args):
+            return {}
+
+        def deployed_actor(self):
+            return "lifting"
+
+        def act_with(self, actor, s, ref):
+            out = np.zeros((len(s), H, 6), dtype=np.float32)
+            out[..., 2] = 1.0
+            return out
+
+    ev = rl_loop.Evaluator(lambda t, n: make_vec_env(t, n, seed=99), {TASK: base}, state_features, 4, N, H, 0.99)
+    assert ev.success_rate(TASK) > 0
+    buf = ReplayBuffer(STATE_DIM, H)
+    col = make_collector(buf)
+    col.restart()
+    state = rl_loop.train_loop(LiftingLearner(), col, ev, rl_loop.LoopSettings([TASK], 16, 8, 0))
+    assert state.curve[TASK] == [0.0, 0.0, 0.0]
