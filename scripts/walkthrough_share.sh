@@ -77,7 +77,7 @@ MOTO_PID=
 cleanup() { if [ -n "$MOTO_PID" ]; then kill "$MOTO_PID" 2>/dev/null || true; fi; }
 trap cleanup EXIT
 if [ "$KIND" = dir ]; then
-  mkdir -p "$WORK/nas" # the mounted disk; accrue makes the remote's own directory on the first push
+  mkdir -p "$WORK/nas" # the mounted disk; `remote add --create` makes the remote's own directory in it
   export REMOTE=$WORK/nas/accrue
 else
   # moto's S3 server in its own process, as benchmarks/bench_remote.py starts it, and the lab's bucket

@@ -38,7 +38,7 @@ def test_blocks_extract_in_the_order_a_team_runs_them():
     order = [f"{m}: {c}" for m, c in steps]
     want = [
         "robot PC: accrue init",
-        'robot PC: accrue remote add origin "$REMOTE"',
+        'robot PC: accrue remote add origin "$REMOTE" --create',
         "robot PC: accrue push",
         'workstation: accrue clone "$REMOTE" .accrue',
         "workstation: accrue pull",
