@@ -305,7 +305,7 @@ class SessionThread:
                 # a person presses the hold key (e, i) while the episode runs: the episode waits for it at its
                 # first chunk's end, so the test need not race a fast simulated episode; with `seen`, once the
                 # page has been shown the operator driving, the episode waits until the test has seen it too
-                if self._episode == hold_episode:
+                if hold_episode is not None and self._episode == hold_episode:  # polled in an episode
                     assert pressed.wait(60), f"{hold_key} never came from the page"
                     if seen is not None and self.state()["shown"].get("intervening"):
                         assert seen.wait(60), "the test never saw the takeover on the page"
@@ -332,11 +332,11 @@ class SessionThread:
                 assert self.thread.is_alive(), f"the stage ended before its operator page started: {self.error!r}"
 
 
-def wait_prompt(pg, expect: str, episode: int | None = None) -> None:
+def wait_prompt(pg, expect: str, episode: int | None = None, timeout_s: float = 60) -> None:
     cond = f"document.body.dataset.expect === {json.dumps(expect)}"
     if episode is not None:
         cond += f" && document.body.dataset.episode === '{episode}'"
-    pg.wait_for_function(cond, timeout=60_000)
+    pg.wait_for_function(cond, timeout=timeout_s * 1000)
 
 
 @pytest.fixture
@@ -465,8 +465,10 @@ SCREENSHOT = os.environ.get("ACCRUE_OPERATOR_SCREENSHOT")
 def test_screenshot_of_a_training_session(tmp_path, monkeypatch, store, headless):
     """docs/operator-page.png: stage 1 warmup and training driven from the page (labels as the simulated
     robot reports them, as a person watching would), photographed at a label prompt mid-training."""
+    from accrue.robot import learner_client
     from accrue.robot.link_auth import store_token
 
+    monkeypatch.setitem(learner_client._AHEAD, "on", True)  # as `accrue stage run`: warmup starts train's learner
     wf = page_workflow(tmp_path)
     session = SessionThread(store, wf, "train", monkeypatch)
     token = store_token(store)
@@ -474,8 +476,9 @@ def test_screenshot_of_a_training_session(tmp_path, monkeypatch, store, headless
     for phase, episodes in (("warmup", 3), ("train", 9)):
         op = session.operator()
         pg.goto(op.url + f"?token={token}")
-        for _ in range(episodes):
-            wait_prompt(pg, "reset")
+        for i in range(episodes):
+            # train's robot is held before its first action until its learner is up (a busy machine: minutes)
+            wait_prompt(pg, "reset", timeout_s=300 if phase == "train" and i == 0 else 60)
             pg.click("#btn-r")
             wait_prompt(pg, "label")
             ok = bool(op_success(pg))

@@ -195,7 +195,7 @@ class LearnerHold:
         never = not self.answered
         limit = self.first_wait_s if never else self.wait_s
         if never:
-            why = f"{self.learner} has not answered yet (it never connected in this session)"
+            why = f"{self.learner} has not answered yet"
             line = f"robot held before its first action: {why}; waiting up to {limit:g} s for it"
         else:
             why = (
