@@ -126,7 +126,7 @@ def test_a_base_policy_that_needs_a_camera_the_robot_lacks_names_the_keys_not_a_
     with pytest.raises(
         StageError,
         match=r"base_policy.init .*act takes a camera image \(observation.images.front\), and "
-        r"robot.type accrue_sim declares no camera \(robot.config\)",
+        r"robot.type accrue_sim declares no camera \(its cameras are set in robot.config\)",
     ):
         check(workflow(tmp_path, edit=init), store)
 

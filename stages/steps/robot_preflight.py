@@ -123,7 +123,11 @@ def _check_robot(wf: Workflow, stage: int) -> RobotChecked:
     if wf.obs_mode == "state+image" and not mapping.camera_keys:
         raise AccrueError(
             f"obs_mode: state+image needs a camera, and robot.type {r.type} declares none"
-            + (" (robot.camera_keys is empty)" if r.camera_keys is not None else " (robot.config: its cameras)")
+            + (
+                " (robot.camera_keys is empty)"
+                if r.camera_keys is not None
+                else " (its cameras are set in robot.config)"
+            )
         )
     return RobotChecked(task, cls.__name__, mapping, obs, act, make)
 
@@ -179,7 +183,12 @@ def _check_policy(wf: Workflow, store, robot: RobotChecked) -> dict | None:
     if images and not m.camera_keys:
         raise AccrueError(
             f"base_policy.init {init} takes a camera image ({images[0]}), and robot.type {r.type} declares no "
-            "camera" + (" (robot.camera_keys is empty)" if r.camera_keys is not None else " (robot.config)")
+            "camera"
+            + (
+                " (robot.camera_keys is empty)"
+                if r.camera_keys is not None
+                else " (its cameras are set in robot.config)"
+            )
         )
     if images and wf.obs_mode != "state+image":
         raise AccrueError(
