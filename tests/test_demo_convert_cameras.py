@@ -1,6 +1,6 @@
 """`accrue add DIR --kind demos --workflow WF` carries the robot's camera for an image workflow: a dataset
 written the way lerobot-record writes it (hw_to_dataset_features of the SO-101's declared features, the front
-camera included) becomes accrue demos whose `observation.images.wrist` holds the recorded frames at the
+camera included) becomes accrue demos whose `observation.images.front` holds the recorded frames at the
 shape the workflow's robot declares (workflows/so101-sim-ci.yaml: 32x32), resized from another size of the
 same aspect; a dataset without that camera, or with frames that are not RGB at that aspect, is refused in
 one line and nothing is stored."""
@@ -22,6 +22,8 @@ ROOT = Path(__file__).resolve().parents[1]
 WORKFLOW = ROOT / "workflows" / "so101-sim-ci.yaml"  # obs_mode state+image, so101_env's front camera at 32 px
 EPISODE_FRAMES = (4, 3)
 A, B = (200, 30, 90), (10, 180, 250)  # the two halves of a resized frame
+
+FRONT = "observation.images.front"  # the SO-101's camera, as its robot and lerobot-record name it
 
 
 def record(root: Path, camera: tuple | None, pattern: str = "noise", seed: int = 0) -> tuple[Path, list]:
@@ -83,10 +85,8 @@ def frames_of(demos: Path) -> np.ndarray:
     """The converted camera frames, (N, h, w, 3) uint8, decoded by lerobot."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    from accrue.sim.demos import IMAGE_KEY
-
     ds = LeRobotDataset("local/demos", root=demos, video_backend="pyav")
-    chw = np.stack([np.asarray(ds[i][IMAGE_KEY]) for i in range(len(ds))])
+    chw = np.stack([np.asarray(ds[i][FRONT]) for i in range(len(ds))])
     return np.clip(np.rint(chw.transpose(0, 2, 3, 1) * 255.0), 0, 255).astype(np.uint8)
 
 
@@ -101,13 +101,14 @@ def test_the_recorded_camera_becomes_the_demos_image(store, tmp_path):
     from test_so101_env import small_image_act
 
     from accrue.policy import FinetuneSettings, finetune
-    from accrue.sim.demos import IMAGE_KEY, read_demo_info
+    from accrue.sim.demos import read_demo_info
 
     dataset, images = record(tmp_path / "recorded", (32, 32, 3))
     demos = converted(store, "so101-demos/camera", tmp_path, dataset)
     info = read_demo_info(demos, state_dim=len(JOINT_KEYS))
     assert info.task_id == "so101/reach_close" and info.num_episodes == len(EPISODE_FRAMES)
-    assert info.features[IMAGE_KEY]["shape"] == [32, 32, 3] and info.features[IMAGE_KEY]["dtype"] == "image"
+    # the robot's front camera, by its own name (was observation.images.wrist whatever the camera)
+    assert info.features[FRONT]["shape"] == [32, 32, 3] and info.features[FRONT]["dtype"] == "image"
     meta = json.loads((demos / "meta" / "accrue.json").read_text())
     assert meta["obs_mode"] == "state+image" and meta["mapping"]["camera_keys"] == ["front"]
     assert meta["recorded_camera"] == {"key": "observation.images.front", "shape": [32, 32, 3]}
@@ -119,7 +120,7 @@ def test_the_recorded_camera_becomes_the_demos_image(store, tmp_path):
     act = small_image_act(tmp_path / "act", size=32)
     out = finetune(str(act), [demos], tmp_path / "policy", FinetuneSettings(steps=2, batch_size=4, num_workers=0))
     trained = json.loads((out / "accrue_finetune.json").read_text())
-    assert trained["training_set"]["image_keys"] == [IMAGE_KEY]
+    assert trained["training_set"]["image_keys"] == [FRONT]
     assert trained["training_set"]["total_frames"] == sum(EPISODE_FRAMES)
     assert (out / "model.safetensors").is_file()
 

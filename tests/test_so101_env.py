@@ -21,6 +21,8 @@ ROOT = Path(__file__).resolve().parents[1]
 CI_WORKFLOW = ROOT / "workflows" / "so101-sim-ci.yaml"
 BOUNDS = [[-1.91, 1.91], [-1.74, 1.74], [-1.69, 1.69], [-1.65, 1.65], [-2.74, 2.84], [-0.17, 1.74]]
 
+FRONT = "observation.images.front"  # the SO-101's front camera, under its own name
+
 
 def _bridge(**config):
     from accrue.robot.bridge import RobotBridge, Timeouts, robot_factory
@@ -91,13 +93,11 @@ def small_image_act(out: Path, size: int = 32, chunk: int = 4) -> Path:
     from lerobot.policies.act.modeling_act import ACTPolicy
     from lerobot.policies.factory import make_pre_post_processors
 
-    from accrue.sim.demos import IMAGE_KEY
-
     torch.manual_seed(0)
     config = ACTConfig(
         input_features={
             "observation.state": PolicyFeature(FeatureType.STATE, (6,)),
-            IMAGE_KEY: PolicyFeature(FeatureType.VISUAL, (3, size, size)),
+            FRONT: PolicyFeature(FeatureType.VISUAL, (3, size, size)),
         },
         output_features={"action": PolicyFeature(FeatureType.ACTION, (6,))},
         chunk_size=chunk,
@@ -113,7 +113,7 @@ def small_image_act(out: Path, size: int = 32, chunk: int = 4) -> Path:
     )
     stats = {
         "observation.state": {"mean": torch.zeros(6), "std": torch.ones(6)},
-        IMAGE_KEY: {"mean": torch.full((3, 1, 1), 0.5), "std": torch.full((3, 1, 1), 0.25)},
+        FRONT: {"mean": torch.full((3, 1, 1), 0.5), "std": torch.full((3, 1, 1), 0.25)},
         "action": {"mean": torch.zeros(6), "std": torch.full((6,), 0.3)},
     }
     policy = ACTPolicy(config)
@@ -144,7 +144,6 @@ def test_the_ci_workflow_runs_the_whole_loop_on_the_so101(tmp_path):
     import yaml
 
     from accrue.robot.sim_robot.so101_demos import write_so101_demos
-    from accrue.sim.demos import IMAGE_KEY
 
     spec = yaml.safe_load(CI_WORKFLOW.read_text())
     # the CI workflow as written, with π_base a small image ACT (built here) instead of the full-size one
@@ -155,12 +154,12 @@ def test_the_ci_workflow_runs_the_whole_loop_on_the_so101(tmp_path):
     meta = write_so101_demos(tmp_path / "demos", spec["robot"]["config"], spec["robot"], episodes=2)
     assert meta["task_id"] == "so101/reach_close" and meta["episodes"] == 2 and meta["obs_mode"] == "state+image"
     info = json.loads((tmp_path / "demos" / "meta" / "info.json").read_text())
-    assert info["features"][IMAGE_KEY]["shape"] == [32, 32, 3]  # the front camera at the workflow's size
+    assert info["features"][FRONT]["shape"] == [32, 32, 3]  # the front camera, by its name, at the workflow's size
     assert info["features"]["observation.state"]["names"] == list(JOINT_KEYS)
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     frames = LeRobotDataset("local/so101", root=tmp_path / "demos")
-    first = frames[0][IMAGE_KEY]
+    first = frames[0][FRONT]
     assert tuple(first.shape) == (3, 32, 32) and float(first.std()) > 0.01  # stored frames, not blanks
     assert len(frames) == meta["frames"] > 2 and float(frames[len(frames) - 1]["next.success"]) == 1.0
 

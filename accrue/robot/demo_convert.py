@@ -11,9 +11,8 @@ A teleoperated demonstration counts as a success, so each episode's last frame i
 its last SUCCESS_TAIL frames carry reward 1, like the simulator's demos.
 
 For a workflow with obs_mode state+image the robot's camera comes along: accrue's layout holds one camera,
-`observation.images.wrist` (IMAGE_KEY), and it is the one the base policy is fed live, the first of the
-mapping's camera_keys (accrue.robot.bridge). lerobot-record stored it as `observation.images.<key>`; its
-frames are written at the shape the robot declares for it (resized when recorded at another size of the
+the one the base policy is fed live, the first of the mapping's camera_keys (accrue.robot.bridge), under the
+robot's own name for it, `observation.images.<key>`, as lerobot-record stored it. Its frames are written at the shape the robot declares for it (resized when recorded at another size of the
 same aspect), as images when it was recorded as images (lossless) and as video when it was recorded as
 video. A state workflow's demos stay state-only. The result is built under a hidden sibling and renamed
 into place.
@@ -29,13 +28,12 @@ import numpy as np
 
 from accrue.errors import AccrueError
 from accrue.robot.demos import check_robot_dataset
-from accrue.robot.mapping import RobotMapping
+from accrue.robot.mapping import RobotMapping, image_feature
 from accrue.sim.demos import (
     ACCRUE_META,
     ACCRUE_META_FORMAT,
     ACTION_KEY,
     DONE_KEY,
-    IMAGE_KEY,
     REWARD_KEY,
     STATE_KEY,
     SUCCESS_KEY,
@@ -151,7 +149,7 @@ def convert_robot_dataset(
 ) -> dict:
     """Write accrue demos of `task_id` to out_dir from the lerobot-record dataset at src; return its meta.
 
-    `camera` (carried_camera) is the robot camera whose frames become IMAGE_KEY, at its declared shape; None
+    `camera` (carried_camera) is the robot camera whose frames become observation.images.<its key>, at its declared shape; None
     writes state-only demos. A dataset whose features do not fit the mapping or lack the camera, or whose
     mapped values are not finite, is a one-line AccrueError and nothing is written.
     """
@@ -183,7 +181,8 @@ def convert_robot_dataset(
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     use_video = recorded_camera is not None and recorded_camera["dtype"] == "video"
-    features = demo_features(list(mapping.state_keys), image_shape, use_video=use_video)
+    image_key = image_feature(camera[0]) if camera is not None else None  # the robot's camera, by its name
+    features = demo_features(list(mapping.state_keys), image_shape, use_video=use_video, image_key=image_key)
     bars_were_on = not datasets.are_progress_bars_disabled()
     datasets.disable_progress_bars()
     bar = _bar(progress, len(episodes), f"demos {task_id} from {check['robot_type'] or robot}")
@@ -202,7 +201,7 @@ def convert_robot_dataset(
                     frames = _episode_frames(rows, states, actions, instruction)
                     if recorded_camera is not None:
                         for frame, r in zip(frames, rows):
-                            frame[IMAGE_KEY] = recorded_frame(dataset, int(r), recorded_camera["key"], image_shape, src)
+                            frame[image_key] = recorded_frame(dataset, int(r), recorded_camera["key"], image_shape, src)
                     save_episode(ds, frames)
                     if bar is not None:
                         bar[0].update(bar[1], completed=n)
@@ -228,7 +227,7 @@ def convert_robot_dataset(
                 "only_successful": True,
                 "fps": fps,
                 "clipped_action_values": clipped,
-                # the recorded camera feature and its frame shape there ((h, w, 3); IMAGE_KEY holds the robot's)
+                # the recorded camera feature and its frame shape there ((h, w, 3); the demos hold the robot's)
                 "recorded_camera": (
                     {"key": recorded_camera["key"], "shape": list(recorded_camera["shape"])}
                     if recorded_camera

@@ -26,6 +26,11 @@ from accrue.sim.observation import ACTION_DIM
 ACTION_MODES = ("delta", "joint")
 
 
+def image_feature(camera: str) -> str:
+    """The dataset and policy feature of a robot camera's frames: lerobot's `observation.images.<camera>`."""
+    return f"observation.images.{camera}"
+
+
 def is_camera(feature) -> bool:
     """lerobot declares a camera as its frame shape (h, w, 3); a scalar reading as `float`."""
     return isinstance(feature, (tuple, list)) and len(feature) == 3

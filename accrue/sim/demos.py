@@ -115,7 +115,10 @@ def repo_id_for(task_id: str) -> str:
 
 
 def demo_features(
-    state_names: list[str], image_shape: tuple[int, int, int] | None = None, use_video: bool = True
+    state_names: list[str],
+    image_shape: tuple[int, int, int] | None = None,
+    use_video: bool = True,
+    image_key: str = IMAGE_KEY,  # a robot's demos name their camera: observation.images.<its key>
 ) -> dict:
     """lerobot feature spec for accrue demos. Shapes are tuples: lerobot compares them to ndarray shapes."""
     features: dict[str, dict[str, Any]] = {
@@ -128,7 +131,7 @@ def demo_features(
     if image_shape is not None:
         # the AV1 encoder kills the process (SIGFPE) on frames below 32x32: store those as PNGs
         use_video = use_video and min(image_shape[:2]) >= MIN_VIDEO_SIDE
-        features[IMAGE_KEY] = {
+        features[image_key] = {
             "dtype": "video" if use_video else "image",
             "shape": tuple(int(s) for s in image_shape),
             "names": ["height", "width", "channels"],

@@ -18,14 +18,13 @@ from pathlib import Path
 import numpy as np
 
 from accrue.errors import AccrueError
-from accrue.robot.mapping import RobotMapping
+from accrue.robot.mapping import RobotMapping, image_feature
 from accrue.robot.sim_robot.config_so101_env import CONTROL_HZ, SCENES, SO101EnvConfig, task_id
 from accrue.sim.demos import (
     ACCRUE_META,
     ACCRUE_META_FORMAT,
     ACTION_KEY,
     DONE_KEY,
-    IMAGE_KEY,
     REWARD_KEY,
     STATE_KEY,
     SUCCESS_KEY,
@@ -58,7 +57,7 @@ def _episode(robot, mapping: RobotMapping, instruction: str, camera: str | None)
             "task": instruction,
         }
         if camera is not None:
-            frame[IMAGE_KEY] = np.asarray(obs[camera], dtype=np.uint8)
+            frame[image_feature(camera)] = np.asarray(obs[camera], dtype=np.uint8)
         frames.append(frame)
     return frames, robot.episode_success()
 
@@ -89,7 +88,12 @@ def write_so101_demos(
     check_out_dir(out_dir)
     max_attempts = max_attempts or episodes + 8
     size = int(robot.config.image_size)
-    features = demo_features(list(mapping.state_keys), (size, size, 3) if camera else None, use_video=False)
+    features = demo_features(
+        list(mapping.state_keys),
+        (size, size, 3) if camera else None,
+        use_video=False,
+        image_key=image_feature(camera) if camera else None,
+    )
 
     os.environ.setdefault("SVT_LOG", "1")
     import datasets
