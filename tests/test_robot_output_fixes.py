@@ -133,14 +133,18 @@ def test_the_page_words_the_window_and_interventions_as_a_person_reads_them():
     assert '% of the steps of the last " + size + " sealed episodes)' in PAGE
 
 
-def test_the_last_warmup_episode_can_be_relabelled(warmup_store):
-    """Before: a re-label is offered at the next reset prompt only, and the last episode of a step has none."""
+def test_the_last_warmup_episode_can_be_relabelled(warmup_store, capsys):
+    """Before: a re-label is offered at the next reset prompt only, and the last episode of a step has none.
+    Warmup also says how far it is, with its rate and the time left (before: one line at its end)."""
     from robot_workflow import robot_events, run_stage
 
     wf = hw_workflow(warmup_store, scripted={"mistakes": [2], "corrects": [2]})
     run_stage(warmup_store / "store", wf, 1, step="warmup")
     [relabelled] = robot_events(warmup_store / "store", "robot-episode-relabelled")
     assert relabelled["index"] == 2  # warmup's third and last episode
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warmup: episode ")]
+    assert [line.split(" (")[0] for line in lines] == [f"warmup: episode {n}/3" for n in (1, 2, 3)]
+    assert " episodes/s, " in lines[0] and lines[0].endswith(" left)") and lines[-1].endswith(", done)")
 
 
 def test_a_terminal_operator_relabels_the_last_episode_at_the_steps_end(warmup_store, monkeypatch):

@@ -112,11 +112,11 @@ class Progress:
     """The progress line of a long step: `name: step 4/10 (2.1 steps/s, 3.0 s left)`, printed when a fifth
     of the work more is done and once at the end (a report of the same count again prints nothing)."""
 
-    def __init__(self, print_line, name: str, unit: str = "step", parts: int = 5):
+    def __init__(self, print_line, name: str, unit: str = "step", parts: int = 5, base: int = 0):
         import time
 
         self.print_line, self.name, self.unit, self.parts = print_line, name, unit, parts
-        self.started, self.shown = time.monotonic(), 0
+        self.started, self.shown, self.base = time.monotonic(), base, base  # base: done before (a resumed step)
 
     def __call__(self, done: int, total: int) -> None:
         import time
@@ -125,6 +125,6 @@ class Progress:
             return
         self.shown = done
         elapsed = max(time.monotonic() - self.started, 1e-9)
-        rate = done / elapsed
+        rate = max(done - self.base, 1e-9) / elapsed
         tail = "done" if done >= total else f"{took_text((total - done) / rate)} left"
         self.print_line(f"{self.name}: {self.unit} {done}/{total} ({rate:.3g} {self.unit}s/s, {tail})")

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from stages.errors import StageError
 from stages.runner_context import StepContext
-from stages.steps.common import copy_tree, read_json, write_json
+from stages.steps.common import Progress, copy_tree, read_json, write_json
 from stages.steps.robot_session import (
     EpisodeLoop,
     HardwareSession,
@@ -295,10 +295,15 @@ class RobotEnvironment:
         with self._session(ctx) as session:
             bridge = make_bridge(c, settings, task, self._fault(ctx))
             operator = make_operator(settings, bridge, ctx.console, store_root=ctx.store.root, audit=session.audit)
+            # a line per sealed episode, with the rate and time left (an operator's episodes take minutes)
+            progress = Progress(  # an earlier session's episodes are not this one's rate
+                ctx.console.print, "warmup", unit="episode", parts=max(1, c["episodes"]), base=len(session.episodes)
+            )
             try:
                 loop = EpisodeLoop(
                     task=task,
                     done=lambda: len(session.episodes) >= c["episodes"],
+                    on_sealed=lambda index, arrays, relabel=False: progress(len(session.episodes), c["episodes"]),
                     policy_now=lambda: (rl_loop.execute_reference, None),
                     reference=base.references[task],
                     features=features,
