@@ -780,15 +780,7 @@ def _episodes(ctx, session, operator, bridge, take, lost, loop: EpisodeLoop) -> 
         index = session.next_index(loop.index_base)
         # the page shows the phase and the window at every reset prompt (the first one, after --continue)
         show(status=f"episode {index}: waiting for the scene to be reset")
-        answer = operator.wait_reset(index, loop.task, last)
-        if answer.relabel is not None and last is not None:
-            arrays = session.relabel(last, answer.relabel.to_json(), loop.gamma)
-            loop.on_sealed(last, arrays, relabel=True)
-        if not answer.go:
-            session.close("aborted by the operator")
-            raise StageError(
-                f"aborted by the operator; {len(session.episodes)} episodes are sealed (resume with --continue)"
-            )
+        _answered(session, loop, last, operator.wait_reset(index, loop.task, last))
         reset_scene = bridge.hook("reset_scene")
         if reset_scene is not None:  # a simulated robot: the scene is put back when any operator says reset
             reset_scene()
@@ -872,8 +864,14 @@ def _finish(session: HardwareSession, operator, loop: EpisodeLoop, last: int | N
         return True
     n = len(session.ordered(phase))
     show(status=f"{phase}: {n} episodes sealed; r finishes the step, l re-labels episode {last} first")
-    answer = operator.finish(f"{phase} ({loop.task}): {n} episodes sealed", last)
-    if answer.relabel is not None:
+    _answered(session, loop, last, operator.finish(f"{phase} ({loop.task}): {n} episodes sealed", last))
+    return loop.done()
+
+
+def _answered(session: HardwareSession, loop: EpisodeLoop, last: int | None, answer) -> None:
+    """An operator's answer at a prompt between episodes (a ResetAnswer): its re-label of the last episode
+    applied (and sent on, as a sealed one), or its abort ending the session in one line."""
+    if answer.relabel is not None and last is not None:
         arrays = session.relabel(last, answer.relabel.to_json(), loop.gamma)
         loop.on_sealed(last, arrays, relabel=True)
     if not answer.go:
@@ -881,7 +879,6 @@ def _finish(session: HardwareSession, operator, loop: EpisodeLoop, last: int | N
         raise StageError(
             f"aborted by the operator; {len(session.episodes)} episodes are sealed (resume with --continue)"
         )
-    return loop.done()
 
 
 def episodes_output(ctx: StepContext, session: HardwareSession, phase: str | None = None) -> Path:
