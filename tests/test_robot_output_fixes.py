@@ -73,6 +73,15 @@ def test_handoff_says_the_kept_episodes_in_words_not_a_python_dict(kept, line):
     assert line in kept_text(kept) and "{" not in kept_text(kept)
 
 
+def test_a_short_memory_is_said_in_words_too():
+    """Before: `handoff: stage 1 ended fewer than N = 20 episodes ({'0': 16}); the memory keeps what there is`."""
+    from stages.steps.handoff import episodes_text
+
+    assert (
+        episodes_text({"0": 16}) == "16 of task 1" and episodes_text({"1": 3, "0": 20}) == "20 of task 1, 3 of task 2"
+    )
+
+
 @pytest.fixture
 def warmup_store(tmp_path):
     from artifacts.store import Store

@@ -62,8 +62,8 @@ def run(ctx: StepContext) -> None:
     )
     if kept["short"]:
         ctx.console.print(
-            f"handoff: stage {c['stage']} ended fewer than N = {c['retained_episodes']} episodes "
-            f"({kept['current_complete_episodes']}); the memory keeps what there is"
+            f"handoff: stage {c['stage']} ended fewer than N = {c['retained_episodes']} complete episodes "
+            f"({episodes_text(kept['current_complete_episodes'])}); the memory keeps what there is"
         )
         ctx.log_event(
             "short-memory",
@@ -76,14 +76,20 @@ def run(ctx: StepContext) -> None:
     )
 
 
+def episodes_text(counts: dict) -> str:
+    """{task index: complete episodes} in words: `16 of task 1`, `20 of task 1, 5 of task 2` (tasks 1-based)."""
+    parts = sorted((int(t), n) for t, n in counts.items())
+    return ", ".join(f"{n} of task {t + 1}" for t, n in parts) or "none"
+
+
 def kept_text(kept: dict) -> str:
-    """{task index: complete episodes kept} in words: `20 of task 1, 5 of task 2 kept` (tasks 1-based)."""
-    parts = sorted((int(t), n) for t, n in kept.items())
-    if not parts:
+    """{task index: complete episodes kept} in words: `20 of task 1, 5 of task 2 kept`."""
+    if not kept:
         return "no complete episode kept"
-    if len(parts) == 1:
-        return f"{parts[0][1]} complete episodes of task {parts[0][0] + 1} kept"
-    return "complete episodes: " + ", ".join(f"{n} of task {t + 1}" for t, n in parts) + " kept"
+    if len(kept) == 1:
+        [(t, n)] = kept.items()
+        return f"{n} complete episodes of task {int(t) + 1} kept"
+    return f"complete episodes: {episodes_text(kept)} kept"
 
 
 STEP = StepDef(
