@@ -215,3 +215,16 @@ def test_accrue_robot_check_says_what_it_read_and_exits_nonzero_out_of_bounds(tm
     assert bad.returncode == 2 and "Traceback" not in bad.stderr, bad.stderr[-2000:]
     assert "out of bounds: robot.action_bounds: x.pos reads " in bad.stdout and "outside [10, 11]" in bad.stdout
     assert bad.stderr.startswith("error: ") and "outside the workflow's bounds (6 findings above)" in bad.stderr
+
+
+def test_a_broken_base_policy_checkpoint_is_named_by_its_key(tmp_path, store):
+    ckpt = image_checkpoint(tmp_path / "act", state_dim=29)
+    (ckpt / "model.safetensors").unlink()
+
+    def init(spec):
+        spec["base_policy"] = {"init": str(ckpt)}
+
+    with pytest.raises(
+        StageError, match=r"hw.yaml: base_policy.init: policy checkpoint .*act is missing model.safetensors"
+    ):
+        check(workflow(tmp_path, edit=init), store)

@@ -116,7 +116,11 @@ def _check_robot(wf: Workflow, stage: int) -> RobotChecked:
     except Exception as exc:  # noqa: BLE001 - the robot's own constructor refused its config
         text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise AccrueError(f"{where}: robot.type {r.type} refused it ({text})") from None
-    obs, act = dict(robot.observation_features), dict(robot.action_features)
+    try:
+        obs, act = dict(robot.observation_features), dict(robot.action_features)
+    except Exception as exc:  # noqa: BLE001 - a driver that cannot say what it reads without its hardware
+        text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise AccrueError(f"robot.type {r.type}: cannot read the features it declares ({text})") from None
     mapping = RobotMapping.from_dict(keyed["robot"]).bind(obs, act, f"robot.type {r.type}")
     SafetyEnvelope.from_dict(r.safety).check_names(mapping.state_keys)
     ActionEnvelope.from_dict(r.safety).check_keys(mapping.action_keys)
@@ -134,6 +138,7 @@ def _check_robot(wf: Workflow, stage: int) -> RobotChecked:
 
 def _policy_input_shapes(wf: Workflow, store) -> tuple[str, dict | None]:
     """(what base_policy.init is, its input shapes or None where they are decided by the demos or unknown)."""
+    from accrue.errors import AccrueError
     from accrue.policy.checkpoint import input_shapes, read_checkpoint_config
     from accrue.policy.from_scratch import SCRATCH_NAMES, scratch_config
     from accrue.scripted_reference import parse_spec
@@ -146,7 +151,10 @@ def _policy_input_shapes(wf: Workflow, store) -> tuple[str, dict | None]:
         return "scratch", {"observation.image": None} if images else None
     path = Path(init).expanduser()
     if path.is_dir():
-        return "checkpoint", input_shapes(read_checkpoint_config(path))
+        try:
+            return "checkpoint", input_shapes(read_checkpoint_config(path))
+        except AccrueError as exc:
+            raise AccrueError(f"base_policy.init: {exc}") from None
     return "artifact", _stored_input_shapes(store, init)
 
 
