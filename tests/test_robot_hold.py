@@ -165,12 +165,14 @@ def test_a_malformed_operator_page_address_is_refused_at_load(tmp_path):
         ("gpu-box.invalid:50051", "the name gpu-box.invalid does not resolve"),
     ],
 )
-def test_a_learner_that_never_answered_holds_the_robot_before_its_first_action(store, address, why):
+def test_a_learner_that_never_answered_holds_the_robot_before_its_first_action(warm_store, store, address, why):
     """Before (issue 49): the actor acted robot.hold.staleness_s of robot time first, discarded that episode,
     and then said the learner "did not come back" (it never came), an unresolvable name as UNAVAILABLE."""
-    # a wait past the link's first try (a Hello times out in 3 s), so that the line can say why it failed
+    # a wait past the link's first try (a Hello times out in 3 s), so that the line can say why it failed; the
+    # warm store's robot (its calibration dir is keyed), so that warmup - which reaches the learner first
+    # (tests/test_robot_learner_first.py) - is the committed one
     hold = {"staleness_s": 1.0, "wait_s": 5}
-    wf = hold_workflow(store / "hw.yaml", store / "calib", learner_address=address, hold=hold)
+    wf = hold_workflow(store / "hw.yaml", warm_store / "calib", learner_address=address, hold=hold)
     with pytest.raises(StageError) as err:
         run_stage(store / "store", wf, 1, step="train")
     line = str(err.value)
