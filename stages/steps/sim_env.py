@@ -186,14 +186,19 @@ class SimEnvironment:
             ctx.save_checkpoint(staging, {"env_steps": st.env_steps, "updates": st.updates})
 
         clock = {"t": time.monotonic(), "updates": resume[1].updates if resume else 0}
+        # the time left, from this attempt's env-step rate so far (a resumed attempt counts from where it started)
+        pace = {"t": time.monotonic(), "env_steps": resume[1].env_steps if resume else 0}
 
         def show(st: rl_loop.LoopState, info: dict) -> None:
             now = time.monotonic()
             rate = (st.updates - clock["updates"]) / max(now - clock["t"], 1e-9)
             clock.update(t=now, updates=st.updates)
+            done = st.env_steps - pace["env_steps"]
+            left = (loop.env_steps - st.env_steps) * (now - pace["t"]) / done if done > 0 else None
             line = (
                 f"train: env steps {st.env_steps}/{loop.env_steps}  updates {st.updates} ({rate:.0f}/s)  "
                 f"episodes {st.episodes} (success {st.successes / max(st.episodes, 1):.2f})"
+                + (f"  ~{left / 60:.1f} min left" if left is not None else "")
             )
             if "eval" in info:
                 line += "  eval " + " ".join(f"{t}={r:.2f}" for t, r in info["eval"].items())
