@@ -29,6 +29,8 @@ from typing import Callable
 
 import numpy as np
 
+from accrue.errors import AccrueError
+
 ReferenceFn = Callable[[dict], np.ndarray]
 FeatureFn = Callable[[dict], np.ndarray]
 ActFn = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]  # (s, ã, fresh) -> a
@@ -291,6 +293,8 @@ def train_loop(
     started, info = time.monotonic(), {}
 
     current, earlier = settings.task_ids[-1], settings.task_ids[:-1]
+    if state.chosen < 0 and state.curve.get(current):  # a checkpoint saved before e* was tracked
+        state.chosen = int(np.argmax(state.curve[current]))
     report = getattr(evaluator, "report", None)  # a stand-in evaluator may have no report set
 
     def evaluate_due() -> None:
@@ -328,7 +332,13 @@ def train_loop(
         at_chosen = lambda s, ref, fresh: learner.act_with(chosen, s, ref)  # noqa: E731
         acts = {t: (frozen_acts or {}).get(t, at_chosen) for t in earlier}
         values, curves = (report, state.report_curve) if report else (evaluator, state.curve)
-        for t in earlier:
+        missing = [t for t in earlier if curves[t][state.chosen] is None]  # scored there already: kept
+        if chosen is None and any(t not in (frozen_acts or {}) for t in missing):
+            raise AccrueError(
+                "train: the checkpoint this run resumed from has no snapshot of the actor at its best point; "
+                "run the step again from its start (or with budgets.full_curves: true)"
+            )
+        for t in missing:
             curves[t][state.chosen] = values.success_rate(t, acts[t])
         state.chosen_scored = True
 

@@ -309,3 +309,16 @@ def test_the_grid_scores_the_deployed_actor_not_the_base_policy():
     col.restart()
     state = rl_loop.train_loop(LiftingLearner(), col, ev, rl_loop.LoopSettings([TASK], 16, 8, 0))
     assert state.curve[TASK] == [0.0, 0.0, 0.0]
+
+
+def test_a_state_from_before_e_star_was_tracked_keeps_the_scores_it_has(tmp_path):
+    """A loop state without `chosen` (saved while every task was scored at every point) derives e* from the
+    current task's curve, and earlier tasks already scored there are kept: nothing is scored again."""
+    full, ev, _ = two_task_loop(True, tmp_path=tmp_path / "a")
+    old = {k: v for k, v in full.to_json().items() if k not in ("chosen", "chosen_scored")}
+    state = rl_loop.LoopState.from_json(json.loads(json.dumps(old)))
+    scored = dict(ev.report.scored)
+    settings = rl_loop.LoopSettings([EARLIER, TASK], 240, 80, 120)
+    done = rl_loop.train_loop(None, None, ev, settings, state=state)
+    assert done.chosen == full.chosen and done.chosen_scored
+    assert done.report_curve == full.report_curve and ev.report.scored == scored
