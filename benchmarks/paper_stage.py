@@ -37,17 +37,17 @@ sys.path.insert(0, str(ROOT))
 
 
 class Timers:
-    """Seconds spent per part; `wrap(obj, name, part)` times every call of obj.name."""
+    """Seconds spent per part; `wrap(obj, name, part)` times every call of obj.name, `timed(fn, part)` of fn."""
 
     def __init__(self) -> None:
         self.seconds: dict[str, float] = defaultdict(float)
         self.calls: dict[str, int] = defaultdict(int)
         self._depth = 0  # parts nested in another (evaluate's physics) count only for the outer one
 
-    def wrap(self, obj, name: str, part: str) -> None:
-        inner = getattr(obj, name)
+    def timed(self, inner, part: str):
+        """`inner`, with its wall time added to `part`."""
 
-        def timed(*args, **kw):
+        def call(*args, **kw):
             if self._depth:
                 return inner(*args, **kw)
             self._depth += 1
@@ -59,12 +59,10 @@ class Timers:
                 self.calls[part] += 1
                 self._depth -= 1
 
-        setattr(obj, name, timed)
+        return call
 
-    def timed_fn(self, fn, part: str):
-        holder = type("Holder", (), {"fn": staticmethod(fn)})
-        self.wrap(holder, "fn", part)
-        return holder.fn
+    def wrap(self, obj, name: str, part: str) -> None:
+        setattr(obj, name, self.timed(getattr(obj, name), part))
 
 
 def demonstrator_reference(task_id: str, horizon: int):
@@ -104,7 +102,7 @@ def run(args) -> dict:
 
     env = make_vec_env(task, args.num_envs, seed=rl_loop.env_seed(args.seed, 1, "train"))
     timers.wrap(env, "step_chunk", "physics")
-    reference = timers.timed_fn(demonstrator_reference(task, horizon), "reference")
+    reference = timers.timed(demonstrator_reference(task, horizon), "reference")
     buffer = ReplayBuffer(state_features(env.reset()).shape[1], horizon, device=args.buffer_device)
     timers.wrap(buffer, "add", "store")
     learner = make_learner(cfg, buffer.state_dim, horizon)
