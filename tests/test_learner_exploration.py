@@ -91,3 +91,45 @@ def test_bounded_residual_keeps_the_action_within_the_bound_of_the_reference():
 def test_bad_exploration_settings_are_one_line_errors(kw, words):
     with pytest.raises(AccrueError, match=words):
         LearnerConfig(**kw)
+
+
+def filled_buffer(n: int):
+    from accrue.learner.replay import ReplayBuffer
+
+    g = torch.Generator().manual_seed(0)
+    buf = ReplayBuffer(S, H, D)
+    buf.add(
+        torch.randn(n, S, generator=g),
+        torch.rand(n, H, D, generator=g) * 2 - 1,
+        torch.rand(n, H, D, generator=g) * 1.6 - 0.8,
+        (torch.rand(n, generator=g) > 0.7).float(),
+        torch.randn(n, S, generator=g),
+        torch.rand(n, H, D, generator=g) * 1.6 - 0.8,
+        torch.rand(n, generator=g) > 0.9,
+        0,
+        torch.arange(n) // 8,
+    )
+    return buf
+
+
+def params(module) -> list[torch.Tensor]:
+    return [p.detach().clone() for p in module.parameters()]
+
+
+def moved(before, module) -> bool:
+    return any(not torch.equal(b, p) for b, p in zip(before, module.parameters(), strict=True))
+
+
+def test_actor_waits_for_its_own_learning_start_while_the_critic_learns():
+    lrn = learner(actor_learning_starts=64, batch_size=16, utd=2, policy_frequency=1)
+    actor0, critic0 = params(lrn.actor), params(lrn.critic)
+    info = lrn.train_step(filled_buffer(63))
+    assert moved(critic0, lrn.critic) and not moved(actor0, lrn.actor)
+    assert "actor_loss" not in info and lrn.counters["actor_updates"] == 0
+    info = lrn.train_step(filled_buffer(64))  # the boundary: 64 transitions are enough
+    assert moved(actor0, lrn.actor) and "actor_loss" in info and lrn.counters["actor_updates"] == 2
+
+
+def test_bad_actor_learning_start_is_a_one_line_error():
+    with pytest.raises(AccrueError, match="learner.actor_learning_starts: must be a non-negative integer"):
+        LearnerConfig(actor_learning_starts=-1)

@@ -167,14 +167,14 @@ class ChunkLearner:
         train_step it does not feed the observation normaliser."""
         return {k: float(v) for k, v in self._update(current, prior).items()}
 
-    def _update(self, current: Batch, prior: Batch | None) -> dict[str, torch.Tensor]:
+    def _update(self, current: Batch, prior: Batch | None, actor_on: bool = True) -> dict[str, torch.Tensor]:
         cfg = self.cfg
         if prior is not None and len(prior) == 0:
             prior = None
         critic_batch = Batch.cat(current, prior) if (prior is not None and self.rules.critic_on_prior) else current
         info = self._critic_update(critic_batch)
         self.counters["updates"] += 1
-        if self.counters["updates"] % cfg.policy_frequency == 0:
+        if actor_on and self.counters["updates"] % cfg.policy_frequency == 0:
             info.update(self._actor_update(current, prior))
             self.counters["actor_updates"] += 1
             if self.rules.merge and cfg.retain_interval and self.counters["actor_updates"] % cfg.retain_interval == 0:
@@ -320,6 +320,7 @@ class ChunkLearner:
         if len(buffer) < self.cfg.learning_starts:  # critic warm-up: wait for N transitions of B^k
             return {}
         use_prior = prior is not None and len(prior) > 0 and self.uses_prior_memory
+        actor_on = len(buffer) >= self.cfg.actor_learning_starts  # the critic's own warm-up on B^k
         sums: dict[str, torch.Tensor] = {}  # tensors until the end: one device sync per train_step
         counts: dict[str, int] = {}
         for _ in range(self.cfg.utd):
@@ -336,7 +337,7 @@ class ChunkLearner:
                             "ACCRUE needs teacher targets for the prior memory (compute_teacher_targets at stage start)"
                         )
                     pri = pri.with_teacher(teacher, fresh_ref)
-            for k, v in self._update(cur, pri).items():
+            for k, v in self._update(cur, pri, actor_on).items():
                 sums[k] = sums.get(k, 0.0) + v
                 counts[k] = counts.get(k, 0) + 1
         return {k: float(sums[k]) / counts[k] for k in sums}

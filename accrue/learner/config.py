@@ -62,6 +62,9 @@ class LearnerConfig:
     weight_decay: float = 0.1  # AdamW
     max_grad_norm: float = 0.0  # 0 = no clipping (FastTD3's default); both networks' gradients
     learning_starts: int = 0  # no update (critic, actor, normaliser) while B^k holds fewer transitions
+    # no actor update while B^k holds fewer transitions (the critic learns the reference's value first, so
+    # the actor's first steps follow a critic fitted to this task's data; 0 = the paper: both from the start)
+    actor_learning_starts: int = 0
     obs_normalization: bool = True  # running mean/std of s, part of the saved state
     obs_norm_update: str = "first-stage"  # one of OBS_NORM_UPDATES ("every-stage" = before issue 10)
     obs_norm_min_std: float = 0.1  # std floor: a column constant so far (a task code) cannot blow up
@@ -184,7 +187,7 @@ class LearnerConfig:
                 raise bad(name, "must be a positive integer")
         if self.num_atoms < 2:
             raise bad("num_atoms", "needs at least 2 atoms")
-        for name in ("seed", "retain_interval", "learning_starts", "obs_norm_fixed_tail"):
+        for name in ("seed", "retain_interval", "learning_starts", "actor_learning_starts", "obs_norm_fixed_tail"):
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 0:
                 raise bad(name, "must be a non-negative integer")
