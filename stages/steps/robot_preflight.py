@@ -121,7 +121,7 @@ def _check_robot(wf: Workflow, stage: int) -> RobotChecked:
     except Exception as exc:  # noqa: BLE001 - a driver that cannot say what it reads without its hardware
         text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise AccrueError(f"robot.type {r.type}: cannot read the features it declares ({text})") from None
-    mapping = RobotMapping.from_dict(keyed["robot"]).bind(obs, act, f"robot.type {r.type}")
+    mapping = RobotMapping.from_dict(keyed["robot"]).bind(obs, act, f"robot.type {r.type}", robot=robot)
     SafetyEnvelope.from_dict(r.safety).check_names(mapping.state_keys)
     ActionEnvelope.from_dict(r.safety).check_keys(mapping.action_keys)
     if wf.obs_mode == "state+image" and not mapping.camera_keys:
