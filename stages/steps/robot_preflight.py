@@ -158,6 +158,14 @@ def _policy_input_shapes(wf: Workflow, store) -> tuple[str, dict | None]:
     return "artifact", _stored_input_shapes(store, init)
 
 
+def _policy_action_width(init: str) -> int | None:
+    """The width of the actions a checkpoint directory's policy outputs (its config.json), or None."""
+    from accrue.policy.checkpoint import read_checkpoint_config
+
+    shape = (read_checkpoint_config(Path(init).expanduser()).get("output_features") or {}).get("action", {})
+    return int(shape["shape"][0]) if shape.get("shape") else None
+
+
 def _stored_input_shapes(store, init: str) -> dict | None:
     """The input shapes in the config.json of the stored policy `init` (an artifact id or ref), else None."""
     import json
@@ -202,6 +210,20 @@ def _check_policy(wf: Workflow, store, robot: RobotChecked) -> dict | None:
         raise AccrueError(
             f"obs_mode: {wf.obs_mode}, but base_policy.init {init} takes a camera image ({images[0]}): "
             "set obs_mode: state+image"
+        )
+    named = [k[len("observation.images.") :] for k in images if k.startswith("observation.images.")]
+    missing = [c for c in named if c not in m.camera_keys]
+    if len(images) > 1 and missing:
+        raise AccrueError(
+            f"base_policy.init {init} takes the cameras {', '.join(images)}, and the robot has no camera "
+            f"{missing[0]!r} (robot.camera_keys: {', '.join(m.camera_keys) or 'none'})"
+        )
+    width = _policy_action_width(init) if kind == "checkpoint" else None
+    if width is not None and width != len(m.action_keys):
+        raise AccrueError(
+            f"base_policy.init {init} acts in {width} dimensions, and the robot takes {len(m.action_keys)} action "
+            f"keys ({', '.join(m.action_keys)}): fine-tune it on this robot's demos, or pick {width} with "
+            "robot.action_keys"
         )
     state = shapes.get(STATE_KEY)
     if kind != "scratch" and state and state[0] != len(m.state_keys):
