@@ -1,6 +1,7 @@
 """The learner's state s and the base policy's observation, for a batch of simulator observations.
 
-    s = (E(I), q)            the paper's actor-critic input (Sec. IV-A): frozen encoder features ‖ state
+    s = (E(I), q)            the paper's actor-critic input (Sec. IV-A): frozen encoder features ‖ state; on
+                             a robot, E(I_1) ‖ ... ‖ E(I_m) over its cameras (robot.camera_keys' order)
     s = (E(I), q, e(ℓ))      with `task_features` > 0: the frozen embedding of the task's instruction appended
     s = (E(I), q, h, e(ℓ), g)   opt-in: h = the last `history` control steps (wrist force/torque, socket
                              estimate relative to the tip, action; observation.HISTORY_NAMES), g = the task's
@@ -34,8 +35,17 @@ def state_features(obs: dict) -> np.ndarray:
     return np.asarray(obs["state"], dtype=np.float32)
 
 
+def camera_frames(obs: dict) -> list[np.ndarray]:
+    """The observation's frames, one (B, h, w, 3) batch per camera: a robot's every camera in its
+    camera_keys order (`images`, accrue.robot.bridge), or the simulator's one (`image`)."""
+    if "images" in obs:
+        return list(obs["images"])
+    return [obs["image"]] if "image" in obs else []
+
+
 def encoder_features(encoder_spec: str) -> FeatureFn:
-    """s = (E(I), q): frozen encoder features of the image (if any) ‖ the sim state vector."""
+    """s = (E(I_1), ..., E(I_m), q): the frozen encoder's features of each camera's frame (one encoder,
+    its per-frame cache shared) ‖ the state vector."""
     if encoder_spec == "none":
         return state_features
     from accrue.encoders import make_encoder
@@ -43,9 +53,11 @@ def encoder_features(encoder_spec: str) -> FeatureFn:
     encoder = make_encoder(encoder_spec)
 
     def features(obs: dict) -> np.ndarray:
-        if "image" not in obs:
+        frames = camera_frames(obs)
+        if not frames:
             raise AccrueError(f"encoder {encoder_spec} needs image observations: set obs_mode: state+image")
-        return np.concatenate([encoder.encode(obs["image"]), state_features(obs)], axis=1).astype(np.float32)
+        parts = [encoder.encode(f) for f in frames]
+        return np.concatenate([*parts, state_features(obs)], axis=1).astype(np.float32)
 
     return features
 

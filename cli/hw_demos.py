@@ -64,7 +64,7 @@ def convert_demos_for_workflow(path: Path, kind: str, workflow: Path, task: str 
         r["type"], task_fields({**r, "task_config": wf.robot.task_config}, task_id), tuple(r["imports"])
     )()
     mapping = RobotMapping.from_dict(r).bind(
-        robot.observation_features, robot.action_features, f"robot {wf.robot.type}"
+        robot.observation_features, robot.action_features, f"robot {wf.robot.type}", robot=robot
     )
     camera = carried_camera(mapping, robot.observation_features, wf.obs_mode, f"robot {wf.robot.type}")
     mapping = dataclasses.replace(mapping, camera_keys=())  # the camera (an image workflow's) goes separately

@@ -80,13 +80,22 @@ def _init_source(wf: Workflow, store) -> str | None:
     return init
 
 
-def stage_records_demos(wf: Workflow, k: int) -> bool:
-    """Stage k records its task's demos when the workflow gives none for it and the base policy is
-    fine-tuned (the scripted stand-in reference never is): the one rule plan and status both read."""
+def uses_demos(wf: Workflow) -> bool:
+    """Whether finetune-base reads demos at all: not for the scripted stand-in reference, and not for a
+    checkpoint used as given (base_policy.finetune false) on a robot the simulator's expert cannot
+    demonstrate on (any robot.type but accrue_sim), which would otherwise need robot demos it never reads."""
     from accrue.scripted_reference import parse_spec
 
     bp = wf.base_policy
-    return wf.task(k) not in bp.demos and parse_spec(bp.init) is None
+    if parse_spec(bp.init) is not None:
+        return False
+    return bp.finetune or wf.robot is None or wf.robot.type == "accrue_sim"
+
+
+def stage_records_demos(wf: Workflow, k: int) -> bool:
+    """Stage k records its task's demos when the workflow gives none for it and the base policy is
+    fine-tuned on demos (uses_demos): the one rule plan and status both read."""
+    return wf.task(k) not in wf.base_policy.demos and uses_demos(wf)
 
 
 def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
@@ -109,12 +118,9 @@ def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
         steps.append(StepInvocation(step=step or STEPS[name], config=config, inputs=inputs, workflow=wf.name, stage=k))
 
     # demos D^1..D^k: given artifacts, else recorded by the scripted expert (this stage records D^k);
-    # none for the scripted stand-in reference, which is never fine-tuned
-    from accrue.scripted_reference import parse_spec
-
-    scripted = parse_spec(bp.init) is not None
+    # none where finetune-base reads none (uses_demos: the scripted stand-in, a robot's policy used as given)
     demos = {}
-    for i, t in enumerate(tasks if not scripted else [], 1):
+    for i, t in enumerate(tasks if uses_demos(wf) else [], 1):
         if t in bp.demos:
             demos[f"demos-{i}"] = bp.demos[t]
         elif i == k:

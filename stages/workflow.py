@@ -128,14 +128,16 @@ class RobotSpec(_Strict):
     # camera), merged over `config` wherever the robot is built for that task (stages.steps.robot_session)
     task_config: dict[str, dict[str, Any]] = {}
     imports: list[str] = []  # modules registering a third-party robot type
-    # s = (E(I), q) and actions from the robot's own lerobot features (accrue.robot.mapping): by default q is
-    # every scalar observation it declares, I its cameras, a its action keys; these pick and order a subset
+    # s = (E(I_1), ..., E(I_m), q) and actions from the robot's own lerobot features (accrue.robot.mapping):
+    # by default q is every scalar observation it declares, I_1..I_m its cameras in declared order, a its
+    # action keys (the learner's chunks are H x their number); these pick and order a subset
     state_keys: Optional[list[str]] = None
     camera_keys: Optional[list[str]] = None
     action_keys: Optional[list[str]] = None
     action_mode: Literal["delta", "joint"] = "delta"  # end-effector deltas, or absolute joint targets
     action_limits: Optional[list[float]] = None  # delta: robot units per unit of normalised action, per key
-    action_bounds: Optional[list[list[float]]] = None  # joint: [lo, hi] per action key, robot units
+    # joint: [lo, hi] per action key, robot units (unset: the ranges of the robot's motor calibration)
+    action_bounds: Optional[list[list[float]]] = None
     done_key: Optional[str] = None  # observation key > 0.5 when the robot ends an episode itself
     control_hz: Optional[float] = Field(None, gt=0)  # default: the task's
     episode_steps: Optional[int] = Field(None, gt=0)  # default: the task's max_steps

@@ -280,3 +280,26 @@ def test_the_camera_workflow_plans_an_image_policy_on_the_camera_robot():
     assert steps["record-demos"].config["obs_mode"] == "state+image"
     assert steps["warmup"].config["robot"]["config"]["render_cameras"] == ["front"]
     assert wf.base_policy.init == "act"
+
+
+def test_the_encoder_workflow_puts_both_cameras_features_into_s(tmp_path, tiny_encoder):
+    """workflows/hardware-sim-encoder.yaml: the robot renders front and side, both are camera_keys, and the
+    encoder (here the test's seeded weights in place of the DINOv2 file a lab downloads) keys every step
+    that computes s."""
+    from pathlib import Path
+
+    import yaml
+
+    from stages.plan import plan_stage
+    from stages.workflow import load_workflow
+
+    spec = yaml.safe_load((Path(__file__).resolve().parents[1] / "workflows" / "hardware-sim-encoder.yaml").read_text())
+    assert spec["encoder"].startswith("dinov2-small:")
+    spec["encoder"] = tiny_encoder
+    path = tmp_path / "hardware-sim-encoder.yaml"
+    path.write_text(yaml.safe_dump(spec, sort_keys=False))
+    steps = {inv.step.name: inv for inv in plan_stage(load_workflow(path), 1, None).steps}
+    for name in ("warmup", "train"):
+        robot = steps[name].config["robot"]
+        assert robot["config"]["render_cameras"] == ["front", "side"] and robot["camera_keys"] == ["front", "side"]
+        assert steps[name].config["encoder"] == tiny_encoder and steps[name].config["encoder_id"].startswith(MODEL)

@@ -40,8 +40,10 @@ def test_mapping_takes_the_robots_declared_features():
         RobotMapping(state_keys=("ee_x_cm",)).bind(so101, actions, "robot so101")
     with pytest.raises(AccrueError, match="action_mode joint needs one \\[lo, hi\\] per action key"):
         RobotMapping(action_mode="joint").bind(so101, actions, "robot so101")
-    with pytest.raises(AccrueError, match="learner acts in 6 dimensions; the robot declares 5"):
-        RobotMapping().bind(so101, dict(list(actions.items())[:5]), "robot so101")
+    five = RobotMapping().bind(so101, dict(list(actions.items())[:5]), "robot so101")  # any width: chunks H x 5
+    assert five.action_dim == 5 and len(five.action(np.ones(5))) == 5
+    with pytest.raises(AccrueError, match="declares no action key"):
+        RobotMapping().bind(so101, {}, "robot so101")
 
 
 def test_mapping_scales_end_effector_deltas():

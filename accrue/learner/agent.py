@@ -50,6 +50,9 @@ class ChunkLearner:
         self.noise_state = torch.zeros(0, device=self.device)  # per-env OU state (exploration "ou")
         self.counters = {"updates": 0, "actor_updates": 0, "merges": 0}
         self.stage = 0
+        # what s and a are made of on a robot ({"action_keys": [...], "cameras": [...]}; empty in the simulator):
+        # saved with the learner, so a later stage on other keys or cameras is refused (stages.steps.robot_env)
+        self.layout: dict = {}
         # continual-rule state (continual.py fills these at stage start)
         self.ewc_anchor: dict[str, torch.Tensor] = {}
         self.ewc_fisher: dict[str, torch.Tensor] = {}

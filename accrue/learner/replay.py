@@ -101,6 +101,9 @@ class ReplayBuffer:
         initial_capacity: int = 1024,
     ):
         self.state_dim, self.horizon, self.action_dim = state_dim, horizon, action_dim
+        # what s and a are made of, where a robot made them: {"action_keys": [...], "cameras": [...]} (the
+        # index records it; empty for the simulator's buffers, whose index stays as it was)
+        self.layout: dict = {}
         self.device = torch.device(device)
         self.size = 0
         self._shards: list[tuple[int, int]] = []  # (start, count) of each shard already written
@@ -301,6 +304,8 @@ class ReplayBuffer:
             "size": self.size,
             "shards": [{"file": self._shard_name(s, c), "start": s, "count": c} for s, c in self._shards],
         }
+        if self.layout:
+            index["layout"] = self.layout
         tmp = directory / (INDEX_FILE + ".tmp")
         tmp.write_text(json.dumps(index, indent=1, sort_keys=True) + "\n")
         os.replace(tmp, directory / INDEX_FILE)
@@ -324,6 +329,7 @@ class ReplayBuffer:
                 initial_capacity=max(1, int(index["size"])),
             )
             shards = index["shards"]
+            buf.layout = dict(index.get("layout") or {})
         except FileNotFoundError:
             raise AccrueError(f"{directory}: not a replay buffer (no {INDEX_FILE})") from None
         except (ValueError, KeyError, TypeError) as exc:
@@ -356,6 +362,7 @@ class ReplayBuffer:
         out = ReplayBuffer(
             self.state_dim, self.horizon, self.action_dim, self.device, initial_capacity=max(1, rows.numel())
         )
+        out.layout = dict(self.layout)
         if rows.numel():
             out._write({name: self._data[name][rows.to(self.device)] for name in _COLUMNS})
         return out
@@ -370,6 +377,13 @@ class ReplayBuffer:
             first.device,
             initial_capacity=max(1, sum(len(b) for b in buffers)),
         )
+        layouts = [b.layout for b in buffers if b.layout]
+        if any(lay != layouts[0] for lay in layouts):
+            raise AccrueError(
+                f"replay concat: buffers come from different robot inputs ({layouts[0]} and "
+                f"{next(lay for lay in layouts if lay != layouts[0])})"
+            )
+        out.layout = dict(layouts[0]) if layouts else {}
         for b in buffers:
             if (b.state_dim, b.horizon, b.action_dim) != (first.state_dim, first.horizon, first.action_dim):
                 raise AccrueError("replay concat: buffers have different state/chunk shapes")

@@ -93,6 +93,8 @@ def training_state(learner: ChunkLearner) -> tuple[dict[str, torch.Tensor], dict
             "cached_gaussian": float(cached),
         },
     }
+    if learner.layout:  # only a robot's learner: every other learner's meta stays byte for byte as it was
+        meta["layout"] = learner.layout
     return tensors, meta
 
 
@@ -127,6 +129,7 @@ def load_training_state_into(learner: ChunkLearner, tensors: dict[str, torch.Ten
     )
     learner.stage = int(meta["stage"])
     learner.counters = dict(meta["counters"])
+    learner.layout = dict(meta.get("layout") or {})
 
 
 def save_learner(learner: ChunkLearner, directory: str | Path) -> None:

@@ -255,7 +255,7 @@ class EpisodeRecorder:
 
         Poses are (3,) position, (6,) position + rotation vector or (7,) position + quaternion
         xyzw, in the world frame; `wrench` is (6,) force then torque; `image` is HWC uint8 RGB;
-        `reference` is the (H, 6) reference chunk the action was refined from.
+        `reference` is the (H, d) reference chunk (d: the action's width) the action was refined from.
         """
         ep = self._episode(env_index)
         if t <= ep.last_t:
@@ -269,7 +269,7 @@ class EpisodeRecorder:
         self._write(ep, TOPIC_ACTION, ns, {"t": t, "action": np.asarray(action, dtype=float).reshape(-1).tolist()})
         self._write(ep, TOPIC_REWARD, ns, {"t": t, "reward": float(reward), "return": ep.ret})
         if reference is not None:
-            chunk = np.asarray(reference, dtype=float).reshape(-1, 6)
+            chunk = np.asarray(reference, dtype=float).reshape(-1, np.size(action))  # (H, d): d as the action
             self._write(ep, TOPIC_REFERENCE, ns, {"t": t, "horizon": len(chunk), "chunk": chunk.tolist()})
         for topic, pose in ((TOPIC_EE_POSE, ee_pose), (TOPIC_SOCKET_POSE, socket_pose)):
             if pose is not None:

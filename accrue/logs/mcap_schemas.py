@@ -63,14 +63,14 @@ ACCRUE_WRENCH = {
 
 ACCRUE_ACTION = {
     "title": "accrue.Action",
-    "description": "The executed 6-D end-effector delta, normalised to [-1, 1]",
+    "description": "The executed action, normalised to [-1, 1] (the 6-D end-effector delta in the simulator; a robot's d action keys)",
     "type": "object",
     "properties": {"t": {"type": "integer"}, "action": _NUMBERS},
 }
 
 ACCRUE_REFERENCE_CHUNK = {
     "title": "accrue.ReferenceChunk",
-    "description": "The base policy's reference action chunk (H x 6) the learner refined",
+    "description": "The base policy's reference action chunk (H x d) the learner refined",
     "type": "object",
     "properties": {
         "t": {"type": "integer"},

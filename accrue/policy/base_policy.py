@@ -101,19 +101,36 @@ class BasePolicy:
         batch = {STATE_KEY: torch.from_numpy(state), "task": list(instructions)}
         if self.instruction_dim:
             batch[ENV_STATE_KEY] = torch.from_numpy(embed_instructions(instructions, self.instruction_dim))
-        if self.image_keys:
-            if "image" not in obs:
-                raise AccrueError(f"policy {self.checkpoint_dir} needs camera images; the observation has no 'image'")
-            if len(self.image_keys) != 1:
-                raise AccrueError(
-                    f"policy {self.checkpoint_dir} takes {len(self.image_keys)} cameras; accrue passes one"
-                )
-            images = np.asarray(obs["image"])
+        for key, images in self._frames(obs).items():
+            images = np.asarray(images)
             if images.ndim != 4 or images.shape[0] != batch_size or images.shape[-1] != 3:
-                raise AccrueError(f"observation 'image' must be (B, h, w, 3) uint8, got {list(images.shape)}")
-            tensor = torch.from_numpy(np.ascontiguousarray(images)).permute(0, 3, 1, 2).float() / 255.0
-            batch[self.image_keys[0]] = tensor
+                raise AccrueError(f"observation {key} must be (B, h, w, 3) uint8, got {list(images.shape)}")
+            batch[key] = torch.from_numpy(np.ascontiguousarray(images)).permute(0, 3, 1, 2).float() / 255.0
         return batch
+
+    def _frames(self, obs: dict) -> dict:
+        """The policy's image inputs from the observation's cameras: `observation.images.<camera>` is that
+        camera's frame (by name, from a robot's `cameras`); a policy with one image input and no camera of its
+        name (the simulator's `observation.image`) reads the first camera."""
+        if not self.image_keys:
+            return {}
+        if "image" not in obs:
+            raise AccrueError(f"policy {self.checkpoint_dir} needs camera images; the observation has no 'image'")
+        named = dict(zip(obs.get("cameras") or (), obs.get("images") or ()))
+        prefix = "observation.images."
+        out = {}
+        for key in self.image_keys:
+            camera = key[len(prefix) :] if key.startswith(prefix) else None
+            if camera in named:
+                out[key] = named[camera]
+            elif len(self.image_keys) == 1:
+                out[key] = obs["image"]
+            else:
+                raise AccrueError(
+                    f"policy {self.checkpoint_dir} takes {len(self.image_keys)} cameras ({', '.join(self.image_keys)}); "
+                    f"the robot has no camera {camera or key!r} (its cameras: {', '.join(named) or 'one, unnamed'})"
+                )
+        return out
 
     def _normalised_chunk(self, batch: dict, horizon: int):
         import torch

@@ -4,8 +4,9 @@ given up after its timeout, so a robot that stops answering ends the episode ins
     bridge = RobotBridge(make_robot, mapping, Timeouts(connect_s=10, observation_s=1, action_s=1), actions=env)
     bridge.connect()                     # RobotFault on failure; the mapping is bound to the robot's features
     state, done = bridge.observe()       # q (the robot's scalar readings) as float32; done = robot ended the episode
-    bridge.observation()                 # {"state": (1, D), "image": (1, h, w, 3) first camera, "images": [...]}
-    bridge.act(a)                        # a: (6,) normalised, in the robot's action space -> its action dict,
+    bridge.observation()                 # {"state": (1, D), "images": [(1, h, w, 3) per camera], "cameras": names,
+                                         #  "image": the first camera's}
+    bridge.act(a)                        # a: (d,) normalised, in the robot's action space -> its action dict,
                                          # through the action envelope (per-key bounds, rate limits)
     bridge.reconnect()                   # a fresh Robot from make_robot, connected; False when it cannot be
 
@@ -115,6 +116,7 @@ class RobotBridge:
                 self.robot.observation_features,
                 self.robot.action_features,
                 f"robot {getattr(self.robot, 'name', type(self.robot).__name__)}",
+                robot=self.robot,
             )
             self.safety.check_names(self.mapping.state_keys)
             self.actions.check_keys(self.mapping.action_keys)
@@ -161,11 +163,13 @@ class RobotBridge:
         return self.mapping.state(obs), self.mapping.done(obs)
 
     def observation(self) -> dict:
-        """The last observation as a batch of one: q, and the frames of its cameras (if any)."""
+        """The last observation as a batch of one: q, and the frames of its cameras (if any), in camera_keys
+        order, with their names (a base policy reads each camera by its name)."""
         out = {"state": self.mapping.state(self._last_obs)[None]}
         frames = self.frames()
         if frames:
             out["images"] = [f[None] for f in frames]
+            out["cameras"] = tuple(self.mapping.camera_keys)
             out["image"] = out["images"][0]
         return out
 

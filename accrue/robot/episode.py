@@ -2,10 +2,10 @@
 
     out = run_episode(bridge, settings, reference, policy, features, recorder, metadata, operator)
 
-`reference(obs) -> (1, H, 6)` is π_base's chunk and `features(obs) -> (1, F)` the learner's s = (E(I), q), both
-of the bridge's observation batch ({"state": q, "image": first camera, ...}, RobotBridge.observation), so
-E(I) is computed here on the actor host once per chunk start and stored with the transition;
-`policy(s, ref, fresh) -> (1, H, 6)` what is executed (the reference itself for warmup and base-policy trials, the actor's refinement in training).
+`reference(obs) -> (1, H, d)` is π_base's chunk (d = the robot's action keys) and `features(obs) -> (1, F)` the
+learner's s = (E(I_1), ..., E(I_m), q), both of the bridge's observation batch ({"state": q, "images": one per
+camera, ...}, RobotBridge.observation), so E(I) is computed here on the actor host once per chunk start and
+stored with the transition; `policy(s, ref, fresh) -> (1, H, d)` what is executed (the reference itself for warmup and base-policy trials, the actor's refinement in training).
 The episode ends when the robot says it is done (`mapping.done_key`), at the step limit, when the state
 leaves the safety envelope, when the operator ends it, or when the robot faults (disconnect, timeout):
 a faulted or unsafe episode is never a success. Rewards come later, from the operator's label
@@ -39,8 +39,8 @@ class EpisodeSettings:
 @dataclass
 class EpisodeOutcome:
     s: np.ndarray  # (T + 1, D) learner states at each chunk start, and the last one
-    ref: np.ndarray  # (T + 1, H, 6)
-    action: np.ndarray  # (T, H, 6) executed chunks
+    ref: np.ndarray  # (T + 1, H, d)
+    action: np.ndarray  # (T, H, d) executed chunks
     steps: np.ndarray  # (T,) control steps of each chunk actually executed
     control_steps: int
     end: str  # done | time-limit | safety | fault | operator | abort
@@ -87,9 +87,10 @@ def run_episode(
     (accrue.robot.teleop.Intervention), a control step the operator takes over executes the teleop's action
     in place of the chunk's, and that step is marked in the outcome's `intervention`; a poll answer
     "intervene" toggles the takeover (signal: key) from the next control step."""
+    from accrue.errors import AccrueError
     from accrue.sim.observation import STATE_NAMES, decode_state
 
-    H = settings.horizon
+    H, width = settings.horizon, bridge.mapping.action_dim
     period = 0.0 if settings.clock <= 0 else 1.0 / (settings.control_hz * settings.clock)
     late_after = settings.late_after_s or max(2.0 / settings.control_hz, 0.05)
     S, R, A, N, faults = [], [], [], [], []
@@ -109,6 +110,12 @@ def run_episode(
         while True:
             obs = bridge.observation()
             s, ref = features(obs), reference(obs)
+            if np.shape(ref)[-1] != width:  # before the robot is sent anything
+                raise AccrueError(
+                    f"the base policy's chunks have {np.shape(ref)[-1]} actions per step and the robot takes {width} "
+                    f"({', '.join(bridge.mapping.action_keys)}): fine-tune it on this robot's demos, or pick "
+                    f"{np.shape(ref)[-1]} keys with robot.action_keys"
+                )
             S.append(s[0])
             R.append(ref[0])
             if done:
@@ -169,8 +176,8 @@ def run_episode(
         R.append(reference(last)[0])
     return EpisodeOutcome(
         s=np.asarray(S, dtype=np.float32),
-        ref=np.asarray(R, dtype=np.float32).reshape(len(R), H, 6),
-        action=np.asarray(A, dtype=np.float32).reshape(len(A), H, 6),
+        ref=np.asarray(R, dtype=np.float32).reshape(len(R), H, width),
+        action=np.asarray(A, dtype=np.float32).reshape(len(A), H, width),
         steps=np.asarray(N, dtype=np.int64),
         control_steps=t,
         end=end,
@@ -248,7 +255,7 @@ def replay_from_episodes(warm, episodes: list[dict], task_index: int):
     for e in episodes:
         if len(e["action"]) == 0:
             continue
-        b = ReplayBuffer(warm.state_dim, warm.horizon)
+        b = ReplayBuffer(warm.state_dim, warm.horizon, warm.action_dim)
         b.add(
             e["s"][:-1],
             e["action"],

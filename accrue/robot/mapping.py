@@ -5,9 +5,11 @@ for a camera) and `action_features` ({key: float}). By default accrue takes them
 
     q = the scalar observations, in declared order (minus `done_key`)      -> s = (E(I), q)
     I = the camera frames, in declared order                                  (accrue.learner_inputs)
-    a = the action keys, in declared order, in the base policy's own space:
+    a = the action keys, in declared order, in the base policy's own space (d = their number, the width
+        of the learner's H x d chunks):
         action_mode delta   a in [-1, 1] times `action_limits` (robot units per unit; end-effector deltas)
-        action_mode joint   a in [-1, 1] spread over `action_bounds` [lo, hi] (absolute joint targets)
+        action_mode joint   a in [-1, 1] spread over `action_bounds` [lo, hi] (absolute joint targets);
+                            without them, the ranges the robot's motor calibration gives (calibrated_bounds)
 
 `state_keys`, `camera_keys`, `action_keys` pick and order a subset instead. `bind(features)` checks the
 choice against what the robot declares and returns the resolved mapping; nothing maps onto simulator
@@ -21,7 +23,6 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from accrue.errors import AccrueError
-from accrue.sim.observation import ACTION_DIM
 
 ACTION_MODES = ("delta", "joint")
 
@@ -69,8 +70,10 @@ class RobotMapping:
         )
 
     # ------------------------------------------------------------------ against the robot's declaration
-    def bind(self, observation_features: dict, action_features: dict, who: str) -> "RobotMapping":
-        """This mapping resolved against what `who` declares; one line naming the first misfit."""
+    def bind(self, observation_features: dict, action_features: dict, who: str, robot=None) -> "RobotMapping":
+        """This mapping resolved against what `who` declares; one line naming the first misfit. `robot` (the
+        lerobot Robot itself, where there is one) gives action_mode joint its bounds when the workflow
+        sets none: its motors' calibrated ranges in the units it reads and takes (calibrated_bounds)."""
         scalars = [k for k, v in observation_features.items() if not is_camera(v) and k != self.done_key]
         cameras = [k for k, v in observation_features.items() if is_camera(v)]
         state = self.state_keys if self.state_keys is not None else tuple(scalars)
@@ -91,19 +94,33 @@ class RobotMapping:
             )
         if not state:
             raise AccrueError(f"{who}: declares no scalar observation to use as q (robot.state_keys)")
-        if len(acts) != ACTION_DIM:  # the learner's chunks are (H, 6)
-            raise AccrueError(
-                f"{who}: accrue's learner acts in {ACTION_DIM} dimensions; the robot declares {len(acts)} action "
-                f"keys ({', '.join(acts[:8])}): pick {ACTION_DIM} with robot.action_keys"
-            )
-        if self.action_mode == "joint" and (self.action_bounds is None or len(self.action_bounds) != len(acts)):
+        if not acts:
+            raise AccrueError(f"{who}: declares no action key to act in (robot.action_keys)")
+        bounds = self.action_bounds
+        if self.action_mode == "joint" and bounds is None:
+            bounds, lacking = calibrated_bounds(robot, acts)
+            if lacking:
+                raise AccrueError(
+                    f"robot.action_bounds: action_mode joint needs one [lo, hi] per action key in the robot's "
+                    f"units, and {who} gives no calibrated range for {', '.join(lacking)}: set robot.action_bounds "
+                    f"for {', '.join(acts)}"
+                )
+        if self.action_mode == "joint" and len(bounds) != len(acts):
             raise AccrueError(
                 f"robot.action_bounds: action_mode joint needs one [lo, hi] per action key ({', '.join(acts)}), "
-                "in the robot's units"
+                f"in the robot's units (got {len(bounds)})"
             )
         if self.action_limits is not None and len(self.action_limits) != len(acts):
             raise AccrueError(f"robot.action_limits: needs {len(acts)} entries, one per action key ({', '.join(acts)})")
-        return replace(self, state_keys=tuple(state), camera_keys=tuple(cams), action_keys=tuple(acts))
+        return replace(
+            self, state_keys=tuple(state), camera_keys=tuple(cams), action_keys=tuple(acts), action_bounds=bounds
+        )
+
+    @property
+    def action_dim(self) -> int:
+        """d: the learner's chunks are H x d, one column per action key."""
+        self._bound()
+        return len(self.action_keys)
 
     def _bound(self) -> None:
         if self.state_keys is None or self.action_keys is None or self.camera_keys is None:
@@ -148,3 +165,60 @@ class RobotMapping:
         self._bound()
         centre, half = self._span()
         return (np.asarray(raw, dtype=np.float64) - centre) / half
+
+
+# ---------------------------------------------------------------------- units from the robot
+_NORM_RANGES = {"range_m100_100": (-100.0, 100.0), "range_0_100": (0.0, 100.0)}
+
+
+def _motor_buses(robot) -> list[tuple[str, object]]:
+    """(key prefix, motor bus) of a lerobot robot: its own `bus`, and a bimanual robot's arms (`left_arm` ->
+    keys `left_<motor>.pos`, lerobot's bi_so_follower naming)."""
+    out = []
+    bus = getattr(robot, "bus", None)
+    if bus is not None and hasattr(bus, "motors"):
+        out.append(("", bus))
+    for name, part in sorted(vars(robot).items()) if robot is not None and hasattr(robot, "__dict__") else ():
+        if name.endswith("_arm") and getattr(part, "bus", None) is not None and hasattr(part.bus, "motors"):
+            out.append((name[: -len("_arm")] + "_", part.bus))
+    return out
+
+
+def _motor_range(bus, motor: str) -> tuple[float, float] | None:
+    """[lo, hi] of one motor in the units the bus reads and takes (its MotorNormMode over its calibrated
+    range_min..range_max, as lerobot's MotorsBus._normalize maps them), or None without a calibration."""
+    spec = bus.motors.get(motor)
+    calibration = (getattr(bus, "calibration", None) or {}).get(motor)
+    if spec is None or calibration is None:
+        return None
+    mode = str(getattr(spec.norm_mode, "value", spec.norm_mode))
+    if mode in _NORM_RANGES:
+        return _NORM_RANGES[mode]
+    if mode == "degrees":
+        resolution = getattr(bus, "model_resolution_table", {}).get(spec.model)
+        lo, hi = float(calibration.range_min), float(calibration.range_max)
+        if not resolution or not hi > lo:
+            return None
+        half = (hi - lo) / 2 * 360.0 / (resolution - 1)
+        return (-half, half)
+    return None
+
+
+def calibrated_bounds(robot, action_keys) -> tuple[tuple[tuple[float, float], ...] | None, list[str]]:
+    """(the [lo, hi] of each action key from the robot's motor calibration, the keys that have none).
+    A key `<motor>.pos` of a lerobot arm whose bus calibrates that motor: its normalisation mode's range
+    (range_m100_100: [-100, 100]; range_0_100: [0, 100]; degrees: the calibrated range in degrees about
+    its middle). Anything else (no bus, no calibration file yet, a key that is not a motor) lacks one."""
+    found, lacking = [], []
+    buses = _motor_buses(robot) if robot is not None else []
+    for key in action_keys:
+        span = None
+        for prefix, bus in buses:
+            if key.startswith(prefix) and key.endswith(".pos"):
+                span = _motor_range(bus, key[len(prefix) : -len(".pos")])
+                if span is not None:
+                    break
+        found.append(span)
+        if span is None:
+            lacking.append(key)
+    return (None if lacking else tuple(found)), lacking

@@ -96,6 +96,9 @@ def build_spec(task: TaskSpec):
     )
     _add_pieces(spec, world, socket, "socket", collide=(0, 1), rgba=[0.55, 0.6, 0.7, 1], group=0)
     world.add_camera(name="front", pos=[0.0, -0.09, 0.07], xyaxes=[1, 0, 0, 0, 0.6, 0.8], fovy=45)
+    # a second view from the +x side (a robot's second camera: render_cameras [front, side]); cameras do not
+    # enter the dynamics
+    world.add_camera(name="side", pos=[0.09, 0.0, 0.07], xyaxes=[0, 1, 0, -0.6, 0, 0.8], fovy=45)
 
     ee = world.add_body(name="ee", gravcomp=1.0, mass=GRIPPER_MASS, inertia=[2e-4, 2e-4, 2e-4], explicitinertial=True)
     for axis, name in zip(np.eye(3), JOINTS[:3]):

@@ -287,6 +287,7 @@ class VecAssemblyEnv:
         for i in range(self.num_envs):
             data = self.batch.get_data(i)
             mujoco.mj_kinematics(self.model, data)  # materialised data carries state, not poses
+            mujoco.mj_camlight(self.model, data)  # the cameras' poses (without it every camera sat at the origin)
             self._renderer.update_scene(data, camera=camera)
             frames[i] = self._renderer.render()
         return frames

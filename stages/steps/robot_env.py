@@ -70,6 +70,29 @@ def episode_settings(c: dict, task: str, clock: float):
     )
 
 
+def robot_layout(mapping) -> dict:
+    """What the learner's s and a are made of on this robot: its action keys (d, the chunks' width) and the
+    cameras whose E(I) is in s, in order. The replay, the learner and the checkpoint carry it."""
+    return {"action_keys": list(mapping.action_keys), "cameras": list(mapping.camera_keys)}
+
+
+def check_layout(inherited: dict, current: dict, stage: int) -> None:
+    """One line when stage `stage` acts in other action keys or reads other cameras than the learner it
+    inherits was trained on (its chunks' width and its s would not fit)."""
+    if not inherited or not current or inherited == current:
+        return
+
+    def text(layout: dict) -> str:
+        keys, cams = layout.get("action_keys", []), layout.get("cameras", [])
+        return f"{len(keys)} action keys ({', '.join(keys)}) and cameras [{', '.join(cams)}]"
+
+    raise StageError(
+        f"train: stage {stage}'s robot has {text(current)}, and the learner it inherits was trained on "
+        f"{text(inherited)}: a stage cannot change them (set robot.action_keys / robot.camera_keys as before, "
+        "or start a new workflow)"
+    )
+
+
 def update_target(session: HardwareSession, cfg) -> int:
     """The learner's update count once it has trained on every sealed episode: utd updates per chunk
     transition of the current task (accrue.robot.learner_service's train_forever)."""
@@ -322,7 +345,11 @@ class RobotEnvironment:
             # s's width from an episode that executed a chunk (one a fault ended before its first has no s rows)
             widths = [a["s"].shape[-1] for a in arrays if len(a["action"])]
             dim = widths[0] if widths else features({"state": np.zeros((1, 29), np.float32)}).shape[1]
-            replay = replay_from_episodes(buffer(dim), arrays, k - 1)
+            mapping = bridge.mapping  # bound to the robot's features when it connected
+            bound = mapping.state_keys is not None
+            d = mapping.action_dim if bound else next((a["action"].shape[-1] for a in arrays if len(a["action"])), 6)
+            replay = replay_from_episodes(buffer(dim, d), arrays, k - 1)
+            replay.layout = robot_layout(mapping) if bound else {}
             labels = [bool(e["label"]["success"]) for e in eps]
             episodes_output(ctx, session)
             return WarmupResult(
@@ -378,6 +405,7 @@ class RobotEnvironment:
                 "updates_short": info.get("updates_short", 0),
                 "episodes": len(train_eps),
                 "hardware": True,
+                **({"layout": learner.layout} if learner.layout else {}),
             },
             curve_json(c, session, warm.info, why, info),
         )
@@ -393,7 +421,11 @@ class RobotEnvironment:
         k, tasks, horizon = c["stage"], c["task_ids"], c["horizon"]
         task = tasks[-1]
         if not (session.dir / "learner.json").is_file():  # Algorithm 1 line 1, once per stage
-            learner = begin_stage(inherited.previous(cfg.device), cfg, warm_buffer.state_dim, horizon)
+            previous = inherited.previous(cfg.device)
+            if previous is not None:  # before the robot moves: the chunks' width and s must fit θ^{k-1}
+                check_layout(previous.layout, warm_buffer.layout, k)
+            learner = begin_stage(previous, cfg, warm_buffer.state_dim, horizon, warm_buffer.action_dim)
+            learner.layout = dict(warm_buffer.layout)
             save_learner(learner, session.dir / "learner")
             write_json(session.dir / "learner.json", {"updates": 0, "version": 0, "episodes": []})
             session._save()

@@ -121,7 +121,7 @@ def _check_robot(wf: Workflow, stage: int) -> RobotChecked:
     except Exception as exc:  # noqa: BLE001 - a driver that cannot say what it reads without its hardware
         text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise AccrueError(f"robot.type {r.type}: cannot read the features it declares ({text})") from None
-    mapping = RobotMapping.from_dict(keyed["robot"]).bind(obs, act, f"robot.type {r.type}")
+    mapping = RobotMapping.from_dict(keyed["robot"]).bind(obs, act, f"robot.type {r.type}", robot=robot)
     SafetyEnvelope.from_dict(r.safety).check_names(mapping.state_keys)
     ActionEnvelope.from_dict(r.safety).check_keys(mapping.action_keys)
     if wf.obs_mode == "state+image" and not mapping.camera_keys:
@@ -156,6 +156,14 @@ def _policy_input_shapes(wf: Workflow, store) -> tuple[str, dict | None]:
         except AccrueError as exc:
             raise AccrueError(f"base_policy.init: {exc}") from None
     return "artifact", _stored_input_shapes(store, init)
+
+
+def _policy_action_width(init: str) -> int | None:
+    """The width of the actions a checkpoint directory's policy outputs (its config.json), or None."""
+    from accrue.policy.checkpoint import read_checkpoint_config
+
+    shape = (read_checkpoint_config(Path(init).expanduser()).get("output_features") or {}).get("action", {})
+    return int(shape["shape"][0]) if shape.get("shape") else None
 
 
 def _stored_input_shapes(store, init: str) -> dict | None:
@@ -202,6 +210,20 @@ def _check_policy(wf: Workflow, store, robot: RobotChecked) -> dict | None:
         raise AccrueError(
             f"obs_mode: {wf.obs_mode}, but base_policy.init {init} takes a camera image ({images[0]}): "
             "set obs_mode: state+image"
+        )
+    named = [k[len("observation.images.") :] for k in images if k.startswith("observation.images.")]
+    missing = [c for c in named if c not in m.camera_keys]
+    if len(images) > 1 and missing:
+        raise AccrueError(
+            f"base_policy.init {init} takes the cameras {', '.join(images)}, and the robot has no camera "
+            f"{missing[0]!r} (robot.camera_keys: {', '.join(m.camera_keys) or 'none'})"
+        )
+    width = _policy_action_width(init) if kind == "checkpoint" else None
+    if width is not None and width != len(m.action_keys):
+        raise AccrueError(
+            f"base_policy.init {init} acts in {width} dimensions, and the robot takes {len(m.action_keys)} action "
+            f"keys ({', '.join(m.action_keys)}): fine-tune it on this robot's demos, or pick {width} with "
+            "robot.action_keys"
         )
     state = shapes.get(STATE_KEY)
     if kind != "scratch" and state and state[0] != len(m.state_keys):

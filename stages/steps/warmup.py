@@ -22,7 +22,8 @@ def run(ctx: StepContext, robot=None) -> None:
     env = environment_for(c, robot)
     with env.scope(ctx):
         base = base_inputs(ctx, [c["task"]])
-        result = env.warmup(ctx, base, lambda state_dim: ReplayBuffer(state_dim, c["horizon"]))
+        # B^k's rows: s of the environment's width, chunks H x d (d: the robot's action keys; the simulator's 6)
+        result = env.warmup(ctx, base, lambda state_dim, d=6: ReplayBuffer(state_dim, c["horizon"], d))
         out = ctx.new_output("replay", "replay")
         result.buffer.save_new_shards(out)
         write_json(

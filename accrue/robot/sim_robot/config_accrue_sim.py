@@ -15,7 +15,7 @@ class AccrueSimConfig(RobotConfig):
     seed: int = 0
     estimate_noise: float = 1.0  # scale of the socket-estimate error (a better or worse camera)
     # MuJoCo cameras rendered into each observation as (image_size, image_size, 3) uint8 (MUJOCO_GL=egl)
-    render_cameras: list[str] = field(default_factory=list)  # e.g. ["front"] (`cameras` is lerobot's own field)
+    render_cameras: list[str] = field(default_factory=list)  # of "front", "side" (`cameras` is lerobot's own)
     image_size: int = 64
     # delta: the 6-D normalised end-effector delta; joint: absolute targets of the gripper's six joints
     # (x, y, z in m, roll, pitch, yaw in rad, socket frame), as an arm that takes joint targets
