@@ -98,6 +98,13 @@ def stage_records_demos(wf: Workflow, k: int) -> bool:
     return wf.task(k) not in wf.base_policy.demos and uses_demos(wf)
 
 
+def _camera_version(obs_mode: str) -> dict:
+    """Steps that render the simulator's cameras carry the renderer's version in their key: images rendered
+    before the cameras were placed at their poses (every view from the world origin) are not reused. State-only
+    steps render nothing and keep their keys."""
+    return {} if obs_mode == "state" else {"sim_cameras": "posed"}
+
+
 def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
     from stages.steps import STEPS
 
@@ -139,6 +146,7 @@ def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
         # the demonstrator's kind enters the cache key only when it is not the default searching expert
         if not bp.demo_search or bp.demo_bias_known != 1.0:
             demo_config.update(search=bp.demo_search, bias_known=bp.demo_bias_known)
+        demo_config.update(_camera_version(wf.obs_mode))
         add("record-demos", demo_config, {})
 
     init = _init_source(wf, store) if k == 1 else output_ref(wf, k - 1, "finetune-base", "base-policy")
@@ -177,6 +185,7 @@ def plan_stage(wf: Workflow, stage: int, store) -> StagePlan:
     add("cache-teacher", teacher_config, teacher_inputs)
 
     env = {"horizon": wf.horizon, "obs_mode": wf.obs_mode, "encoder": wf.encoder, "num_envs": b.num_envs}
+    env.update(_camera_version(wf.obs_mode))
     if wf.encoder != "none":  # the frozen encoder's identity (weights digest), not just its path
         env["encoder_id"] = encoder_identity(wf.encoder)
     if wf.task_features:  # in the cache key only when used, so workflows without it keep their keys

@@ -98,6 +98,15 @@ def test_each_config_holds_only_what_its_step_reads(store):
     assert {name for name in a if a[name].config != c[name].config} == {"train"}
 
 
+def test_only_steps_that_render_the_sim_cameras_carry_their_version(store):
+    # images rendered before the cameras were posed (every view from the world origin) must not be reused
+    state = by_name(plan_stage(workflow(), 1, store))
+    image = by_name(plan_stage(workflow(obs_mode="state+image"), 1, store))
+    for name in ("record-demos", "warmup", "train", "evaluate-all"):
+        assert "sim_cameras" not in state[name].config
+        assert image[name].config["sim_cameras"] == "posed"
+
+
 def test_unknown_task_and_foreign_demos_are_one_line_errors(store):
     with pytest.raises(StageError, match=r"tasks\[1\]: unknown task 'nist/nope'"):
         plan_stage(workflow(tasks=["nist/gear", "nist/nope"]), 1, store)
