@@ -53,7 +53,7 @@ def workflow_status(store: Store, wf: Workflow) -> list[dict]:
 
 def stage_step_names(wf: Workflow, stage: int) -> list[str]:
     """The steps stage k runs, in run order (stages/plan.py): record-demos first when it records demos."""
-    from stages.plan import stage_records_demos
+    from stages.demo_rules import stage_records_demos
 
     records = stage_records_demos(wf, stage)
     return (["record-demos"] if records else []) + list(STEP_NAMES)

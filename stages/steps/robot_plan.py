@@ -86,7 +86,7 @@ def check_robot_workflow(wf: Workflow, stage: int) -> None:
             f"workflow {wf.name}: base_policy.init {wf.base_policy.init} acts in end-effector deltas; "
             "robot.action_mode joint needs a base policy of joint targets (fine-tuned on the robot's demos)"
         )
-    from stages.plan import uses_demos
+    from stages.demo_rules import uses_demos
 
     if r.type != "accrue_sim" and uses_demos(wf):
         missing = [t for t in wf.tasks[:stage] if t not in wf.base_policy.demos]
