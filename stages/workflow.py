@@ -109,6 +109,14 @@ class InterventionSpec(_Strict):
     timeout_s: float = Field(1.0, gt=0)
 
 
+class ResetPoseSpec(_Strict):
+    """A fixed joint pose the arm is driven to before each episode (accrue.robot.bridge.ResetPose)."""
+
+    pose: dict[str, float] = Field(min_length=1)  # action key -> target, in the robot's action units
+    tolerance: float = Field(gt=0)  # reached when every key of the pose reads within this of its target
+    max_steps: int = Field(200, gt=0)  # control steps to reach it, each moving at most robot.safety.max_step
+
+
 class ScriptedSpec(_Strict):
     """The scripted operator (accrue.robot.operator.ScriptedOperator): labels from the robot's own success."""
 
@@ -139,6 +147,11 @@ class RobotSpec(_Strict):
     # joint: [lo, hi] per action key, robot units (unset: the ranges of the robot's motor calibration)
     action_bounds: Optional[list[list[float]]] = None
     done_key: Optional[str] = None  # observation key > 0.5 when the robot ends an episode itself
+    # action_mode joint: driven to before each episode, through robot.safety's max_step and joint_bounds
+    reset_pose: Optional[ResetPoseSpec] = None
+    # {camera: [top, left, height, width]}: the region of its frame (pixels) the encoder and the base policy
+    # read, resized back to the frame size the robot declares
+    crop: dict[str, list[int]] = {}
     control_hz: Optional[float] = Field(None, gt=0)  # default: the task's
     episode_steps: Optional[int] = Field(None, gt=0)  # default: the task's max_steps
     # workspace_min_m/max_m [x,y,z], max_speed_m_s, max_force_n, max_torque_nm (where q shows pose and
@@ -168,11 +181,31 @@ class RobotSpec(_Strict):
     def _consistent(self) -> "RobotSpec":
         if self.stop_successes > self.stop_window:
             raise ValueError(f"stop_successes must be <= stop_window ({self.stop_window}) (got {self.stop_successes})")
+        self._check_reset_and_crop()
         if self.type != "accrue_sim" and (self.clock != 1.0 or self.faults):
             raise ValueError(
                 f"clock and faults apply to the simulated robot (type accrue_sim) only (got type {self.type!r})"
             )
         return self
+
+    def _check_reset_and_crop(self) -> None:
+        if self.reset_pose is not None:
+            if self.action_mode != "joint":
+                raise ValueError("reset_pose needs action_mode joint (a pose in the robot's joint targets)")
+            steps = self.safety.get("max_step") or {}
+            unlimited = [k for k in self.reset_pose.pose if k not in steps]
+            if unlimited:
+                raise ValueError(
+                    f"reset_pose: {unlimited[0]!r} has no safety.max_step, which limits the reset's motion; set one"
+                )
+        for camera, box in self.crop.items():
+            if len(box) != 4 or box[0] < 0 or box[1] < 0 or box[2] <= 0 or box[3] <= 0:
+                raise ValueError(
+                    f"crop.{camera}: needs [top, left, height, width] in pixels, top and left >= 0, "
+                    f"height and width > 0 (got {box})"
+                )
+            if self.camera_keys is not None and camera not in self.camera_keys:
+                raise ValueError(f"crop.{camera}: not one of camera_keys ({', '.join(self.camera_keys)})")
 
 
 class WandbSpec(_Strict):

@@ -9,6 +9,7 @@ given up after its timeout, so a robot that stops answering ends the episode ins
     bridge.act(a)                        # a: (d,) normalised, in the robot's action space -> its action dict,
                                          # through the action envelope (per-key bounds, rate limits)
     bridge.reconnect()                   # a fresh Robot from make_robot, connected; False when it cannot be
+    bridge.move_to(ResetPose(...))       # drive the arm to a fixed joint pose through the action envelope
 
 A call that times out leaves its worker thread behind (a driver stuck in I/O cannot be interrupted from
 Python); the bridge starts a new one and treats the robot as lost until reconnect() succeeds.
@@ -61,6 +62,53 @@ def robot_factory(robot_type: str, config: dict[str, Any], imports: tuple[str, .
     make = lerobot_factory("robot", robot_type, config, imports, where="robot", type_key="type")
     make()
     return make
+
+
+@dataclass(frozen=True)
+class ResetPose:
+    """A fixed pose the arm is driven to before each episode (robot.reset_pose): targets in the robot's own
+    action units for some of its action keys (the others held where they are), reached when every key reads
+    within `tolerance` of its target, given up after `max_steps` control steps."""
+
+    pose: tuple[tuple[str, float], ...]
+    tolerance: float
+    max_steps: int = 200
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> "ResetPose | None":
+        if not d:
+            return None
+        pose = tuple((str(k), float(v)) for k, v in (d.get("pose") or {}).items())
+        if not pose:
+            raise AccrueError("robot.reset_pose.pose: name at least one action key and its target")
+        tolerance, max_steps = float(d.get("tolerance", 0)), int(d.get("max_steps", 200))
+        if not tolerance > 0 or max_steps < 1:
+            raise AccrueError(
+                f"robot.reset_pose: tolerance must be > 0 and max_steps >= 1 (got {tolerance:g}, {max_steps})"
+            )
+        return cls(pose, tolerance, max_steps)
+
+    def check(self, mapping: RobotMapping, observation_features: dict, actions: ActionEnvelope) -> None:
+        """One line for a pose the robot cannot be driven to: a key it does not take or read back, a key whose
+        motion robot.safety.max_step does not limit, a target outside robot.safety.joint_bounds."""
+        for key, target in self.pose:
+            if key not in mapping.action_keys:
+                raise AccrueError(
+                    f"robot.reset_pose: {key!r} is not one of the robot's action keys ({', '.join(mapping.action_keys)})"
+                )
+            if key not in observation_features:
+                raise AccrueError(
+                    f"robot.reset_pose: the robot does not read {key!r} back, so reaching it cannot be seen"
+                )
+            if key not in actions.max_step:
+                raise AccrueError(
+                    f"robot.reset_pose: {key!r} has no robot.safety.max_step, which limits the reset's motion; set one"
+                )
+            lo, hi = actions.bounds.get(key, (-np.inf, np.inf))
+            if not lo <= target <= hi:
+                raise AccrueError(
+                    f"robot.reset_pose: {key} = {target:g} is outside robot.safety.joint_bounds [{lo:g}, {hi:g}]"
+                )
 
 
 class RobotBridge:
@@ -195,6 +243,39 @@ class RobotBridge:
         sent = self._call("send_action", self.robot.send_action, self.timeouts.action_s, action)
         self._last_sent = dict(action)
         return not isinstance(sent, dict) or all(k in sent for k in action)
+
+    def move_to(self, reset: ResetPose, period_s: float = 0.0) -> int:
+        """Drive the arm to `reset.pose` before an episode: each control step commands the pose (the keys it
+        leaves out at their observed values) through the action envelope, which moves every key at most its
+        max_step from the last command and clips it to its joint bounds, as during an episode. Returns the
+        control steps it took (not robot time of any episode); one line when the pose is not reached within
+        reset.max_steps (the arm is blocked, or the tolerance is finer than it can hold). RobotFault as act."""
+        if self.robot is None:
+            raise RobotFault("disconnected", "robot is not connected")
+        reset.check(self.mapping, self.robot.observation_features, self.actions)
+        pose = dict(reset.pose)
+        for n in range(reset.max_steps + 1):
+            tick = time.monotonic()
+            self.observe()
+            observed = {k: float(self._last_obs[k]) for k in self.mapping.action_keys if k in self._last_obs}
+            off = {k: abs(observed[k] - v) for k, v in pose.items()}
+            worst = max(off, key=off.get)
+            if off[worst] <= reset.tolerance:
+                return n
+            if n == reset.max_steps:
+                break
+            held = {**observed, **self._last_sent}
+            target = {k: pose.get(k, held.get(k, 0.0)) for k in self.mapping.action_keys}
+            action, _ = self.actions.limit(target, held)
+            self._call("send_action", self.robot.send_action, self.timeouts.action_s, action)
+            self._last_sent = dict(action)
+            wait = period_s - (time.monotonic() - tick)
+            if wait > 0:
+                time.sleep(wait)
+        raise AccrueError(
+            f"robot.reset_pose: the arm did not reach the pose within {reset.max_steps} control steps "
+            f"({worst} reads {observed[worst]:g}, target {pose[worst]:g}, tolerance {reset.tolerance:g})"
+        )
 
     def hook(self, name: str):
         """An optional extra of the robot object (the simulated robot's reset_scene / episode_success)."""

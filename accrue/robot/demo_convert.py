@@ -28,7 +28,7 @@ import numpy as np
 
 from accrue.errors import AccrueError
 from accrue.robot.demos import check_robot_dataset
-from accrue.robot.mapping import RobotMapping, image_feature
+from accrue.robot.mapping import RobotMapping, crop_frame, image_feature
 from accrue.sim.demos import (
     ACCRUE_META,
     ACCRUE_META_FORMAT,
@@ -154,9 +154,10 @@ def convert_robot_dataset(
     mapped values are not finite, is a one-line AccrueError and nothing is written.
     """
     src, out_dir = Path(src), Path(out_dir)
-    check = check_robot_dataset(src, replace(mapping, camera_keys=()), robot, camera)
+    box = dict(mapping.crop).get(camera[0]) if camera is not None else None  # robot.crop of the carried camera
+    check = check_robot_dataset(src, replace(mapping, camera_keys=(), crop=()), robot, camera)
     # the keys as lerobot-record wrote them stand for what the robot declares (the camera goes separately)
-    mapping = replace(mapping, camera_keys=()).bind(
+    mapping = replace(mapping, camera_keys=(), crop=()).bind(
         {n: float for n in check["state_names"]}, {n: float for n in check["action_names"]}, f"{src}"
     )
     recorded_camera = check["camera"]
@@ -201,7 +202,9 @@ def convert_robot_dataset(
                     frames = _episode_frames(rows, states, actions, instruction)
                     if recorded_camera is not None:
                         for frame, r in zip(frames, rows):
-                            frame[image_key] = recorded_frame(dataset, int(r), recorded_camera["key"], image_shape, src)
+                            image = recorded_frame(dataset, int(r), recorded_camera["key"], image_shape, src)
+                            # the base policy is fed the region of interest live: it learns from the same
+                            frame[image_key] = image if box is None else crop_frame(image, box)
                     save_episode(ds, frames)
                     if bar is not None:
                         bar[0].update(bar[1], completed=n)

@@ -20,7 +20,7 @@ from typing import Callable
 
 import numpy as np
 
-from accrue.robot.bridge import RobotBridge, RobotFault
+from accrue.robot.bridge import ResetPose, RobotBridge, RobotFault
 from accrue.robot.safety import SafetyEnvelope
 
 SUCCESS_REWARD_STEPS = 3  # the sim's convention, kept on hardware so the two are comparable
@@ -34,6 +34,7 @@ class EpisodeSettings:
     clock: float = 1.0  # 1: real time; k > 1: k times faster; 0: as fast as the robot answers
     safety: SafetyEnvelope = SafetyEnvelope()
     late_after_s: float | None = None  # an observation slower than this is noted as late (default 2 periods)
+    reset: ResetPose | None = None  # robot.reset_pose: driven to before the episode's first step (None: off)
 
 
 @dataclass
@@ -104,6 +105,9 @@ def run_episode(
         intervene.new_episode(int(metadata.get("index", -1)))
     limited_before = bridge.limited
     try:
+        if settings.reset is not None:  # its control steps are no episode's: not in t, not in robot time
+            bridge.move_to(settings.reset, period)
+            bridge.new_episode()  # the episode's rate limits start from where the reset left the arm
         state, done = bridge.observe()
         names = bridge.mapping.state_keys
         sim_state = tuple(names) == STATE_NAMES  # pose and wrench to log are readable by name

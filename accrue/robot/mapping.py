@@ -46,6 +46,8 @@ class RobotMapping:
     action_limits: tuple[float, ...] | None = None  # delta: robot units per unit of a (default 1)
     action_bounds: tuple[tuple[float, float], ...] | None = None  # joint: [lo, hi] per action key
     done_key: str | None = None  # optional observation key > 0.5 when the robot ends the episode itself
+    # (camera, (top, left, height, width)): the region of that camera's frame read, resized to its declared size
+    crop: tuple[tuple[str, tuple[int, int, int, int]], ...] = ()
 
     def __post_init__(self):
         if self.action_mode not in ACTION_MODES:
@@ -67,6 +69,7 @@ class RobotMapping:
             action_limits=tuple(float(x) for x in d["action_limits"]) if d.get("action_limits") else None,
             action_bounds=tuple((float(lo), float(hi)) for lo, hi in bounds) if bounds else None,
             done_key=d.get("done_key"),
+            crop=tuple((str(c), tuple(int(x) for x in box)) for c, box in (d.get("crop") or {}).items()),
         )
 
     # ------------------------------------------------------------------ against the robot's declaration
@@ -92,6 +95,15 @@ class RobotMapping:
                 f"{who}: action has no {missing[0]!r} (robot.action_keys; it has "
                 f"{', '.join(list(action_features)[:6]) or 'none'})"
             )
+        for camera, (top, left, height, width) in self.crop:
+            if camera not in cams:
+                raise AccrueError(f"robot.crop.{camera}: not one of the cameras read ({', '.join(cams) or 'none'})")
+            h, w = tuple(observation_features[camera])[:2]
+            if top + height > h or left + width > w:
+                raise AccrueError(
+                    f"robot.crop.{camera}: [top {top}, left {left}, height {height}, width {width}] reaches "
+                    f"row {top + height}, column {left + width}, outside its {h} x {w} frame"
+                )
         if not state:
             raise AccrueError(f"{who}: declares no scalar observation to use as q (robot.state_keys)")
         if not acts:
@@ -135,12 +147,15 @@ class RobotMapping:
             raise AccrueError(f"robot observation lacks {exc.args[0]!r} (robot.state_keys)") from None
 
     def images(self, observation: dict) -> list[np.ndarray]:
-        """The frames of camera_keys, (h, w, 3) uint8 each."""
+        """The frames of camera_keys, (h, w, 3) uint8 each; a camera with a crop gives its region of interest,
+        resized (bilinear) back to the frame's size, so the encoder and the base policy take it as a frame."""
         self._bound()
         try:
-            return [np.asarray(observation[k], dtype=np.uint8) for k in self.camera_keys]
+            frames = [np.asarray(observation[k], dtype=np.uint8) for k in self.camera_keys]
         except KeyError as exc:
             raise AccrueError(f"robot observation lacks camera {exc.args[0]!r} (robot.camera_keys)") from None
+        boxes = dict(self.crop)
+        return [crop_frame(f, boxes[k]) if k in boxes else f for k, f in zip(self.camera_keys, frames)]
 
     def done(self, observation: dict) -> bool:
         return self.done_key is not None and float(observation.get(self.done_key, 0.0)) > 0.5
@@ -169,6 +184,18 @@ class RobotMapping:
 
 # ---------------------------------------------------------------------- units from the robot
 _NORM_RANGES = {"range_m100_100": (-100.0, 100.0), "range_0_100": (0.0, 100.0)}
+
+
+def crop_frame(frame: np.ndarray, box: tuple[int, int, int, int]) -> np.ndarray:
+    """frame[top:top + height, left:left + width], resized (bilinear) to the frame's own (h, w)."""
+    from PIL import Image
+
+    top, left, height, width = box
+    region = np.ascontiguousarray(frame[top : top + height, left : left + width])
+    h, w = frame.shape[:2]
+    if region.shape[:2] == (h, w):
+        return region
+    return np.asarray(Image.fromarray(region).resize((w, h), Image.Resampling.BILINEAR))
 
 
 def _motor_buses(robot) -> list[tuple[str, object]]:

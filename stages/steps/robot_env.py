@@ -55,6 +55,7 @@ CODE_VERSIONS = {"warmup": "hw-warmup-1", "train": "hw-train-2", "evaluate-all":
 
 
 def episode_settings(c: dict, task: str, clock: float):
+    from accrue.robot.bridge import ResetPose
     from accrue.robot.episode import EpisodeSettings
     from accrue.robot.safety import SafetyEnvelope
     from accrue.sim import get_task
@@ -67,6 +68,7 @@ def episode_settings(c: dict, task: str, clock: float):
         control_hz=float(r.get("control_hz") or spec.control_hz),
         clock=clock,
         safety=SafetyEnvelope.from_dict(r.get("safety")),
+        reset=ResetPose.from_dict(r.get("reset_pose")),
     )
 
 

@@ -57,9 +57,14 @@ def session_settings(wf: Workflow):
     )
 
 
+# keyed only when set, so the workflows without them keep their keys: the pose each episode starts from,
+# and the part of each camera frame the encoder and the base policy read
+KEYED_WHEN_SET = ("reset_pose", "crop")
+
+
 def robot_config(wf: Workflow) -> dict:
     r = wf.robot.model_dump()
-    keyed = {k: r[k] for k in KEYED}
+    keyed = {k: r[k] for k in KEYED} | {k: r[k] for k in KEYED_WHEN_SET if r[k]}
     if keyed["type"] == "accrue_sim" and keyed["done_key"] is None:
         keyed["done_key"] = "episode.done"  # the simulated robot says when the plug is seated or time is up
     return keyed

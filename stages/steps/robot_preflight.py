@@ -89,6 +89,7 @@ def preflight(wf: Workflow, source: str, store, stages: tuple[int, int] | None =
 def _check_robot(wf: Workflow, stage: int) -> RobotChecked:
     """Stage `stage`'s task's robot: type, config fields and values, and the keys against its features."""
     from accrue.errors import AccrueError
+    from accrue.robot.bridge import ResetPose
     from accrue.robot.mapping import RobotMapping
     from accrue.robot.robot_types import config_class, lerobot_factory
     from accrue.robot.safety import ActionEnvelope, SafetyEnvelope
@@ -124,6 +125,9 @@ def _check_robot(wf: Workflow, stage: int) -> RobotChecked:
     mapping = RobotMapping.from_dict(keyed["robot"]).bind(obs, act, f"robot.type {r.type}", robot=robot)
     SafetyEnvelope.from_dict(r.safety).check_names(mapping.state_keys)
     ActionEnvelope.from_dict(r.safety).check_keys(mapping.action_keys)
+    reset = ResetPose.from_dict(keyed["robot"].get("reset_pose"))
+    if reset is not None:
+        reset.check(mapping, obs, ActionEnvelope.from_dict(r.safety))
     if wf.obs_mode == "state+image" and not mapping.camera_keys:
         raise AccrueError(
             f"obs_mode: state+image needs a camera, and robot.type {r.type} declares none"
