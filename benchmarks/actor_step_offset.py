@@ -53,7 +53,7 @@ def random_buffer(n: int, seed: int):
     return buf
 
 
-def offsets(lr: float, beta: float, seed: int) -> list[dict]:
+def offsets(lr: float, beta: float, seed: int, last: int = CHECKPOINTS[-1]) -> list[dict]:
     import torch
 
     from accrue.learner import LearnerConfig, make_learner
@@ -65,12 +65,13 @@ def offsets(lr: float, beta: float, seed: int) -> list[dict]:
     held = random_buffer(512, seed + 1000)
     s, ref = held.column("state"), held.column("ref")
     rows = []
-    while learner.counters["actor_updates"] < CHECKPOINTS[-1]:
+    marks = [c for c in CHECKPOINTS if c < last] + [last]
+    while learner.counters["actor_updates"] < last:
         learner.train_step(buf)
         done = learner.counters["actor_updates"]
         if rows and done <= rows[-1]["actor_updates"]:
             continue
-        if done in CHECKPOINTS:
+        if done in marks:
             with torch.no_grad():
                 delta = learner.actor.pre_tanh_mean(s, ref) - pre_tanh(ref.flatten(1))
             mean_abs = float(delta.abs().mean())
@@ -89,6 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--lrs", default="3e-4,1e-4,3e-5")
     ap.add_argument("--betas", default="0,0.1")
     ap.add_argument("--seeds", default="0,1")
+    ap.add_argument("--updates", type=int, default=CHECKPOINTS[-1], help="actor updates per run")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args(argv)
     import torch
@@ -98,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     for beta in (float(b) for b in args.betas.split(",")):
         for lr in (float(x) for x in args.lrs.split(",")):
             for seed in (int(x) for x in args.seeds.split(",")):
-                rows = offsets(lr, beta, seed)
+                rows = offsets(lr, beta, seed, args.updates)
                 runs.append({"beta": beta, "actor_lr": lr, "seed": seed, "rows": rows})
                 line = ", ".join(f"{r['actor_updates']}: {r['mean_abs_delta']:.2f} ({r['shared']:.2f})" for r in rows)
                 print(f"β {beta:g}  actor_lr {lr:g}  seed {seed}  mean|δ| (shared) after n actor updates  {line}")

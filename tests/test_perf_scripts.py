@@ -153,3 +153,15 @@ def test_why_not_met_is_met_or_a_reason_from_the_stored_figures():
     assert pr.why_not_met({"cell": cell}, "cell", 90.0, 60).startswith("`train` (the RL budget itself) is 75% of")
     assert pr.why_not_met({}, "eval", 0.7, 0.8, higher_is_better=True) == "not met"
     assert pr.why_not_met({}, "eval", None, 0.8) == "not measured"
+
+
+def test_actor_step_offset_shows_a_shared_offset_that_the_anchor_holds_down():
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from actor_step_offset import offsets
+
+    free = offsets(lr=3e-4, beta=0.0, seed=0, last=50)
+    anchored = offsets(lr=3e-4, beta=1.0, seed=0, last=50)
+    assert [r["actor_updates"] for r in free] == [10, 50]
+    assert free[1]["mean_abs_delta"] > 5 * free[0]["mean_abs_delta"]  # the offset grows with every update
+    assert free[1]["shared"] > 0.9  # one offset for every state: the critic's slope knows no state yet
+    assert anchored[1]["mean_abs_delta"] < 0.2 * free[1]["mean_abs_delta"]
