@@ -132,8 +132,8 @@ class Recorder:
         update, critic_update = agent.ChunkLearner._update, agent.ChunkLearner._critic_update
         eq1, eq4 = losses.actor_loss_current, losses.distill_loss_prior
 
-        def spy_update(self, current, prior):
-            entry = {"current": current, "prior": prior, "learner": self}
+        def spy_update(self, current, prior, actor_on=True):
+            entry = {"current": current, "prior": prior, "learner": self, "actor_on": actor_on}
             entry["actor_before"] = {k: v.detach().clone() for k, v in self.actor.state_dict().items()}
             entry["critic_before"] = {k: v.detach().clone() for k, v in self.critic.state_dict().items()}
             if prior is not None:
@@ -142,7 +142,7 @@ class Recorder:
                     if prior.fresh_ref is not None:
                         entry["student_fresh"] = self.actor.deterministic(prior.state, self._ref_in(prior.fresh_ref))
             rec.updates.append(entry)
-            entry["info"] = update(self, current, prior)
+            entry["info"] = update(self, current, prior, actor_on)
             return entry["info"]
 
         def spy_critic(self, b):
