@@ -136,7 +136,7 @@ MUTATIONS = (
     Mutation(
         "beta-hardcoded-0",
         "accrue/learner/agent.py",
-        "loss_cur = losses.actor_loss_current(q, a.float(), ref, self.cfg.effective_beta, log_prob, alpha)",
+        "loss_cur = losses.actor_loss_current(q, a.float(), ref, beta, log_prob, alpha)",
         "loss_cur = losses.actor_loss_current(q, a.float(), ref, 0.0, log_prob, alpha)",
         (WIRING, "-k", "beta_hardcoded_0"),
         "β = 0 in the Eq. 1 call whatever the config says",

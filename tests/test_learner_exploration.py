@@ -133,3 +133,37 @@ def test_actor_waits_for_its_own_learning_start_while_the_critic_learns():
 def test_bad_actor_learning_start_is_a_one_line_error():
     with pytest.raises(AccrueError, match="learner.actor_learning_starts: must be a non-negative integer"):
         LearnerConfig(actor_learning_starts=-1)
+
+
+def test_anchor_beta_ramps_from_its_start_to_beta_over_the_stage_first_actor_updates():
+    lrn = learner(beta=0.05, beta_start=1.0, beta_anneal_updates=10)
+    seen = []
+    for done in (0, 5, 10, 40):
+        lrn.counters["actor_updates"] = done
+        seen.append(float(lrn.anchor_beta()))
+    assert seen == pytest.approx([1.0, 0.525, 0.05, 0.05])
+    assert learner(beta=0.05, beta_start=1.0).anchor_beta() == 0.05  # no ramp: the paper's constant β
+    no_anchor = learner(method="accrue", ablation="beta0", beta_start=1.0, beta_anneal_updates=10)
+    assert no_anchor.anchor_beta() == 0.0  # the no-anchor ablation stays at β = 0
+
+
+def test_the_ramped_anchor_reaches_eq1_and_holds_the_actor_nearer_the_reference():
+    def offset_after_updates(**kw) -> float:
+        lrn = learner(batch_size=32, utd=4, policy_frequency=1, actor_lr=3e-3, **kw)
+        buf = filled_buffer(256)
+        for _ in range(10):
+            lrn.train_step(buf)
+        b = buf.sample(64, torch.Generator().manual_seed(1), 1, 0.99)
+        a = lrn.act(b.state.numpy(), b.ref.numpy(), explore=False)
+        return float((pre_tanh(torch.as_tensor(a)) - pre_tanh(b.ref)).abs().mean())
+
+    constant = offset_after_updates(beta=0.0)
+    ramped = offset_after_updates(beta=0.0, beta_start=10.0, beta_anneal_updates=1000)
+    assert ramped < 0.5 * constant  # the same seed and data: only the anchor's weight differs
+
+
+def test_bad_beta_ramp_is_a_one_line_error():
+    with pytest.raises(AccrueError, match="learner.beta_anneal_updates: must be a non-negative integer"):
+        LearnerConfig(beta_anneal_updates=-5)
+    with pytest.raises(AccrueError, match="learner.beta_start: must be non-negative"):
+        LearnerConfig(beta_start=-0.1)

@@ -224,7 +224,7 @@ class ChunkLearner:
         eps = self._policy_eps(len(rl))
         self.critic.requires_grad_(False)  # the actor loss only moves θ
         with self._autocast():
-            out = self._actor_loss_fn(rl.state, rl.ref, keep, eps, student_s, student_ref, targets)
+            out = self._actor_loss_fn(rl.state, rl.ref, keep, eps, student_s, student_ref, targets, self.anchor_beta())
         self.critic.requires_grad_(True)
         loss = out["actor_loss"]
         if self.rules.ewc_penalty and self.ewc_fisher:
@@ -257,7 +257,17 @@ class ChunkLearner:
             torch.cat([prior.teacher, prior.teacher], 0),
         )
 
-    def _actor_loss(self, s, ref, keep, eps, prior_s, prior_ref, prior_teacher):
+    def anchor_beta(self) -> torch.Tensor | float:
+        """Eq. 1's β for the next actor update: cfg.beta, or, with beta_anneal_updates, a linear ramp from
+        beta_start to beta over the stage's first actor updates (a tensor then, so a compiled loss is not
+        re-traced for every value). The no-anchor ablation has β = 0 throughout."""
+        cfg, done = self.cfg, self.counters["actor_updates"]
+        if self.rules.zero_beta or not cfg.beta_anneal_updates:
+            return cfg.effective_beta
+        left = max(0.0, 1.0 - done / cfg.beta_anneal_updates)
+        return torch.tensor(cfg.beta + (cfg.beta_start - cfg.beta) * left, device=self.device)
+
+    def _actor_loss(self, s, ref, keep, eps, prior_s, prior_ref, prior_teacher, beta):
         """Eq. 5 = Eq. 1 on the current batch + λ · Eq. 4 on the prior batch (one actor forward for both)."""
         n = s.shape[0]
         ref_in = self._ref_in(ref * keep)
@@ -270,7 +280,7 @@ class ChunkLearner:
         logits = self.critic(self.actor.obs_norm(s), a, ref_in).float()
         q = self._actor_q(expected_value(torch.softmax(logits, -1), self.support))
         alpha = self.alpha.detach() if log_prob is not None else 0.0
-        loss_cur = losses.actor_loss_current(q, a.float(), ref, self.cfg.effective_beta, log_prob, alpha)
+        loss_cur = losses.actor_loss_current(q, a.float(), ref, beta, log_prob, alpha)
         out = {"loss_cur": loss_cur}
         loss_prior = None
         if prior_s is not None:

@@ -91,6 +91,11 @@ class LearnerConfig:
 
     # losses and continual rule (Eqs. 1, 4, 5)
     beta: float = 0.1  # Eq. 1 anchor β‖a − ã‖²
+    # β ramps linearly from beta_start down (or up) to beta over each stage's first beta_anneal_updates actor
+    # updates: the anchor holds the actor at ã while the new task's critic knows only actions near it
+    # (0 = a constant β, the paper)
+    beta_start: float = 1.0
+    beta_anneal_updates: int = 0
     lam: float = 1.0  # Eq. 5 distillation weight λ
     distill_inputs: str = "stored"  # one of DISTILL_INPUTS; "stored" is Eq. 3-4 as written
     ewc_lambda: float = 100.0  # EWC penalty weight
@@ -187,7 +192,14 @@ class LearnerConfig:
                 raise bad(name, "must be a positive integer")
         if self.num_atoms < 2:
             raise bad("num_atoms", "needs at least 2 atoms")
-        for name in ("seed", "retain_interval", "learning_starts", "actor_learning_starts", "obs_norm_fixed_tail"):
+        for name in (
+            "seed",
+            "retain_interval",
+            "learning_starts",
+            "actor_learning_starts",
+            "obs_norm_fixed_tail",
+            "beta_anneal_updates",
+        ):
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < 0:
                 raise bad(name, "must be a non-negative integer")
@@ -212,6 +224,7 @@ class LearnerConfig:
             "log_std_min",
             "log_std_max",
             "beta",
+            "beta_start",
             "lam",
             "ewc_lambda",
             "retain_alpha",
@@ -250,6 +263,7 @@ class LearnerConfig:
             "policy_noise",
             "noise_clip",
             "beta",
+            "beta_start",
             "lam",
             "ewc_lambda",
             "obs_norm_min_std",
