@@ -12,7 +12,8 @@ With --doc FILE, each spec's tables replace what lies between the markers
     <!-- bench:<spec name> -->  and  <!-- /bench:<spec name> -->
 in that file (add the two marker lines where the table goes); without it they go to stdout. The benchmark
 pages are docs/benchmark/contact.md (contact-*, bias-control) and docs/benchmark/nist.md (nist-*, retained-n).
---readme is the same option under its earlier name.
+--readme is the same option under its earlier name. --curves adds each method's whole learning curve per
+stage (the tuning specs, where the question is the curve's shape).
 Exit 2 with one line on a bad spec, a missing store, a bad record or missing markers.
 """
 
@@ -27,7 +28,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 
-def tables(spec_path: Path, store, command: str, records_root: Path | None = None) -> tuple[str, str]:
+def tables(
+    spec_path: Path, store, command: str, records_root: Path | None = None, curves: bool = False
+) -> tuple[str, str]:
     """A spec's Markdown tables; with records_root, from the store plus the cell records in
     <records_root>/<spec name>/cells (refreshed from the store's done cells, as `bench report --records`)."""
     from stages.bench.records import write_records
@@ -39,7 +42,7 @@ def tables(spec_path: Path, store, command: str, records_root: Path | None = Non
     report, fresh = report_with_records(store, spec, directory)
     if directory is not None:
         write_records(directory, fresh)
-    return spec.name, markdown(report, command=command, heading_level=3)
+    return spec.name, markdown(report, command=command, heading_level=3, curves=curves)
 
 
 def replace_between_markers(text: str, name: str, block: str, where: str) -> str:
@@ -66,6 +69,7 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="cell records in ROOT/<spec name>/cells: used for cells the store has not done, refreshed from the rest",
     )
+    ap.add_argument("--curves", action="store_true", help="add every method's whole learning curve per stage")
     args = ap.parse_args(argv)
     from accrue.errors import AccrueError
     from artifacts.errors import StoreError
@@ -75,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
     command = "python scripts/bench_tables.py " + " ".join(argv)
     try:
         store = Store.open(args.store)
-        blocks = [tables(p, store, command, args.records_root) for p in args.specs]
+        blocks = [tables(p, store, command, args.records_root, args.curves) for p in args.specs]
         if args.readme is None:
             print("\n".join(b for _, b in blocks))
             return 0

@@ -189,6 +189,16 @@ def test_markdown_csv_and_plots_show_missing_cells(bench, tmp_path):
     assert end2["runs"] == "4" and len(curve) == 2 * 2 * 2  # methods x stages x grid points
 
 
+def test_learning_curves_table_is_asked_for_and_shows_every_point(bench):
+    spec, store, _ = bench
+    report = build_report(store, spec)
+    assert "Learning curves" not in markdown(report)
+    text = markdown(report, curves=True)
+    assert "| sequential | 1 | 4 | 0–100 every 100 | 0.00 · 0.80 |" in text
+    assert "| sequential | 2 | 4 | 0–100 every 100 | 0.00 · 0.60 |" in text
+    assert "| accrue | 2 | 3 | 0–100 every 100 | 0.00 · 0.80 |" in text
+
+
 def test_a_method_with_no_finished_run_keeps_its_row(bench, tmp_path):
     spec, store, path = bench
     data = yaml.safe_load(path.read_text())
@@ -209,7 +219,9 @@ def test_bench_tables_script_fills_marked_blocks_of_a_page(bench, tmp_path, caps
     text = page.read_text()
     assert "old table" not in text and text.startswith("intro\n<!-- bench:known -->\n### bench `known`")
     assert text.endswith("<!-- /bench:known -->\noutro\n") and "| accrue | 3 of 4 |" in text
-    assert f"python scripts/bench_tables.py {path} --store" in text
+    assert f"python scripts/bench_tables.py {path} --store" in text and "Learning curves" not in text
+    assert bench_tables.main([str(path), "--store", str(store.root), "--doc", str(page), "--curves"]) == 0
+    assert "| sequential | 2 | 4 | 0–100 every 100 | 0.00 · 0.60 |" in page.read_text()
     page.write_text("no markers\n")
     assert bench_tables.main([str(path), "--store", str(store.root), "--doc", str(page)]) == 2
     assert "no <!-- bench:known -->" in capsys.readouterr().err

@@ -83,3 +83,18 @@ def stage_success_rows(means: dict[str, list[dict]]) -> tuple[list[str], list[li
         runs = sorted({s["runs"] for s in stages})
         rows.append([method, "/".join(map(str, runs)), *cells])
     return header, rows
+
+
+def stage_curve_rows(means: dict[str, list[dict]]) -> tuple[list[str], list[list[str]]]:
+    """One row per method and stage: the whole learning curve on that stage's task (mean over runs at every
+    grid point), so a table shows where a curve dips and whether it still rises at the budget's end."""
+    header = ["method", "stage", "runs", "env steps", "success at each evaluation"]
+    rows = []
+    for method, stages in means.items():
+        for k, st in enumerate(stages, start=1):
+            grid = st["grid"]
+            spacing = grid[1] - grid[0] if len(grid) > 1 else 0
+            steps = f"0–{grid[-1]:,} every {spacing:,}" if spacing else f"{grid[-1]:,}"
+            values = " · ".join(fmt(point["mean"], 2) for point in st["current"])
+            rows.append([method, str(k), str(st["runs"]), steps, values])
+    return header, rows

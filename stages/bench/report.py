@@ -28,7 +28,7 @@ from accrue.metrics import METRICS, aggregate_runs, paired_differences, run_reco
 from artifacts.errors import StoreError
 from artifacts.store import Store
 from stages.bench.claims import MIN_PAIRS, claims_markdown, judge, judge_against
-from stages.bench.curves import mean_stage_curves, stage_curves_csv, stage_success_rows
+from stages.bench.curves import mean_stage_curves, stage_curve_rows, stage_curves_csv, stage_success_rows
 from stages.bench.records import Recorded, load_records, metric_differences, provenance_label, store_record
 from stages.bench.spec import BenchSpec
 from stages.bench.state import cell_states
@@ -253,7 +253,9 @@ def cells_csv(report: dict) -> str:
     return buf.getvalue()
 
 
-def markdown(report: dict, command: str | None = None, heading_level: int = 3) -> str:
+def markdown(report: dict, command: str | None = None, heading_level: int = 3, curves: bool = False) -> str:
+    """The report as Markdown; `curves` adds every method's whole learning curve per stage (long for a grid
+    of many stages and points, so asked for: scripts/bench_tables.py --curves)."""
     agg = report["aggregate"]
     h = "#" * heading_level
     expected_o = {}
@@ -342,6 +344,14 @@ def markdown(report: dict, command: str | None = None, heading_level: int = 3) -
             "",
             markdown_table(header, rows),
         ]
+        if curves:
+            header, rows = stage_curve_rows(report["stage_curves"])
+            lines += [
+                "Learning curves: success on the task of each stage at every evaluation of that stage (report set "
+                "where the run has one, mean over runs):",
+                "",
+                markdown_table(header, rows),
+            ]
     if report["missing"]:
         lines += [f"Missing cells ({len(report['missing'])}):", "", *missing_lines(report["missing"]), ""]
     return "\n".join(lines)
