@@ -132,13 +132,17 @@ class SuccessClassifierSpec(_Strict):
     train. Keyed in those steps only when enabled (its labels become rewards); evaluate-all stays the operator's."""
 
     enabled: bool = False
-    # operator labels (of both outcomes, held-out ones not counted) before it proposes or labels anything
+    # operator labels (of both outcomes, held-out ones not counted; train counts those of the stage's warmup,
+    # which it starts from) before it proposes or labels anything
     min_labels: int = Field(8, ge=2)
     propose: bool = True  # the operator sees its proposal and confirms or overrules it (below auto_label_above)
     # it labels alone (by: classifier, p in episode.json) when max(p, 1 - p) is above this; none: never alone
     auto_label_above: Optional[float] = Field(None, ge=0, le=1)
     # share of operator-labelled episodes it is never shown nor trained on: its precision and recall in the report
     holdout: float = Field(0.25, ge=0, lt=1)
+    # spot check: every N-th episode it would label alone goes to the operator anyway (blind) and joins the
+    # held-out set, so that set keeps growing once it labels most episodes; none: off
+    audit_every: Optional[int] = Field(10, ge=1)
     state: bool = False  # q of the last frame beside E(I) in its input
 
 

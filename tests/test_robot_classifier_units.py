@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from accrue.robot.operator import ScriptedOperator
-from accrue.robot.success_classifier import ClassifierSettings, confident, fit, held_out, scores
+from accrue.robot.success_classifier import ClassifierSettings, audited, confident, fit, held_out, scores
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -44,6 +44,12 @@ def test_held_out_share_is_spread_and_stable():
     marks = [held_out(j, 0.25) for j in range(40)]
     assert sum(marks) == 10 and marks[:4] == [False, False, False, True]
     assert not any(held_out(j, 0.0) for j in range(40))
+
+
+def test_every_nth_sure_episode_is_audited():
+    assert [n for n in range(10) if audited(n, 3)] == [2, 5, 8]
+    assert not any(audited(n, None) for n in range(10))
+    assert all(audited(n, 1) for n in range(10))  # 1: the operator labels every one blind
 
 
 def test_scores_count_success_as_positive():
@@ -111,6 +117,50 @@ def test_without_propose_the_operator_labels_as_today_and_held_out_is_blind():
     assert confident(0.5, 0.0)  # max(p, 1 - p) = 0.5 > 0: a threshold of 0 labels everything
 
 
+def test_every_audit_every_th_sure_episode_goes_to_the_operator_blind_and_is_held_out():
+    """Two sure episodes labelled alone, the third the operator's (no proposal shown), then alone again:
+    the count is of the stage's sure episodes so far (warmup's carried ones first)."""
+    operator = ScriptedOperator(oracle=lambda: False, name="ann")
+    gate = gate_with(0.99, auto_label_above=0.95, audit_every=3)
+    sealed: list[dict] = []
+    gate.judged = lambda: sealed
+    modes = []
+    for index in range(7):
+        label, entry = gate.label(index, "done", np.zeros(10), operator)
+        modes.append(entry["mode"])
+        sealed.append({"index": index, "classifier": entry, "label": {"by": label.by, "success": label.success}})
+        if entry["mode"] == "audit":
+            assert label.by == "ann" and label.via == "scripted" and not label.success and entry["p"] == 0.99
+    assert modes == ["auto", "auto", "audit", "auto", "auto", "audit", "auto"]
+    gate = gate_with(0.99, auto_label_above=0.95, audit_every=3)
+    gate.carried = [{"mode": "auto"}, {"mode": "untrained"}, {"mode": "auto"}]  # warmup's: two sure ones
+    assert gate.label(9, "done", np.zeros(10), operator)[1]["mode"] == "audit"
+    off = gate_with(0.99, auto_label_above=0.95, audit_every=None)
+    off.judged = lambda: [{"classifier": {"mode": "auto"}}] * 2
+    assert off.label(3, "done", np.zeros(10), operator)[1]["mode"] == "auto"
+
+
+def test_metrics_count_audits_and_warmups_held_out_episodes():
+    from stages.steps.robot_classifier import metrics
+
+    def entry(phase, mode, label, p, by="ann"):
+        return {"phase": phase, "index": 0, "mode": mode, "label": label, "label_by": by, "p": p, "sim_success": label}
+
+    entries = [
+        entry("warmup", "held-out", True, 0.9),
+        entry("warmup", "untrained", False, 0.2),
+        entry("train", "held-out", False, 0.6),
+        entry("train", "audit", True, 0.3),
+        entry("train", "auto", True, 0.99, by="classifier"),
+    ]
+    m = metrics(entries, "train")
+    held = m["held_out_vs_operator"]
+    assert (held["episodes"], held["tp"], held["fp"], held["fn"], held["tn"]) == (3, 1, 1, 1, 0)
+    assert m["labels"] == {"audit": 1, "auto": 1, "held-out": 1}
+    assert m["carried_labels"] == {"held-out": 1, "untrained": 1}
+    assert m["auto_labels_vs_simulator"]["episodes"] == 1
+
+
 def workflow(tmp_path: Path, encoder: str = "none", **classifier) -> dict:
     return {
         "name": "sc",
@@ -147,6 +197,7 @@ def test_bad_classifier_settings_are_one_line_refusals(tmp_path):
         "encoder.yaml": (workflow(tmp_path, enabled=True), "needs camera features, and encoder is none"),
         "camera.yaml": (no_camera, "needs a robot with cameras"),
         "unknown.yaml": (workflow(tmp_path, enc, threshold=0.9), "threshold: unknown field"),
+        "audit.yaml": (workflow(tmp_path, enc, audit_every=0), "audit_every: must be >= 1 (got 0)"),
     }
     for name, (spec, line) in cases.items():
         path = tmp_path / name
@@ -160,6 +211,7 @@ def test_bad_classifier_settings_are_one_line_refusals(tmp_path):
 
 def test_off_keeps_the_keys_and_on_adds_the_output(tmp_path):
     from stages.plan import plan_stage
+    from stages.runner_types import FromStep
     from stages.workflow import parse_workflow
 
     weights = tmp_path / "w.safetensors"
@@ -171,5 +223,12 @@ def test_off_keeps_the_keys_and_on_adds_the_output(tmp_path):
         assert "success_classifier" not in off[name].config and "success_classifier" not in off[name].step.outputs
     for name in ("warmup", "train"):
         assert on[name].config["success_classifier"]["auto_label_above"] == 0.9
+        assert on[name].config["success_classifier"]["audit_every"] == 10  # the default spot check
         assert on[name].step.outputs["success_classifier"] == "success-classifier"
+    # train starts from warmup's classifier: a declared input, so in its cache key and lineage; not when off
+    assert on["train"].inputs["warmup-classifier"] == FromStep("warmup", "success_classifier")
+    assert "warmup-classifier" in on["train"].step.optional_inputs
+    assert "warmup-classifier" not in off["train"].inputs and "warmup-classifier" not in on["warmup"].inputs
+    for name in ("warmup", "train", "evaluate-all", "handoff"):
+        assert {k: v for k, v in on[name].inputs.items() if k != "warmup-classifier"} == off[name].inputs
     assert "success_classifier" not in on["evaluate-all"].step.outputs  # retention trials stay the operator's

@@ -4,6 +4,7 @@
     p = model.predict(X)                   # P(success) per row
     model.to_json() / Model.from_json(d)   # plain numbers: the artifact is readable without torch
     held_out(j, 0.25)                      # is the j-th operator-labelled episode kept from training?
+    audited(n, 10)                         # does the n-th episode it would label alone go to the operator?
     scores(pred, truth)                    # precision / recall with their counts
 
 The input is one row per episode: the frozen encoder's features E(I) of the episode's last frame, and its q
@@ -32,6 +33,7 @@ class ClassifierSettings:
     propose: bool = True
     auto_label_above: float | None = None
     holdout: float = 0.25
+    audit_every: int | None = 10
     state: bool = False
 
     @classmethod
@@ -94,6 +96,12 @@ def inputs_of(s_last: np.ndarray, image_width: int, state_width: int, state: boo
     """The classifier's row from the learner's s of the last frame, (E(I_1) ... E(I_m), q, ...)."""
     s_last = np.asarray(s_last, np.float32)
     return s_last[: image_width + (state_width if state else 0)]
+
+
+def audited(n: int, every: int | None) -> bool:
+    """Whether the n-th (0-based) episode the classifier would label alone goes to the operator anyway
+    (robot.success_classifier.audit_every): every `every`-th one, the last of each run of `every`."""
+    return every is not None and (n + 1) % every == 0
 
 
 def confident(p: float, above: float | None) -> bool:

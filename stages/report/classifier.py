@@ -4,7 +4,8 @@
     text = classifier_markdown(rows)         # classifier.md
 
 Each warmup / train step run with the classifier on wrote a `success_classifier` artifact; its metrics are
-the final model's precision and recall (success positive) on the operator-labelled episodes held out from it,
+the final model's precision and recall (success positive) on the operator-labelled episodes held out from it
+(held-out and audit; train's set includes its stage's warmup's held-out episodes, as it trains on warmup's labels),
 against the operator's labels and, on the simulated robot, against the simulator's own success, and those
 of the labels it gave alone against the simulator (stages.steps.robot_classifier.metrics).
 """
@@ -48,7 +49,12 @@ def stage_classifiers(store: Store, wf: Workflow) -> dict[int, dict[str, dict]]:
         for step in STEPS:
             data = step_classifier(store, wf, k, step)
             if data is not None:
-                out.setdefault(k, {})[step] = {**data["metrics"], "trained_on": len(data["trained_on"])}
+                trained = data["trained_on"]
+                out.setdefault(k, {})[step] = {
+                    **data["metrics"],
+                    "trained_on": len(trained),
+                    "trained_on_carried": sum(phase != data["phase"] for phase, _ in trained),
+                }
     return out
 
 
@@ -61,7 +67,8 @@ def classifier_markdown(rows: dict[int, dict[str, dict]]) -> str:
         "# Success classifier (robot.success_classifier; beyond the paper)",
         "",
         "Precision and recall with success as the positive class; a prediction is p(success) >= 0.5 of the",
-        "step's final classifier. Held-out episodes were labelled by the operator and never shown to it.",
+        "step's final classifier. Held-out episodes (held-out and audit) were labelled by the operator and",
+        "never trained on; train's include its stage's warmup held-out episodes, measured again.",
         "",
         "| stage | step | set | episodes | precision | recall | tp | fp | fn | tn |",
         "|---|---|---|---|---|---|---|---|---|---|",
@@ -79,5 +86,9 @@ def classifier_markdown(rows: dict[int, dict[str, dict]]) -> str:
     for k, steps in sorted(rows.items()):
         for step, m in steps.items():
             counts = ", ".join(f"{mode} {n}" for mode, n in m["labels"].items())
-            lines.append(f"- stage {k} {step}: trained on {m['trained_on']} labels; episodes by mode: {counts}")
+            line = f"- stage {k} {step}: trained on {m['trained_on']} labels"
+            if m.get("carried_labels"):
+                carried = ", ".join(f"{mode} {n}" for mode, n in m["carried_labels"].items())
+                line += f" ({m['trained_on_carried']} of them warmup's); warmup's episodes by mode: {carried}"
+            lines.append(f"{line}; episodes by mode: {counts}")
     return "\n".join(lines) + "\n"

@@ -315,6 +315,11 @@ class RobotEnvironment:
         scope() with this session's count of sealed episodes."""
         self.session = HardwareSession(ctx, self.settings)
         self.classifier = classifier_gate(ctx.config, self.session)
+        if self.classifier is not None:
+            from stages.steps.robot_classifier import CARRIED
+
+            if ctx.has_input(CARRIED):  # train starts from what the operator taught warmup (this stage's)
+                self.classifier.carry(ctx.input_path(CARRIED), ctx.inputs[CARRIED])
         yield self.session
 
     def _fault(self, ctx: StepContext):

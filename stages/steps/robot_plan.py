@@ -14,7 +14,7 @@ import dataclasses
 import functools
 
 from stages.errors import StageError
-from stages.runner_types import StepInvocation
+from stages.runner_types import FromStep, StepInvocation
 from stages.workflow import Workflow
 
 KEYED = (
@@ -162,5 +162,12 @@ def bind_robot(wf: Workflow, stage: int, steps: list[StepInvocation]) -> list[St
             # every sealed episode and the sessions; with robot.success_classifier, the classifier too
             outputs={**inv.step.outputs, "episodes": "episodes", **classifier_output(wf, name)},
         )
-        out.append(dataclasses.replace(inv, step=step, config=robot_step_config(wf, name, dict(inv.config))))
+        inputs = dict(inv.inputs)
+        if classifier_output(wf, name) and name == "train":  # it starts from what the operator taught warmup
+            from stages.steps.robot_classifier import CARRIED, OUTPUT
+
+            step = dataclasses.replace(step, optional_inputs=(*step.optional_inputs, CARRIED))
+            inputs[CARRIED] = FromStep("warmup", OUTPUT)
+        config = robot_step_config(wf, name, dict(inv.config))
+        out.append(dataclasses.replace(inv, step=step, config=config, inputs=inputs))
     return out
