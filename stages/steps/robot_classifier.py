@@ -53,7 +53,7 @@ class ClassifierGate:
         self.image_width: int | None = None
         self.state_width = 0
         self.model: Model | None = None
-        self.trained_on: list[int] = []
+        self.trained_on: list[list] = []  # [phase, index] of each label the model was fitted on
         self._key: tuple | None = None
         self._rows: dict[int, np.ndarray] = {}
         self.carried: list[dict] = []  # warmup's judged episodes (train, from its CARRIED input)
