@@ -126,6 +126,26 @@ class ScriptedSpec(_Strict):
     abort_before: Optional[int] = None  # it aborts the session before this episode index
 
 
+class SuccessClassifierSpec(_Strict):
+    """A success classifier learned from the operator's labels (accrue.robot.success_classifier; beyond the
+    paper, HIL-SERL's reward classifier): a logistic head on E(I) of each episode's last frame, in warmup and
+    train. Keyed in those steps only when enabled (its labels become rewards); evaluate-all stays the operator's."""
+
+    enabled: bool = False
+    # operator labels (of both outcomes, held-out ones not counted; train counts those of the stage's warmup,
+    # which it starts from) before it proposes or labels anything
+    min_labels: int = Field(8, ge=2)
+    propose: bool = True  # the operator sees its proposal and confirms or overrules it (below auto_label_above)
+    # it labels alone (by: classifier, p in episode.json) when max(p, 1 - p) is above this; none: never alone
+    auto_label_above: Optional[float] = Field(None, ge=0, le=1)
+    # share of operator-labelled episodes it is never shown nor trained on: its precision and recall in the report
+    holdout: float = Field(0.25, ge=0, lt=1)
+    # spot check: every N-th episode it would label alone goes to the operator anyway (blind) and joins the
+    # held-out set, so that set keeps growing once it labels most episodes; none: off
+    audit_every: Optional[int] = Field(10, ge=1)
+    state: bool = False  # q of the last frame beside E(I) in its input
+
+
 class RobotSpec(_Strict):
     """A lerobot robot runs warmup, train and evaluate-all (paper Sec. V-C; accrue/robot, stages/steps/hw_*).
     The fields from `operator` down are session settings: they do not enter any cache key."""
@@ -172,6 +192,7 @@ class RobotSpec(_Strict):
     link: Optional[dict[str, Any]] = None  # token_file, tls {cert, key, ca} (accrue.robot.link_auth)
     hold: HoldSpec = HoldSpec()
     intervention: Optional[InterventionSpec] = None  # operator takeover (beyond the paper); None: off
+    success_classifier: SuccessClassifierSpec = SuccessClassifierSpec()  # learned labels (beyond the paper); off
     handoff_wait_s: float = Field(120.0, ge=0)  # train: wait for the learner's updates before the handoff
     clock: float = Field(1.0, ge=0)  # accrue_sim only: k times real time (0 = as fast as it goes)
     faults: dict[str, Any] = {}  # accrue_sim only: disconnect_after_steps, late_observation_steps...
@@ -363,8 +384,30 @@ def _check_robot(wf: Workflow, source: str) -> None:
         validate_link_section(r.link, "robot.link")
         if r.task_config:
             _check_task_config(wf)
+        if r.success_classifier.enabled:
+            _check_classifier(wf)
     except AccrueError as exc:
         raise StageError(f"{source}: {exc}") from None
+
+
+def _check_classifier(wf: Workflow) -> None:
+    """The success classifier reads the frozen encoder's features of the robot's cameras: both must be there."""
+    from accrue.errors import AccrueError
+
+    r = wf.robot
+    if wf.encoder == "none":
+        raise AccrueError(
+            "robot.success_classifier: needs camera features, and encoder is none; set encoder (a frozen image "
+            "encoder, docs/robots.md) or turn the classifier off"
+        )
+    no_cameras = r.camera_keys == [] or (
+        r.type == "accrue_sim" and r.camera_keys is None and not r.config.get("render_cameras")
+    )
+    if no_cameras:
+        raise AccrueError(
+            "robot.success_classifier: needs a robot with cameras (robot.camera_keys, or config.render_cameras "
+            "on accrue_sim); turn the classifier off or give it a camera"
+        )
 
 
 def _check_task_config(wf: Workflow) -> None:

@@ -21,7 +21,7 @@ import datetime as _dt
 import os
 import threading
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Callable
 
 from accrue.errors import AccrueError
@@ -67,6 +67,18 @@ class Operator:
     def label(self, episode: int, summary: str) -> Label | None:
         """None: the operator aborted instead of labelling (the episode is then discarded)."""
         raise NotImplementedError
+
+    def label_proposed(self, episode: int, summary: str, success: bool, p: float) -> Label | None:
+        """label() with robot.success_classifier's proposal in the prompt: the operator confirms it with its
+        key or overrules it with the other; the label says so (via ...+classifier-proposal, and the note)."""
+        word = "success" if success else "failure"
+        label = self.label(episode, f"{summary}; the classifier proposes {word}, p(success) {p:.2f}")
+        if label is None:
+            return None
+        how = "confirmed" if label.success == success else "overruled"
+        return replace(
+            label, via=f"{label.via}+classifier-proposal", note=f"classifier proposed {word}, p(success) {p:.4f}: {how}"
+        )
 
     def poll(self) -> str | None:
         """Non-blocking, during an episode: "end" (stop it now), "abort", or None."""

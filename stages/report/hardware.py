@@ -13,6 +13,7 @@ With robot.intervention (beyond the paper), `interventions.md`: the intervention
 `stop_window` consecutive train episodes of each stage, and the sliding rate over the last `stop_window`
 episodes at the stage's end (what the operator page and TensorBoard show); both are accrue.robot.teleop's
 window_rate.
+With robot.success_classifier, `classifier.md`: its precision and recall (stages.report.classifier).
 `report.json` holds every number shown.
 """
 
@@ -23,6 +24,7 @@ from pathlib import Path
 
 from artifacts.store import Store
 from stages.errors import StageError
+from stages.report.classifier import CLASSIFIER_FILE, classifier_markdown, stage_classifiers
 from stages.report.data import read_step_file
 from stages.runner import step_ref
 from stages.workflow import RobotSpec, Workflow
@@ -293,6 +295,11 @@ def write_hardware_report(
         summary["interventions"] = taken
         (out / INTERVENTIONS_FILE).write_text(interventions_markdown(taken))
         files["interventions"] = str(out / INTERVENTIONS_FILE)
+    judged = stage_classifiers(store, wf)
+    if judged:  # only a workflow run with robot.success_classifier has any
+        summary["success_classifier"] = judged
+        (out / CLASSIFIER_FILE).write_text(classifier_markdown(judged))
+        files["success_classifier"] = str(out / CLASSIFIER_FILE)
     summary["files"] = files
     summary["out_dir"] = str(out)
     (out / REPORT_FILES["summary"]).write_text(json.dumps(summary, indent=2, default=str) + "\n")

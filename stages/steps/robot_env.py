@@ -256,6 +256,18 @@ def curve_json(c: dict, session: HardwareSession, warm_info: dict, why: str, lea
     }
 
 
+def classifier_gate(c: dict, session: HardwareSession):
+    """robot.success_classifier's gate for warmup and train (keyed in their configs only when enabled);
+    None for evaluate-all, whose retention trials stay the operator's to grade, and when it is off."""
+    spec = c.get("success_classifier")
+    if not spec or not spec.get("enabled") or c["phase"] not in ("warmup", "train"):
+        return None
+    from accrue.robot.success_classifier import ClassifierSettings
+    from stages.steps.robot_classifier import ClassifierGate
+
+    return ClassifierGate(ClassifierSettings.from_dict(spec), session, c["encoder"], c["phase"])
+
+
 class _Current:
     """The bridge of the task being evaluated, for an operator that outlives each task's bridge."""
 
@@ -268,6 +280,7 @@ class _Current:
 class RobotEnvironment:
     def __init__(self, settings: SessionSettings | None = None):
         self.settings = settings or SessionSettings()
+        self.classifier = None  # robot.success_classifier's gate for the step's session (warmup, train)
         self.session: HardwareSession | None = None  # the step's, once opened (scope() tells a stop with it)
 
     @contextlib.contextmanager
@@ -301,6 +314,12 @@ class RobotEnvironment:
         """The step's session; a stop in it, or after it while the step writes its outputs, is told by
         scope() with this session's count of sealed episodes."""
         self.session = HardwareSession(ctx, self.settings)
+        self.classifier = classifier_gate(ctx.config, self.session)
+        if self.classifier is not None:
+            from stages.steps.robot_classifier import CARRIED
+
+            if ctx.has_input(CARRIED):  # train starts from what the operator taught warmup (this stage's)
+                self.classifier.carry(ctx.input_path(CARRIED), ctx.inputs[CARRIED])
         yield self.session
 
     def _fault(self, ctx: StepContext):
@@ -336,6 +355,7 @@ class RobotEnvironment:
                     gamma=c["gamma"],
                     index_base=0,
                     metadata={"task_id": task, "stage": k, "phase": "warmup", "policy": "base"},
+                    classifier=self.classifier,
                 )
                 episode_loop(ctx, session, operator, bridge, loop)
                 session.close(f"{c['episodes']} warmup episodes")
@@ -354,6 +374,8 @@ class RobotEnvironment:
             replay.layout = robot_layout(mapping) if bound else {}
             labels = [bool(e["label"]["success"]) for e in eps]
             episodes_output(ctx, session)
+            if self.classifier is not None:
+                self.classifier.write_output(ctx)
             return WarmupResult(
                 replay,
                 len(eps),
@@ -397,6 +419,8 @@ class RobotEnvironment:
         train_eps = session.ordered("train")
         buffer = replay_from_episodes(warm_buffer, [session.arrays(e["index"]) for e in train_eps], c["stage"] - 1)
         episodes_output(ctx, session)
+        if self.classifier is not None:
+            self.classifier.write_output(ctx)
         return TrainResult(
             learner,
             buffer,
@@ -561,6 +585,7 @@ class RobotEnvironment:
                     "learner_health": "ok" if link_healthy(link) else "lost",
                 },
                 hold=hold,
+                classifier=self.classifier,
             )
             episode_loop(ctx, session, operator, bridge, loop)
             done, why = stop_state(session, c)

@@ -14,7 +14,7 @@ import dataclasses
 import functools
 
 from stages.errors import StageError
-from stages.runner_types import StepInvocation
+from stages.runner_types import FromStep, StepInvocation
 from stages.workflow import Workflow
 
 KEYED = (
@@ -113,6 +113,8 @@ def robot_step_config(wf: Workflow, name: str, config: dict) -> dict:
     per_task = {t: dict(r.task_config[t]) for t in wf.tasks[: config["stage"]] if t in r.task_config}
     if per_task:
         c["robot"]["task_config"] = per_task
+    if name in ("warmup", "train") and r.success_classifier.enabled:  # keyed only when on: the others keep theirs
+        c["success_classifier"] = r.success_classifier.model_dump()
     if name == "warmup":
         c.update(phase="warmup", episodes=wf.budgets.warmup_episodes)
     elif name == "train":
@@ -128,6 +130,15 @@ def robot_step_config(wf: Workflow, name: str, config: dict) -> dict:
     else:
         c.update(phase="evaluate", trials=r.retention_trials)
     return c
+
+
+def classifier_output(wf: Workflow, name: str) -> dict:
+    """warmup's and train's `success_classifier` output, with robot.success_classifier on."""
+    if name not in ("warmup", "train") or not wf.robot.success_classifier.enabled:
+        return {}
+    from stages.steps.robot_classifier import KIND, OUTPUT
+
+    return {OUTPUT: KIND}
 
 
 def bind_robot(wf: Workflow, stage: int, steps: list[StepInvocation]) -> list[StepInvocation]:
@@ -148,7 +159,15 @@ def bind_robot(wf: Workflow, stage: int, steps: list[StepInvocation]) -> list[St
             run=functools.partial(inv.step.run, robot=settings),
             code_version=CODE_VERSIONS[name],  # the robot's episodes are not the simulator's: their own caches
             description=DESCRIPTIONS[name],
-            outputs={**inv.step.outputs, "episodes": "episodes"},  # every sealed episode and the sessions
+            # every sealed episode and the sessions; with robot.success_classifier, the classifier too
+            outputs={**inv.step.outputs, "episodes": "episodes", **classifier_output(wf, name)},
         )
-        out.append(dataclasses.replace(inv, step=step, config=robot_step_config(wf, name, dict(inv.config))))
+        inputs = dict(inv.inputs)
+        if classifier_output(wf, name) and name == "train":  # it starts from what the operator taught warmup
+            from stages.steps.robot_classifier import CARRIED, OUTPUT
+
+            step = dataclasses.replace(step, optional_inputs=(*step.optional_inputs, CARRIED))
+            inputs[CARRIED] = FromStep("warmup", OUTPUT)
+        config = robot_step_config(wf, name, dict(inv.config))
+        out.append(dataclasses.replace(inv, step=step, config=config, inputs=inputs))
     return out

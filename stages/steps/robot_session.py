@@ -654,6 +654,7 @@ class EpisodeLoop:
     between: Callable[[], None] = lambda: None
     learner_state: Callable[[], dict] = dict
     hold: LearnerHold | None = None
+    classifier: Any = None  # robot.success_classifier (stages.steps.robot_classifier.ClassifierGate); None: off
 
 
 def episode_loop(ctx: StepContext, session: HardwareSession, operator, bridge, loop: EpisodeLoop) -> None:
@@ -687,6 +688,8 @@ def episode_loop(ctx: StepContext, session: HardwareSession, operator, bridge, l
     except RobotFault as exc:
         if not bridge.reconnect():
             lost(str(exc))
+    if loop.classifier is not None:  # the mapping is bound now: the classifier's columns of s
+        loop.classifier.bind(bridge.mapping)
     if take is not None:
         take.connect(bridge.mapping)
         if hasattr(operator, "takeover_key"):
@@ -810,14 +813,14 @@ def _episodes(ctx, session, operator, bridge, take, lost, loop: EpisodeLoop) -> 
         if out.can_succeed:
             # the page shows the episode ended, with the steps it ran, while the operator labels it
             show(status=f"episode {index} ended ({out.end}, {out.control_steps} steps): label it")
-            label = operator.label(index, f"{out.end}, {out.control_steps} steps")
+            label, judged = _label(operator, bridge, loop, index, out)
             if label is None:
                 recorder.abort(0)
                 session.discard(index, "the operator aborted instead of labelling")
                 session.close("aborted by the operator")
                 raise StageError(f"aborted by the operator; episode {index} discarded, {len(session.episodes)} sealed")
         else:
-            label = Label(success=False, by="system", at=now_iso(), note=out.reason)
+            label, judged = Label(success=False, by="system", at=now_iso(), note=out.reason), None
             operator.tell(f"episode {index} ended: {out.reason} (not a success)")
         mcap = recorder.end(
             0,
@@ -845,6 +848,8 @@ def _episodes(ctx, session, operator, bridge, take, lost, loop: EpisodeLoop) -> 
             record.update(
                 interventions=intervention_count(arrays), intervened_chunks=int(intervention_rows([arrays]).sum())
             )
+        if judged is not None:
+            record.update(judged)
         session.seal_episode(index, record, arrays, mcap)
         loop.on_sealed(index, arrays, relabel=False)
         last = index
@@ -854,6 +859,19 @@ def _episodes(ctx, session, operator, bridge, take, lost, loop: EpisodeLoop) -> 
                 lost(out.reason)
     recorder_dir = logs
     shutil.rmtree(recorder_dir, ignore_errors=True)
+
+
+def _label(operator, bridge, loop: EpisodeLoop, index: int, out) -> tuple:
+    """(the episode's Label, or None when the operator aborted; what its episode.json adds, or None): the
+    operator's label, or robot.success_classifier's way (its proposal confirmed, or its label alone), with
+    the simulator's own outcome recorded beside it where the robot reports one (the classifier's audit)."""
+    summary = f"{out.end}, {out.control_steps} steps"
+    if loop.classifier is None:
+        return operator.label(index, summary), None
+    oracle = bridge.hook("episode_success")
+    extra = {} if oracle is None else {"sim_success": bool(oracle())}
+    label, entry = loop.classifier.label(index, summary, out.s[-1], operator)
+    return label, {"classifier": entry, **extra}
 
 
 def _finish(session: HardwareSession, operator, loop: EpisodeLoop, last: int | None, show, phase: str) -> bool:
