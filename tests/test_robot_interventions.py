@@ -82,12 +82,14 @@ def test_a_takeover_window_marks_exactly_its_steps_in_the_seal_and_what_the_lear
     from accrue.robot.sim_robot import AccrueSimExpert
     from accrue.tracking import run_name, tracking_dir
 
-    given: list[dict] = []  # every action the teleop answered, in order
+    # every action the teleop answered, by (episode, control step): signal: events reads it every step, before
+    # that step's events (the expert's step count moves with its events)
+    given: dict[tuple, dict] = {}
     plain_action = AccrueSimExpert.get_action
 
     def get_action(self):
         a = plain_action(self)
-        given.append(a)
+        given[(self._episode, self._step)] = a
         return a
 
     monkeypatch.setattr(AccrueSimExpert, "get_action", get_action)
@@ -117,7 +119,6 @@ def test_a_takeover_window_marks_exactly_its_steps_in_the_seal_and_what_the_lear
 
     eps = last_checkpoint(store / "store", "train")
     assert sorted(eps) == [3, 4, 5]
-    human = iter(given)
     total_marked = 0
     for index, (e, arrays) in eps.items():
         lo, hi = WINDOW if index in (3, 5) else (0, 0)
@@ -126,14 +127,14 @@ def test_a_takeover_window_marks_exactly_its_steps_in_the_seal_and_what_the_lear
         assert e["interventions"] == int(want.sum()) == (hi - lo)
         assert e["intervened_chunks"] == int(want.any(axis=1).sum())
         total_marked += e["interventions"]
+        assert [t for (k, t) in given if k == index] == list(range(e["control_steps"]))  # read every step
         for i, h in zip(*np.nonzero(want)):  # the stored action is the human's, as the teleop gave it
-            a = next(human)
+            a = given[(index, int(arrays["steps"][:i].sum()) + int(h))]
             assert np.allclose(arrays["action"][i, h], [a[k] for k in a], atol=1e-6)
         # the learner got the same transitions, flag and human action included (nothing reset the flag)
         assert set(received[index]) == set(arrays)
         for k in arrays:
             assert np.array_equal(received[index][k], arrays[k]), (index, k)
-    assert next(human, None) is None  # the teleop acted on no other step
 
     # the learner's buffer rows (as LearnerService builds them) carry the human chunks, flagged per row
     rows = [received[i] for i in sorted(received)]
@@ -347,15 +348,23 @@ def test_lerobots_keyboard_ee_maps_onto_the_robots_action_keys(tmp_path):
 
 
 def test_a_teleoperator_that_stops_answering_ends_the_episode_not_the_session(tmp_path, monkeypatch):
-    """A stuck teleop (its get_action never returns) is given up after robot.intervention.timeout_s: the
-    episode ends as a fault, labelled a failure by the system, and the next episodes go on."""
+    """A stuck teleop (its get_action stops returning in episode 1, where the takeover window begins) is given
+    up after robot.intervention.timeout_s: the episode ends as a fault, labelled a failure by the system, and
+    the next episodes go on."""
     import threading
 
     from accrue.robot.sim_robot import AccrueSimExpert
     from artifacts.store import Store
 
     stuck = threading.Event()
-    monkeypatch.setattr(AccrueSimExpert, "get_action", lambda self: stuck.wait(60))
+    plain = AccrueSimExpert.get_action
+
+    def get_action(self):  # signal: events reads it every step, before the step's events (which count steps)
+        if self._episode == 1 and self._step >= WINDOW[0]:
+            return stuck.wait(60)
+        return plain(self)
+
+    monkeypatch.setattr(AccrueSimExpert, "get_action", get_action)
     Store.init(tmp_path / "store")
     # every teleop call of episodes 0-2 has this deadline too: 2 s, which a loaded machine does not miss (0.3 could)
     section = {**teleop(tmp_path / "tcalib", takeover=[WINDOW], episodes=[1]), "timeout_s": 2.0}

@@ -1,10 +1,14 @@
 """Takeover through lerobot 0.6's own teleoperator classes, each faked only at its device boundary: the
-gamepad (GamepadTeleop over a stand-in `pygame` joystick, its RB button held for some control steps) and the
-SO-101 leader arm (SO101Leader over a stand-in Feetech bus, taken over with the operator's `i`). Each runs
+gamepad (GamepadTeleop over a stand-in `pygame` joystick, its RB button held for some control steps), the
+keyboard (KeyboardEndEffectorTeleop over a stand-in `pynput` listener, its arrow and shift keys held for some
+control steps) and the SO-101 leader arm (SO101Leader over a stand-in Feetech bus, taken over with the
+operator's `i`). Each runs
 episodes on the simulated robot through run_episode, the path a session takes, and the per-step
 intervention flags and executed actions are checked against what the device did."""
 
 from __future__ import annotations
+
+import types
 
 import numpy as np
 from test_robot_reset_crop import BOUNDS, Recorder
@@ -70,8 +74,6 @@ class Joystick:
 
 
 def fake_pygame(clock: dict, held: set[int]):
-    import types
-
     pg = types.SimpleNamespace(JOYBUTTONDOWN=1539, JOYBUTTONUP=1540, error=RuntimeError)
     pg.init = pg.quit = lambda: None
     was = {"down": False}
@@ -139,6 +141,93 @@ def test_a_gamepads_rb_button_flags_exactly_the_steps_it_is_held(tmp_path, monke
         want = [0.8 * 0.5 / dx, 0, 0, 0, 0, 0] if t in held else [0] * 6
         assert np.allclose(actions[t], want, atol=1e-6), t
     assert take.steps == len(held)
+
+
+class Listener:
+    """pynput.keyboard.Listener where there is no display: started, it is alive; the test calls the teleop's
+    on_press / on_release as the listener's thread would, with each key event the keyboard sends."""
+
+    def __init__(self, on_press, on_release):
+        self.on_press, self.on_release, self.alive = on_press, on_release, False
+
+    def start(self):
+        self.alive = True
+
+    def stop(self):
+        self.alive = False
+
+    def is_alive(self) -> bool:
+        return self.alive
+
+
+def test_keyboard_ee_keys_held_take_over_exactly_those_steps_and_drive_the_deltas(tmp_path, monkeypatch):
+    """lerobot's KeyboardEndEffectorTeleop (signal: events): it takes its key state from the listener's queue
+    only in get_action and reports IS_INTERVENTION from that state (then clears it), so the takeover reads
+    the action first every step. While an arrow key is held the takeover is on and the executed action is
+    the keys' delta (up: delta_y -1, right shift: delta_z +1, scaled); released, the policy acts again; a
+    key pressed and released between two control steps takes nothing over. A held key goes on sending
+    presses (the OS's key repeat), one per control step here, as lerobot counts a key held on a step only
+    when a press came since the last one."""
+    import enum
+
+    import lerobot.teleoperators.keyboard.teleop_keyboard as tk
+    from lerobot.utils import import_utils
+
+    from accrue.robot.teleop import Intervention
+
+    Key = enum.Enum("Key", "up down left right shift shift_r ctrl_l ctrl_r esc")
+    monkeypatch.setattr(tk, "keyboard", types.SimpleNamespace(Key=Key, Listener=Listener))
+    monkeypatch.setattr(tk, "PYNPUT_AVAILABLE", True)
+    monkeypatch.setattr(tk, "pynput_can_capture", lambda: True)
+    monkeypatch.setitem(import_utils._require_package_cache, "pynput", True)
+    up, lift = range(3, 9), range(5, 7)  # steps with up held, and with right shift held too
+    # the key events that arrive before each control step's read: (key, pressed)
+    arrive: dict[int, list] = {t: [(Key.up, True)] for t in up}
+    arrive[9] = [(Key.up, False)]
+    for t in lift:
+        arrive[t].append((Key.shift_r, True))
+    arrive[7].append((Key.shift_r, False))
+    arrive[11] = [(Key.left, True), (Key.left, False)]  # a tap between two reads
+    take = Intervention.from_dict(
+        {
+            "teleop": "keyboard_ee",
+            "config": {"calibration_dir": str(tmp_path / "k")},
+            "action_map": {"dx": "delta_x", "dy": "delta_y", "dz": "delta_z"},
+            "action_scale": {"dx": 0.02, "dy": 0.02, "dz": 0.02},
+        }
+    )
+    bridge = sim_bridge(tmp_path, "delta")
+    try:
+        take.connect(bridge.mapping)
+        assert type(take.teleop).__name__ == "KeyboardEndEffectorTeleop" and take.teleop.is_connected
+        listener, plain, clock = take.teleop.listener, take.step, {"step": 0}
+
+        def step(observation, mapping):  # the keyboard's events of this step, then the episode loop's read
+            for key, pressed in arrive.get(clock["step"], []):
+                (listener.on_press if pressed else listener.on_release)(key)
+            clock["step"] += 1
+            return plain(observation, mapping)
+
+        take.step = step
+        take.new_episode(0)
+        out = episode(bridge, take, 14)
+    finally:
+        take.close()
+        bridge.disconnect()
+    assert not listener.alive  # close() disconnected the teleop, which stopped its listener
+    flags = out.intervention.reshape(-1)[: out.control_steps]
+    assert out.control_steps == 14 and [t for t in range(14) if flags[t]] == list(up)
+    assert take.steps == len(up)
+    actions = out.action.reshape(-1, 6)[: out.control_steps]
+    limits = bridge.mapping.action_limits or (1.0,) * 6
+    for t in range(14):  # up: delta_y = -1, right shift: delta_z = +1 (x 0.02 robot units); the rest 0
+        want = np.zeros(6)
+        if t in up:
+            want[1] = -0.02 / limits[1]
+        if t in lift:
+            want[2] = 0.02 / limits[2]
+        assert np.allclose(actions[t], np.clip(want, -1, 1), atol=1e-6), (t, actions[t])
+    assert np.abs(actions[list(up)][:, 1]).min() > 0  # the keys moved the robot (not clipped away to 0)
 
 
 class Bus:

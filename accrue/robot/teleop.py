@@ -9,7 +9,9 @@ robot), made through lerobot's own config registry and factory as the robot is.
                                                             # normalised action in the robot's action space
 
 Takeover is signalled by the teleop's own IS_INTERVENTION event (`signal: events`: a held button or key,
-as lerobot's HIL-SERL does) or by the operator's `i` key on the terminal or page (`signal: key`, toggled).
+as lerobot's HIL-SERL does; the teleop is read every control step, get_action then get_teleop_events, in
+HIL-SERL's order) or by the operator's `i` key on the terminal or page (`signal: key`, toggled; the teleop
+is read only on the steps it drives).
 The teleop's action is mapped onto the robot's action keys (`action_map`, `action_scale`), normalised and
 clipped like a policy's action, and then goes through the same bridge and action envelope. The flag is
 the episode loop's own record of which steps it executed from the teleop; nothing downstream overwrites it
@@ -167,13 +169,22 @@ class Intervention:
         self.toggled = not self.toggled
         return self.toggled
 
-    def _wanted(self) -> bool:
+    def _read(self) -> tuple[bool, Any]:
+        """This control step's reading of the teleop: (the takeover is on, its action; None when not read).
+
+        signal: events reads the device once a step in lerobot's own order (HIL-SERL's processor pipeline:
+        get_action, then get_teleop_events, every step): the action first, because a teleop may refresh its
+        state only there (keyboard_ee drains its key events in get_action, and its IS_INTERVENTION is read
+        from that state and then cleared), then the events, which say whether the action is used. A teleop
+        whose events refresh themselves (gamepad) reads the same either way. signal: key asks for the action
+        only on the steps the teleop drives (a leader arm is read only then)."""
         if self.signal == "key":
-            return self.toggled
+            return self.toggled, (self._call("get_action", self.teleop.get_action) if self.toggled else None)
         from lerobot.teleoperators.utils import TeleopEvents
 
+        got = self._call("get_action", self.teleop.get_action)
         events = self._call("get_teleop_events", self.teleop.get_teleop_events) or {}
-        return bool(events.get(TeleopEvents.IS_INTERVENTION, events.get("is_intervention", False)))
+        return bool(events.get(TeleopEvents.IS_INTERVENTION, events.get("is_intervention", False))), got
 
     def step(self, observation: dict, mapping) -> np.ndarray | None:
         """The human's normalised action for this control step, or None when the policy acts."""
@@ -182,10 +193,9 @@ class Intervention:
             self._call(
                 "send_feedback", self.teleop.send_feedback, {k: observation[k] for k in feedback if k in observation}
             )
-        self.active = self._wanted()
+        self.active, got = self._read()
         if not self.active:
             return None
-        got = self._call("get_action", self.teleop.get_action)
         self.steps += 1
         observed = mapping.normalise(np.array([float(observation.get(k, 0.0)) for k in self._keys]))
         held = observed if mapping.action_mode == "joint" else np.zeros(len(self._keys))
