@@ -194,9 +194,9 @@ def test_learning_curves_table_is_asked_for_and_shows_every_point(bench):
     report = build_report(store, spec)
     assert "Learning curves" not in markdown(report)
     text = markdown(report, curves=True)
-    assert "| sequential | 1 | 4 | 0–100 every 100 | 0.00 · 0.80 |" in text
-    assert "| sequential | 2 | 4 | 0–100 every 100 | 0.00 · 0.60 |" in text
-    assert "| accrue | 2 | 3 | 0–100 every 100 | 0.00 · 0.80 |" in text
+    assert "| sequential · S1 | 1 | 2 | 0–100 every 100 | 0.00 · 0.80 |" in text
+    assert "| sequential · S2 | 2 | 2 | 0–100 every 100 | 0.00 · 0.60 |" in text
+    assert "| accrue · S2 | 2 | 1 | 0–100 every 100 | 0.00 · 0.80 |" in text
 
 
 def test_a_method_with_no_finished_run_keeps_its_row(bench, tmp_path):
@@ -221,7 +221,7 @@ def test_bench_tables_script_fills_marked_blocks_of_a_page(bench, tmp_path, caps
     assert text.endswith("<!-- /bench:known -->\noutro\n") and "| accrue | 3 of 4 |" in text
     assert f"python scripts/bench_tables.py {path} --store" in text and "Learning curves" not in text
     assert bench_tables.main([str(path), "--store", str(store.root), "--doc", str(page), "--curves"]) == 0
-    assert "| sequential | 2 | 4 | 0–100 every 100 | 0.00 · 0.60 |" in page.read_text()
+    assert "| sequential · S2 | 2 | 2 | 0–100 every 100 | 0.00 · 0.60 |" in page.read_text()
     page.write_text("no markers\n")
     assert bench_tables.main([str(path), "--store", str(store.root), "--doc", str(page)]) == 2
     assert "no <!-- bench:known -->" in capsys.readouterr().err

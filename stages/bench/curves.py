@@ -88,7 +88,7 @@ def stage_success_rows(means: dict[str, list[dict]]) -> tuple[list[str], list[li
 def stage_curve_rows(means: dict[str, list[dict]]) -> tuple[list[str], list[list[str]]]:
     """One row per method and stage: the whole learning curve on that stage's task (mean over runs at every
     grid point), so a table shows where a curve dips and whether it still rises at the budget's end."""
-    header = ["method", "stage", "runs", "env steps", "success at each evaluation"]
+    header = ["method · ordering", "stage", "runs", "env steps", "success at each evaluation"]
     rows = []
     for method, stages in means.items():
         for k, st in enumerate(stages, start=1):

@@ -97,6 +97,7 @@ def report_and_records(store: Store, spec: BenchSpec, recorded: Recorded | None 
     cells, records, missing, fresh = [], [], [], []
     unasked = 0  # runs without a report set because their cell's workflow asks for none (report_episodes 0)
     curves: dict[str, list] = {m: [] for m in spec.methods}
+    by_ordering: dict[str, list] = {}  # "method · ordering" -> runs: a learner's curve on each task apart
     used, compared = [], []  # records that stand in for a cell; (cell, record file, differences) checks
     for cell in spec.cells:
         st = states[cell.name]
@@ -131,6 +132,7 @@ def report_and_records(store: Store, spec: BenchSpec, recorded: Recorded | None 
                 row["disjoint_report"] = rec["disjoint_report"]
                 records.append(rec)
                 curves[cell.method].append(_stage_curves(run))
+                by_ordering.setdefault(f"{cell.method} · {cell.ordering}", []).append(curves[cell.method][-1])
                 if recorded is not None:
                     fresh.append(
                         store_record(spec, cell, rec, curves[cell.method][-1], _stage_artifacts(run), str(store.root))
@@ -147,6 +149,7 @@ def report_and_records(store: Store, spec: BenchSpec, recorded: Recorded | None 
             used.append(saved)
             if saved["stage_curves"] is not None:
                 curves[cell.method].append(saved["stage_curves"])
+                by_ordering.setdefault(f"{cell.method} · {cell.ordering}", []).append(saved["stage_curves"])
         if row["metrics"] is not None and not row["disjoint_report"] and not cell.workflow.budgets.report_episodes:
             unasked += 1
         if row["metrics"] is None:
@@ -192,6 +195,7 @@ def report_and_records(store: Store, spec: BenchSpec, recorded: Recorded | None 
         "runs_with_report_set": sum(1 for r in records if r["disjoint_report"]),
         "runs_without_report_set_asked": unasked,
         "stage_curves": mean_stage_curves(curves),
+        "stage_curves_by_ordering": mean_stage_curves(by_ordering),
     }
     if recorded is not None:
         report["records"] = _records_summary(recorded, used, compared, fresh, curves)
@@ -345,10 +349,10 @@ def markdown(report: dict, command: str | None = None, heading_level: int = 3, c
             markdown_table(header, rows),
         ]
         if curves:
-            header, rows = stage_curve_rows(report["stage_curves"])
+            header, rows = stage_curve_rows(report["stage_curves_by_ordering"])
             lines += [
-                "Learning curves: success on the task of each stage at every evaluation of that stage (report set "
-                "where the run has one, mean over runs):",
+                "Learning curves, per method and ordering: success on the task of each stage at every evaluation "
+                "of that stage (report set where the run has one, mean over the ordering's seeds):",
                 "",
                 markdown_table(header, rows),
             ]
