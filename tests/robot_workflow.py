@@ -60,3 +60,30 @@ def robot_events(store_path: Path, name: str | None = None) -> list[dict]:
         for e in iter_events(Store.open(store_path))
         if e.get("event", "").startswith("robot-") and (name is None or e["event"] == name)
     ]
+
+
+def cli_report_json(store_path: Path, workflow: Path, out: Path) -> dict:
+    """`accrue report WORKFLOW --out OUT --json` in a fresh process (the way a user runs it), its JSON summary;
+    tests/ is on the path so a test arm's lerobot plugin (tests/fake_arms.py) loads there too."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    env = {
+        **os.environ,
+        "ACCRUE_STORE": str(store_path),
+        "PYTHONPATH": os.pathsep.join([str(root), str(root / "tests")]),
+        "HF_HUB_OFFLINE": "1",
+    }
+    done = subprocess.run(
+        [sys.executable, "-m", "cli.main", "report", str(workflow), "--out", str(out), "--json"],
+        cwd=root,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    return json.loads(done.stdout)

@@ -8,15 +8,12 @@ cameras differ from the learner it inherits is refused in one line."""
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 from fake_arms import GRIPPER
-from robot_workflow import robot_events, run_stage
+from robot_workflow import cli_report_json, robot_events, run_stage
 
 from accrue.robot.sim_robot.accrue_sim import JOINT_KEYS
 from accrue.sim import STATE_NAMES
@@ -207,21 +204,7 @@ def test_stage_two_evaluates_and_reports_on_the_same_arm(arm):
     root, wf, results = arm
     ev = json.loads((materialized(root, results[2]["evaluate-all"].outputs["eval"], "eval2") / "eval.json").read_text())
     assert list(ev["trials"]) == ["nist/rect_peg"] and len(ev["trials"]["nist/rect_peg"]) == 2
-    env = {
-        **os.environ,
-        "ACCRUE_STORE": str(root / "store"),
-        "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "tests")]),
-    }
-    report = subprocess.run(
-        [sys.executable, "-m", "cli.main", "report", str(wf), "--out", str(root / "report"), "--json"],
-        cwd=ROOT,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert report.returncode == 0, report.stderr
-    summary = json.loads(report.stdout)
+    summary = cli_report_json(root / "store", wf, root / "report")
     assert summary["stages"]["2"]["updates"] > 0 and (root / "report" / "fig4.png").is_file()
 
 

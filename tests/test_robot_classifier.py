@@ -10,9 +10,6 @@ resume and the final artifact are those an uninterrupted run makes from the same
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -28,7 +25,7 @@ ABORT_AFTER = 3  # train episodes sealed before the interruption
 def run(tmp_path_factory):
     import timm
     import torch
-    from robot_workflow import robot_events, run_stage
+    from robot_workflow import cli_report_json, robot_events, run_stage
     from safetensors.torch import save_file
 
     from artifacts.store import Store
@@ -59,17 +56,7 @@ def run(tmp_path_factory):
     run_stage(root / "store", path, 1, step="train", mode="continue")
     results = run_stage(root / "store", path, 1)
     assert results["warmup"].cached and results["train"].cached
-    env = {**os.environ, "ACCRUE_STORE": str(root / "store"), "PYTHONPATH": str(ROOT), "HF_HUB_OFFLINE": "1"}
-    report = subprocess.run(
-        [sys.executable, "-m", "cli.main", "report", str(path), "--out", str(root / "report"), "--json"],
-        cwd=ROOT,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert report.returncode == 0, report.stderr[-2000:]
-    return root, results, json.loads(report.stdout), spec["robot"]["success_classifier"]
+    return root, results, cli_report_json(root / "store", path, root / "report"), spec["robot"]["success_classifier"]
 
 
 def materialized(root: Path, artifact: str, name: str) -> Path:

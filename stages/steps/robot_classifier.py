@@ -182,16 +182,11 @@ class ClassifierGate:
         in train, warmup's carried episodes come first (phase: warmup), with the p of this final model."""
         self.refresh()
         out = ctx.new_output(OUTPUT, KIND)
-        entries, rows = [], []
-        for e, x in zip(self.carried, self.carried_rows):
-            p = None if self.model is None else round(float(self.model.predict(x[None])[0]), 6)
-            entries.append({**e, "p": p})
-            rows.append(x)
+        entries, rows = [dict(e) for e in self.carried], list(self.carried_rows)
         for e in self.judged():
             x = self.row(e["index"])
             if x is None:
                 continue
-            p = None if self.model is None else round(float(self.model.predict(x[None])[0]), 6)
             entries.append(
                 {
                     "phase": self.phase,
@@ -199,11 +194,14 @@ class ClassifierGate:
                     "mode": e["classifier"]["mode"],
                     "label": bool(e["label"]["success"]),
                     "label_by": e["label"]["by"],
-                    "p": p,
                     "sim_success": e.get("sim_success"),
                 }
             )
             rows.append(x)
+        # every judged episode (warmup's carried ones too) with the p of this final model, in one pass
+        ps = self.model.predict(np.stack(rows)) if self.model is not None and rows else [None] * len(rows)
+        for e, p in zip(entries, ps):
+            e["p"] = None if p is None else round(float(p), 6)
         np.save(out / "inputs.npy", np.stack(rows) if rows else np.zeros((0, 0), np.float32))
         write_json(
             out / "classifier.json",
